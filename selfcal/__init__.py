@@ -1,0 +1,38 @@
+"""selfcal: radiometric self-calibration of cameras.
+
+Two calibration paths, after the two papers this package implements:
+
+* the JPEG-only path: per-channel camera response functions from a bracketed exposure
+  stack with the log-domain PCA model of Lin, Kim, Süsstrunk & Brown, *Revisiting
+  Radiometric Calibration for Color Computer Vision*, ICCV 2011 (§5, Eq. 7-8);
+* the RAW path: the rank-based radiometric calibration pipeline (colour matrix, monotone
+  tone curves, lattice-regression gamut LUT) with the RBF inverse colour mapping of Lin et
+  al. (§6, Eq. 9-11).
+
+The camera simulator with ground truth lives in :mod:`selfcal.synth`.
+"""
+
+from __future__ import annotations
+
+from . import errors
+from .errors import (
+    CalibrationError,
+    InputError,
+    ModelFileError,
+    OutputExistsError,
+    SelfcalError,
+    SelfcalWarning,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "errors",
+    "CalibrationError",
+    "InputError",
+    "ModelFileError",
+    "OutputExistsError",
+    "SelfcalError",
+    "SelfcalWarning",
+    "__version__",
+]

@@ -1,0 +1,311 @@
+"""Reading and writing images, EXIF exposure data, and atomic output files.
+
+Arrays are RGB (not OpenCV's BGR), channel last.  Decoding goes through OpenCV, which is the
+fastest decoder available here; file structure is checked first so that a truncated JPEG is
+an error instead of a silently grey-padded image.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io as _io
+import os
+import tempfile
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, OutputExistsError
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
+JPEG_SUFFIXES = {".jpg", ".jpeg"}
+
+
+def _cv2():
+    os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+    import cv2
+
+    return cv2
+
+
+# --------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------
+
+def _check_structure(path: Path, data: bytes) -> None:
+    """Raise InputError when the bytes are plainly not a complete image file."""
+    if len(data) == 0:
+        raise InputError("the file is empty", path)
+    if data[:2] == b"\xff\xd8":
+        # A complete JPEG ends with the EOI marker; cameras may pad after it.
+        if b"\xff\xd9" not in data[-4096:]:
+            raise InputError("truncated JPEG (no end-of-image marker)", path)
+    elif data[:8] == b"\x89PNG\r\n\x1a\n":
+        if b"IEND" not in data[-64:]:
+            raise InputError("truncated PNG (no IEND chunk)", path)
+    elif data[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        pass
+    else:
+        raise InputError("not an image file selfcal reads (JPEG, PNG or TIFF)", path)
+
+
+def read_image(path) -> np.ndarray:
+    """Read an image file as an RGB array, channel last.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A JPEG, PNG or TIFF file, 8 or 16 bits per channel.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``HxWx3`` array of dtype ``uint8`` or ``uint16`` (16-bit files keep their depth).
+        Grey images are repeated over three channels; an alpha channel is dropped.
+
+    Raises
+    ------
+    InputError
+        When the file is missing, empty, truncated, or not a decodable image.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not an image", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot be read ({exc.strerror})", path) from None
+    _check_structure(path, data)
+    cv2 = _cv2()
+    buf = np.frombuffer(data, dtype=np.uint8)
+    image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
+    if image is None:
+        raise InputError("the image data cannot be decoded (corrupt file?)", path)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"unsupported sample type {image.dtype} (8 or 16-bit needed)", path)
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    elif image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+    elif image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    else:
+        raise InputError(f"unsupported channel count {image.shape[2]}", path)
+    return image
+
+
+def read_image_size(path) -> tuple[int, int]:
+    """Return ``(height, width)`` of an image file from its header, without decoding it."""
+    from PIL import Image
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            width, height = im.size
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except Exception as exc:  # Pillow raises several types for bad headers
+        raise InputError(f"not a readable image ({exc})", path) from None
+    return height, width
+
+
+# --------------------------------------------------------------------------------------
+# EXIF
+# --------------------------------------------------------------------------------------
+
+_EXIF_IFD = 0x8769
+_TAG_EXPOSURE_TIME = 0x829A
+_TAG_FNUMBER = 0x829D
+_TAG_ISO = 0x8827
+_TAG_SHUTTER_APEX = 0x9201
+
+
+@dataclass(frozen=True)
+class ExposureInfo:
+    """Exposure settings read from a file's EXIF; ``None`` where the tag is absent."""
+
+    exposure_time: float | None
+    f_number: float | None
+    iso: float | None
+
+    @property
+    def relative_exposure(self) -> float | None:
+        """Exposure time × ISO / N², the quantity pixel values scale with (None if no time)."""
+        if self.exposure_time is None:
+            return None
+        scale = 1.0
+        if self.iso:
+            scale *= self.iso / 100.0
+        if self.f_number:
+            scale /= self.f_number**2
+        return self.exposure_time * scale
+
+
+def _rational(value) -> float | None:
+    try:
+        if isinstance(value, tuple):  # (num, den) as some writers give
+            num, den = value
+            return float(num) / float(den) if den else None
+        result = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return result if np.isfinite(result) else None
+
+
+def read_exposure_info(path) -> ExposureInfo:
+    """Read exposure time, f-number and ISO from a file's EXIF.
+
+    Falls back to the APEX ShutterSpeedValue (t = 2^-Tv) when ExposureTime is missing.
+    Never raises for missing tags; raises InputError only when the file cannot be opened.
+    """
+    from PIL import Image
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            sub = exif.get_ifd(_EXIF_IFD)
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except Exception as exc:
+        raise InputError(f"not a readable image ({exc})", path) from None
+    time = _rational(sub.get(_TAG_EXPOSURE_TIME))
+    if time is None or time <= 0:
+        apex = _rational(sub.get(_TAG_SHUTTER_APEX))
+        time = float(2.0 ** (-apex)) if apex is not None else None
+    fnum = _rational(sub.get(_TAG_FNUMBER))
+    iso = sub.get(_TAG_ISO)
+    if isinstance(iso, tuple):
+        iso = iso[0] if iso else None
+    iso = _rational(iso)
+    return ExposureInfo(
+        exposure_time=time if time and time > 0 else None,
+        f_number=fnum if fnum and fnum > 0 else None,
+        iso=iso if iso and iso > 0 else None,
+    )
+
+
+def _exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth"):
+    import piexif
+
+    def rat(x, max_den=1_000_000):
+        fr = Fraction(float(x)).limit_denominator(max_den)
+        return (fr.numerator, fr.denominator)
+
+    exif_ifd = {}
+    if exposure_time is not None:
+        exif_ifd[piexif.ExifIFD.ExposureTime] = rat(exposure_time)
+    if f_number is not None:
+        exif_ifd[piexif.ExifIFD.FNumber] = rat(f_number, 100)
+    if iso is not None:
+        exif_ifd[piexif.ExifIFD.ISOSpeedRatings] = int(round(iso))
+    zeroth = {piexif.ImageIFD.Make: make.encode(), piexif.ImageIFD.Model: model.encode()}
+    return piexif.dump({"0th": zeroth, "Exif": exif_ifd})
+
+
+# --------------------------------------------------------------------------------------
+# writing (atomic, never over an existing file unless asked)
+# --------------------------------------------------------------------------------------
+
+@contextlib.contextmanager
+def atomic_output(path, *, force: bool = False, inputs=()):
+    """Context manager giving a temporary path that is renamed onto ``path`` on success.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The final output file.
+    force : bool
+        Allow replacing an existing file.  Never allows replacing one of ``inputs``.
+    inputs : iterable of paths
+        Input files of the current job; writing over one of them is always refused.
+
+    Raises
+    ------
+    OutputExistsError
+        When ``path`` exists and ``force`` is false, or when it is one of the inputs.
+    """
+    path = Path(path)
+    resolved = path.resolve()
+    for inp in inputs:
+        if Path(inp).resolve() == resolved:
+            raise OutputExistsError(f"{path}: refusing to write over an input file")
+    if path.exists() and not force:
+        raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                               dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_bytes_atomic(path, data: bytes, *, force: bool = False, inputs=()) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_output`)."""
+    with atomic_output(path, force=force, inputs=inputs) as tmp:
+        Path(tmp).write_bytes(data)
+    return Path(path)
+
+
+def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
+                 exposure_time=None, f_number=None, iso=None) -> bytes:
+    """Encode an RGB array (uint8, uint16 or float32) into the bytes of a ``suffix`` file.
+
+    JPEG and PNG take uint8 (PNG and TIFF also uint16); TIFF also takes float32.  When any
+    of ``exposure_time``, ``f_number``, ``iso`` is given, a JPEG gets an EXIF block with them.
+    """
+    cv2 = _cv2()
+    suffix = suffix.lower()
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"expected an HxWx3 RGB array, got shape {image.shape}")
+    bgr = np.ascontiguousarray(image[:, :, ::-1])
+    if suffix in JPEG_SUFFIXES:
+        if image.dtype != np.uint8:
+            raise InputError("JPEG output needs uint8 data")
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        data = buf.tobytes()
+        if any(v is not None for v in (exposure_time, f_number, iso)):
+            import piexif
+
+            out = _io.BytesIO()
+            piexif.insert(_exif_bytes(exposure_time, f_number, iso), data, out)
+            data = out.getvalue()
+    elif suffix == ".png":
+        if image.dtype not in (np.uint8, np.uint16):
+            raise InputError("PNG output needs uint8 or uint16 data")
+        ok, buf = cv2.imencode(".png", bgr)
+        data = buf.tobytes()
+    elif suffix in (".tif", ".tiff"):
+        import tifffile
+
+        if image.dtype not in (np.uint8, np.uint16, np.float32):
+            raise InputError("TIFF output needs uint8, uint16 or float32 data")
+        out = _io.BytesIO()
+        tifffile.imwrite(out, image, photometric="rgb")
+        data = out.getvalue()
+        ok = True
+    else:
+        raise InputError(f"unsupported output format {suffix!r}")
+    if not ok:
+        raise InputError(f"OpenCV could not encode the image as {suffix}")
+    return data
+
+
+def write_image(path, image: np.ndarray, *, force: bool = False, inputs=(), **kwargs) -> Path:
+    """Encode ``image`` by the suffix of ``path`` and write it atomically.
+
+    See :func:`encode_image` for the formats and keyword arguments.
+    """
+    path = Path(path)
+    return write_bytes_atomic(path, encode_image(image, path.suffix, **kwargs),
+                              force=force, inputs=inputs)
