@@ -24,9 +24,16 @@ from .errors import (
     SelfcalWarning,
 )
 
+from .modelfile import load_model
+from .response.calibrate import calibrate_response
+from .response.model import ResponseModel
+
 __version__ = "0.1.0"
 
 __all__ = [
+    "calibrate_response",
+    "load_model",
+    "ResponseModel",
     "errors",
     "CalibrationError",
     "InputError",

@@ -1,0 +1,69 @@
+"""Versioned JSON model files.
+
+Every model file is a JSON object ``{"format": "selfcal-model", "version": 1, "kind": ...}``
+plus the fields of its kind.  Loading validates the envelope and the content, and raises
+:class:`selfcal.errors.ModelFileError` naming the file on anything wrong.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .errors import ModelFileError
+from .io import write_bytes_atomic
+
+FORMAT = "selfcal-model"
+VERSION = 1
+
+
+def save_model_dict(path, content: dict, *, force: bool = False) -> Path:
+    """Write ``content`` (which carries its ``kind``) in the versioned envelope, atomically."""
+    doc = {"format": FORMAT, "version": VERSION, **content}
+    data = json.dumps(doc, indent=1, allow_nan=False).encode()
+    return write_bytes_atomic(path, data, force=force)
+
+
+def read_model_dict(path) -> dict:
+    """Read and check the envelope of a model file; return the parsed object."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ModelFileError("no such model file", path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ModelFileError(f"cannot be read as a model file ({exc})", path) from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ModelFileError(f"not valid JSON (line {exc.lineno}: {exc.msg})", path) from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ModelFileError("not a selfcal model file (no 'format: selfcal-model')", path)
+    version = doc.get("version")
+    if not isinstance(version, int) or version > VERSION or version < 1:
+        raise ModelFileError(
+            f"model file version {version!r} is not supported (this selfcal reads "
+            f"version {VERSION}); upgrade selfcal", path)
+    return doc
+
+
+def load_model(path):
+    """Load a model file written by selfcal.
+
+    Returns
+    -------
+    ResponseModel
+        For ``kind == "response"`` (more kinds are added by the RAW path).
+
+    Raises
+    ------
+    ModelFileError
+        Missing file, bad JSON, wrong format or version, or invalid content.
+    """
+    doc = read_model_dict(path)
+    kind = doc.get("kind")
+    if kind == "response":
+        from .response.model import ResponseModel
+
+        return ResponseModel.from_dict(doc, path=path)
+    raise ModelFileError(f"unknown model kind {kind!r}", path)

@@ -1,0 +1,89 @@
+"""Plots of a calibration (matplotlib, Agg backend; files only, nothing shown).
+
+The response figure follows Lin et al., ICCV 2011, Fig. 3: the recovered inverse response
+curves, and a brightness transfer function scatter of one frame pair with the rejected
+samples marked by reason (clipped; highly saturated, HSV S > β).
+"""
+
+from __future__ import annotations
+
+import io as _io
+
+import numpy as np
+
+from .io import write_bytes_atomic
+
+CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
+
+
+def plot_response(model, path, *, truth=None, force: bool = False):
+    """Write a PNG with the inverse curves and a BTF scatter with rejections by reason.
+
+    Parameters
+    ----------
+    model : ResponseModel
+        A model from :func:`selfcal.calibrate_response` (its ``fit_data`` gives the
+        scatter; a model loaded from file shows the curves only).
+    path : path
+        Output PNG, written atomically.
+    truth : ndarray, optional
+        True f⁻¹ at codes 0…max_code, shape (max_code+1, 3), drawn dashed.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fit = getattr(model, "fit_data", None)
+    ncols = 2 if fit is not None else 1
+    fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 4.4), squeeze=False)
+    ax = axes[0, 0]
+    for c, colour in enumerate(CHANNEL_COLOURS):
+        ax.plot(model.intensity, model.inverse[:, c], color=colour, lw=1.6,
+                label=f"{'RGB'[c]} f⁻¹")
+        if truth is not None:
+            codes = np.arange(truth.shape[0]) / (truth.shape[0] - 1)
+            ax.plot(codes, truth[:, c], color=colour, lw=1, ls="--", alpha=0.8)
+    if truth is not None:
+        ax.plot([], [], "k--", lw=1, label="truth")
+    ax.set_xlabel("normalised intensity I")
+    ax.set_ylabel("f⁻¹(I) (relative irradiance)")
+    ax.set_title("Inverse response per channel")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", fontsize=8)
+    if fit is not None:
+        ax = axes[0, 1]
+        labels = {0: ("used", "k", 4, 0.35), 1: ("clipped", "tab:orange", 10, 0.8),
+                  2: ("saturated (S > β)", "tab:purple", 10, 0.8)}
+        for code, (label, colour, size, alpha) in labels.items():
+            sel = fit["reason"] == code
+            if sel.any():
+                ax.scatter(fit["I"][sel].ravel(), fit["I2"][sel].ravel(), s=size, c=colour,
+                           alpha=alpha, marker="x" if code else ".", lw=0.6,
+                           label=f"{label} ({int(sel.sum())})")
+        x = np.linspace(0, 1, 256)
+        lin = model.inverse_response(np.round(x * model.max_code))
+        for c, colour in enumerate(CHANNEL_COLOURS):
+            pred = np.interp(np.clip(lin[:, c] * fit["ratio"], 0, 1), model.inverse[:, c],
+                             model.intensity)
+            ax.plot(x, pred, color=colour, lw=1)
+        ax.set_xlabel(f"I  ({_short(fit['frames'][0])})")
+        ax.set_ylabel(f"I′ ({_short(fit['frames'][1])})")
+        ax.set_title(f"Brightness transfer, ratio {fit['ratio']:.2f}")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    buf = _io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return write_bytes_atomic(path, buf.getvalue(), force=force)
+
+
+def _short(name: str) -> str:
+    import os
+
+    return os.path.basename(name)

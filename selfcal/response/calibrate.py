@@ -1,0 +1,338 @@
+"""``calibrate_response``: the JPEG-only path, from frames to a ResponseModel.
+
+Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration for Color Computer
+Vision*, ICCV 2011, §5 (Eq. 7-8, outlier rejection) and §7 (δ, Eq. 12); unknown exposures
+solved jointly after Kim & Pollefeys, PAMI 2008.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CalibrationError, InputError
+from ..samples import collect_samples, frame_masks
+from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
+
+#: A frame whose given time and pixels disagree by more than this factor is reported.
+CONTRADICTION_FACTOR = 1.25
+#: Smallest ratio between the longest and shortest exposure that can determine a curve.
+MIN_EXPOSURE_RATIO = 1.5
+
+
+def _is_path(x) -> bool:
+    return isinstance(x, (str, os.PathLike))
+
+
+def resolve_exposure_times(frames, exposure_times, sources):
+    """Given times per frame (None = unknown), from the caller or from EXIF.
+
+    When EXIF gives f-number and ISO that vary over the stack, times are scaled to the
+    first frame's aperture and ISO (exposure ∝ t · ISO / N²), so the result stays in seconds
+    at the first frame's settings.
+    """
+    n = len(frames)
+    if exposure_times is not None:
+        times = list(exposure_times)
+        if len(times) != n:
+            raise InputError(f"{len(times)} exposure times given for {n} frames")
+        out = []
+        for t, src in zip(times, sources):
+            if t is None:
+                out.append(None)
+                continue
+            try:
+                tf = float(t)
+            except (TypeError, ValueError):
+                raise InputError(f"exposure time {t!r} is not a number", src) from None
+            if not math.isfinite(tf) or tf <= 0:
+                raise InputError(f"exposure time {t!r} must be a positive number", src)
+            out.append(tf)
+        return out, "given"
+    if not all(_is_path(f) for f in frames):
+        return [None] * n, "unknown"
+    from ..io import read_exposure_info
+
+    infos = [read_exposure_info(f) for f in frames]
+    ref = next((i for i in infos if i.exposure_time is not None), None)
+    out = []
+    for info in infos:
+        t = info.exposure_time
+        if t is not None and ref is not None:
+            if info.iso and ref.iso:
+                t *= info.iso / ref.iso
+            if info.f_number and ref.f_number:
+                t *= (ref.f_number / info.f_number) ** 2
+        out.append(t)
+    return out, "exif"
+
+
+def _delta_eq12(values, valid, inverse_fn, log_exposures, pairs):
+    """Linearisation error δ_c of Lin et al. Eq. 12 over the solve's frame pairs."""
+    sq = np.zeros(3)
+    count = 0
+    for a, b in pairs:
+        both = valid[a] & valid[b]
+        if not both.any():
+            continue
+        k = math.exp(log_exposures[b] - log_exposures[a])
+        lin_a = inverse_fn(values[a][both])
+        lin_b = inverse_fn(values[b][both])
+        sq += np.sum((k * lin_a - lin_b) ** 2, axis=0)
+        count += int(both.sum())
+    return np.sqrt(sq / max(count, 1))
+
+
+def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = False,
+                       n_components: int = 5, saturation_threshold: float =
+                       DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
+                       basis=None, max_samples: int = 4000, seed: int = 0,
+                       progress=None):
+    """Estimate each channel's camera response from an exposure stack.
+
+    Implements Lin et al., ICCV 2011, §5: log-domain PCA model (Eq. 7) fitted to the
+    exposure equation g(I′) − g(I) = K′ (Eq. 8) over sample pairs, with clipped and
+    highly saturated samples rejected and a Huber loss for the rest.
+
+    Parameters
+    ----------
+    images : sequence
+        ``HxWx3`` uint8/uint16 RGB arrays, or paths to JPEG/PNG/TIFF files (8 or 16 bit).
+        Several shots at one exposure are allowed.
+    exposure_times : sequence of float or None, optional
+        Exposure time per frame; None for a frame whose time is unknown.  When omitted,
+        times come from EXIF for paths and are unknown for arrays.
+    refine_exposures : bool
+        Treat the given times as a prior and re-estimate them (shutters are inaccurate).
+    n_components : int
+        Number of PCA basis functions (Eq. 7).
+    saturation_threshold : float
+        β: samples whose HSV saturation exceeds it in either frame of a pair are rejected.
+        Default 0.5 (see :data:`selfcal.response.solver.DEFAULT_SATURATION_THRESHOLD`).
+    clip_margin : float
+        Codes (8-bit scale) from 0 or the maximum code that count as clipped.
+    basis : ResponseBasis or path, optional
+        Response basis; default the built-in log-PCA basis.
+    max_samples : int
+        Number of sample locations (block means) drawn from the stack.
+    seed : int
+        Seed of every random choice (the same input gives the same model).
+    progress : callable, optional
+        ``progress(stage, done, total, detail)`` for long work.
+
+    Returns
+    -------
+    ResponseModel
+
+    Raises
+    ------
+    InputError
+        Unreadable files, frames of different sizes, duplicates with different times,
+        NaN in arrays, bad times (the message names the file).
+    CalibrationError
+        When the data cannot determine a response (one frame, no exposure change, too few
+        valid samples).
+    """
+    from .basis import ResponseBasis, builtin_basis, load_basis_file
+    from .model import ResponseModel
+
+    frames = list(images)
+    if len(frames) < 2:
+        raise CalibrationError(
+            "one frame only: a response needs at least two frames at different exposures")
+    sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
+    times, time_source = resolve_exposure_times(frames, exposure_times, sources)
+
+    if basis is None:
+        basis = builtin_basis()
+    elif not isinstance(basis, ResponseBasis):
+        basis = load_basis_file(basis)
+    if basis.domain != "log":
+        basis = basis.to_log_domain()
+    n_components = int(min(n_components, basis.n_components))
+
+    def frame_progress(k, n, src):
+        if progress is not None:
+            progress("read", k, n, src)
+
+    samples = collect_samples(frames, sources=sources, max_samples=max_samples,
+                              clip_margin=clip_margin, seed=seed, progress=frame_progress)
+    warnings: list[str] = []
+
+    # duplicates: identical pixels at different given times contradict each other
+    keep = list(range(len(frames)))
+    seen: dict[str, int] = {}
+    for k, dig in enumerate(samples.digests):
+        if dig in seen:
+            j = seen[dig]
+            if times[j] is not None and times[k] is not None and not math.isclose(
+                    times[j], times[k], rel_tol=1e-3):
+                raise InputError(
+                    f"identical pixels to {sources[j]} but a different exposure time "
+                    f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
+            warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
+            keep.remove(k)
+        else:
+            seen[dig] = k
+
+    masks = frame_masks(samples, clip_margin=clip_margin,
+                        saturation_threshold=saturation_threshold)
+    unclipped_fraction = 1.0 - masks["clipped"].mean(axis=1)
+    for k in list(keep):
+        if unclipped_fraction[k] < 0.01:
+            warnings.append(f"{sources[k]}: clipped almost everywhere "
+                            f"({100 * (1 - unclipped_fraction[k]):.1f}% of samples); ignored")
+            keep.remove(k)
+    if len(keep) < 2:
+        raise CalibrationError(
+            "fewer than two usable frames remain (the others are duplicates or clipped "
+            "everywhere): " + "; ".join(warnings))
+
+    sub = _subset(samples, keep)
+    sub_masks = {k: v[keep] for k, v in masks.items()}
+    sub_times = [times[k] for k in keep]
+    log_times = np.array([np.nan if t is None else math.log(t) for t in sub_times])
+    known = np.isfinite(log_times)
+    if known.sum() >= 2 and np.ptp(log_times[known]) < math.log(1.0001) and known.all():
+        raise CalibrationError(
+            "all frames have the same exposure time: Eq. 8 needs exposure changes "
+            "(bracket the exposure, or pass --unknown-exposures if the times are wrong)")
+
+    if progress is not None:
+        progress("solve", 0, 1, "")
+    result = solve_exposure_equations(
+        sub, basis, log_times, n_components=n_components,
+        refine_exposures=refine_exposures, saturation_threshold=saturation_threshold,
+        clip_margin=clip_margin, masks=sub_masks)
+    warnings.extend(result.warnings)
+
+    # do the pixels contradict the given times?  Re-estimate with the times as a prior.
+    contradictions = []
+    if known.sum() >= 2 and not refine_exposures:
+        free = solve_exposure_equations(
+            sub, basis, log_times, n_components=n_components, refine_exposures=True,
+            saturation_threshold=saturation_threshold, clip_margin=clip_margin,
+            masks=sub_masks, max_iterations=4)
+        # compare ratios, not absolute values: the prior only pins the overall scale
+        dev = free.log_exposures - log_times
+        dev = dev - np.nanmedian(dev[known])
+        for j in np.flatnonzero(known):
+            if abs(dev[j]) > math.log(CONTRADICTION_FACTOR):
+                k = keep[j]
+                est = math.exp(log_times[j] + dev[j])
+                contradictions.append({"frame": sources[k], "given": sub_times[j],
+                                       "estimated": est})
+                warnings.append(
+                    f"{sources[k]}: the pixels contradict the given exposure time "
+                    f"({sub_times[j]:g} s given, the pixels say about {est:g} s); "
+                    "consider --refine-exposures")
+
+    coeffs = result.coefficients
+    grid = basis.intensity
+    g = basis.mean[None, :] + coeffs @ basis.components[:n_components]
+    inverse = np.exp(g).T
+    inverse = np.maximum.accumulate(inverse, axis=0)
+    inverse /= inverse[-1]
+
+    def inverse_fn(vals):
+        return np.stack([np.interp(vals[:, c], grid, inverse[:, c]) for c in range(3)], axis=1)
+
+    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
+    delta = _delta_eq12(sub.values, valid, inverse_fn, result.log_exposures,
+                        [tuple(p) for p in result.pair_frames])
+
+    # can the data determine the curve?
+    exposures = np.exp(result.log_exposures)
+    ratio = float(exposures.max() / exposures.min())
+    used_codes = np.where(valid[..., None], sub.values, np.nan)
+    coverage = []
+    for c in range(3):
+        v = used_codes[..., c]
+        v = v[np.isfinite(v)]
+        hist = np.histogram(v, bins=32, range=(0, 1))[0] if v.size else np.zeros(32)
+        coverage.append(float(np.mean(hist > 0)))
+    n_valid_samples = int(valid.any(axis=0).sum())
+    verdict_problems = []
+    if ratio < MIN_EXPOSURE_RATIO:
+        verdict_problems.append(f"exposure ratio only {ratio:.2f}× over the stack")
+    if len(keep) < 3:
+        verdict_problems.append(f"only {len(keep)} usable exposures")
+    if n_valid_samples < 100:
+        verdict_problems.append(f"only {n_valid_samples} valid samples")
+    if min(coverage) < 0.5:
+        verdict_problems.append(
+            f"valid samples cover only {100 * min(coverage):.0f}% of the code range")
+    verdict = "ok" if not verdict_problems else "poorly determined: " + "; ".join(
+        verdict_problems)
+    if verdict_problems:
+        warnings.append("the data may not determine the curve: " + "; ".join(verdict_problems))
+
+    full_exposures = np.full(len(frames), np.nan)
+    full_exposures[keep] = exposures
+    per_pair = {f"{sources[keep[a]]} -> {sources[keep[b]]}": v
+                for (a, b), v in result.per_pair_rms.items()}
+    diagnostics = {
+        "verdict": verdict,
+        "warnings": warnings,
+        "exposure_source": time_source,
+        "refine_exposures": bool(refine_exposures),
+        "ambiguity_resolved_by_prior": bool(result.ambiguity_prior),
+        "n_components": n_components,
+        "saturation_threshold": saturation_threshold,
+        "clip_margin": clip_margin,
+        "frames_used": [sources[k] for k in keep],
+        "residual_rms_log": result.residual_rms,
+        "per_pair_rms_log": per_pair,
+        "delta_eq12": delta.tolist(),
+        "samples": {
+            "locations": int(samples.n_samples),
+            "block_size": int(samples.block),
+            "pair_rows_used": int(result.rows_used),
+            "pair_rows_downweighted": int(result.rows_downweighted),
+            "rejected": dict(result.rejections),
+            "valid_locations": n_valid_samples,
+            "code_coverage": coverage,
+        },
+        "monotone_constrained": bool(result.monotone_constrained),
+        "contradicting_times": contradictions,
+        "exposure_ratio": ratio,
+    }
+    model = ResponseModel(intensity=grid.copy(), inverse=inverse, coefficients=coeffs,
+                          basis_name=basis.name, exposures=full_exposures,
+                          exposure_times=list(times), sources=sources,
+                          max_code=samples.max_code, diagnostics=diagnostics)
+    model.fit_data = _btf_data(sub, sub_masks, result, [sources[k] for k in keep])
+    return model
+
+
+def _btf_data(samples, masks, result, names):
+    """Samples of one frame pair with their rejection reasons, for the BTF plot (Fig. 3)."""
+    best = None
+    for a, b in result.pair_frames:
+        ratio = math.exp(result.log_exposures[b] - result.log_exposures[a])
+        if ratio < 1.2:
+            continue
+        unclipped = ~(masks["clipped"][a] | masks["clipped"][b])
+        score = unclipped.sum() / (1 + abs(math.log(ratio / 2.0)))
+        if best is None or score > best[0]:
+            best = (score, a, b, ratio)
+    if best is None:
+        return None
+    _, a, b, ratio = best
+    reason = np.zeros(samples.n_samples, dtype=np.int8)  # 0 used
+    reason[masks["saturated"][a] | masks["saturated"][b]] = 2
+    reason[masks["clipped"][a] | masks["clipped"][b]] = 1
+    return {"frames": (names[a], names[b]), "ratio": ratio,
+            "I": samples.values[a], "I2": samples.values[b], "reason": reason}
+
+
+def _subset(samples, keep):
+    from dataclasses import replace
+
+    return replace(samples, values=samples.values[keep], block_max=samples.block_max[keep],
+                   block_min=samples.block_min[keep],
+                   sources=[samples.sources[k] for k in keep],
+                   digests=[samples.digests[k] for k in keep])

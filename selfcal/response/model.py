@@ -1,0 +1,183 @@
+"""ResponseModel: the result of the JPEG-only calibration, and its model file.
+
+A model holds each channel's inverse response f⁻¹ as a dense table on normalised
+intensity (f⁻¹(1) = 1), the log-PCA coefficients it came from (Lin et al., ICCV 2011,
+Eq. 7), the estimated exposures, and diagnostics.  Files are versioned JSON (see
+:mod:`selfcal.modelfile`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..errors import InputError, ModelFileError
+
+MODEL_KIND = "response"
+
+
+@dataclass
+class ResponseModel:
+    """Per-channel camera response recovered from an exposure stack.
+
+    Attributes
+    ----------
+    intensity : ndarray, shape (K,)
+        Normalised intensity grid on [0, 1] (code / max code).
+    inverse : ndarray, shape (K, 3)
+        f⁻¹ per channel (R, G, B) on ``intensity``; increasing; f⁻¹(1) = 1.
+    coefficients : ndarray, shape (3, N)
+        Log-PCA coefficients cₙ of Eq. 7 per channel.
+    basis_name : str
+    exposures : ndarray, shape (F,)
+        Estimated exposure of each frame, in the units of the given times (seconds), or
+        relative to a reference frame when no two times were known.
+    exposure_times : list of float or None
+        The times given (EXIF or the caller), None where unknown.
+    sources : list of str
+        The frames, in the order of ``exposures``.
+    max_code : int
+        255 for 8-bit stacks, 65535 for 16-bit.
+    diagnostics : dict
+        Fit residuals, δ of Eq. 12, per-pair residuals, samples used and rejected by
+        reason, warnings and the verdict.
+    """
+
+    intensity: np.ndarray
+    inverse: np.ndarray
+    coefficients: np.ndarray
+    basis_name: str
+    exposures: np.ndarray
+    exposure_times: list
+    sources: list
+    max_code: int = 255
+    diagnostics: dict = field(default_factory=dict)
+    #: samples of one frame pair with rejection reasons (for plots); not saved
+    fit_data: dict | None = field(default=None, repr=False, compare=False)
+
+    # ------------------------------------------------------------------ curves
+    def inverse_response(self, codes=None) -> np.ndarray:
+        """f⁻¹ per channel at integer ``codes`` (default every code 0…max_code), (n, 3)."""
+        if codes is None:
+            codes = np.arange(self.max_code + 1)
+        x = np.asarray(codes, dtype=float) / self.max_code
+        return np.stack([np.interp(x, self.intensity, self.inverse[:, c]) for c in range(3)],
+                        axis=-1)
+
+    def response(self, irradiance) -> np.ndarray:
+        """The forward response f per channel: normalised irradiance in [0, 1] → [0, 1].
+
+        ``irradiance`` of shape (n,) is evaluated for each channel, giving (n, 3).
+        """
+        e = np.clip(np.asarray(irradiance, dtype=float), 0.0, 1.0)
+        return np.stack([np.interp(e, self.inverse[:, c], self.intensity) for c in range(3)],
+                        axis=-1)
+
+    def lookup_table(self) -> np.ndarray:
+        """f⁻¹ at every code of the model's bit depth, float32, shape (max_code+1, 3)."""
+        return self.inverse_response().astype(np.float32)
+
+    def linearize(self, image) -> np.ndarray:
+        """Apply the inverse response per channel: codes → linear values, f⁻¹(max) = 1.
+
+        Parameters
+        ----------
+        image : ndarray
+            ``HxWx3`` uint8 or uint16 RGB (as the stack was), or float in [0, 1].
+
+        Returns
+        -------
+        ndarray, float32, same shape
+        """
+        arr = np.asarray(image)
+        if arr.ndim < 1 or arr.shape[-1] != 3:
+            raise InputError(f"expected RGB values with 3 channels last, got shape {arr.shape}")
+        if arr.dtype in (np.uint8, np.uint16):
+            max_code = 255 if arr.dtype == np.uint8 else 65535
+            if max_code == self.max_code:
+                lut = self.lookup_table()
+            else:
+                lut = self.inverse_response(
+                    np.arange(max_code + 1) * (self.max_code / max_code)).astype(np.float32)
+            out = np.empty(arr.shape, dtype=np.float32)
+            for c in range(3):
+                out[..., c] = lut[arr[..., c], c]
+            return out
+        if np.issubdtype(arr.dtype, np.floating):
+            if not np.all(np.isfinite(arr)):
+                raise InputError("image holds NaN or infinite values")
+            x = np.clip(arr, 0.0, 1.0)
+            out = np.empty(arr.shape, dtype=np.float32)
+            for c in range(3):
+                out[..., c] = np.interp(x[..., c], self.intensity, self.inverse[:, c])
+            return out
+        raise InputError(f"unsupported image dtype {arr.dtype}")
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        return {
+            "kind": MODEL_KIND,
+            "basis": self.basis_name,
+            "max_code": int(self.max_code),
+            "intensity": self.intensity.tolist(),
+            "inverse_response": self.inverse.T.tolist(),
+            "coefficients": self.coefficients.tolist(),
+            "exposures": [float(v) for v in self.exposures],
+            "exposure_times": [None if t is None else float(t) for t in self.exposure_times],
+            "sources": list(self.sources),
+            "diagnostics": _jsonable(self.diagnostics),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, *, path=None) -> "ResponseModel":
+        def bad(msg):
+            return ModelFileError(msg, path)
+
+        try:
+            intensity = np.asarray(d["intensity"], dtype=float)
+            inverse = np.asarray(d["inverse_response"], dtype=float).T
+            coefficients = np.asarray(d["coefficients"], dtype=float)
+            exposures = np.asarray(d["exposures"], dtype=float)
+            max_code = int(d["max_code"])
+            model = cls(intensity=intensity, inverse=inverse, coefficients=coefficients,
+                        basis_name=str(d["basis"]), exposures=exposures,
+                        exposure_times=list(d["exposure_times"]), sources=list(d["sources"]),
+                        max_code=max_code, diagnostics=dict(d.get("diagnostics", {})))
+        except KeyError as exc:
+            raise bad(f"response model lacks the field {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            raise bad(f"response model has a malformed field ({exc})") from None
+        if intensity.ndim != 1 or inverse.shape != (intensity.size, 3) or intensity.size < 2:
+            raise bad("inverse_response must be 3 lists as long as intensity")
+        if not (np.all(np.isfinite(inverse)) and np.all(np.isfinite(intensity))):
+            raise bad("the response tables hold NaN or infinite values")
+        if np.any(np.diff(intensity) <= 0) or np.any(np.diff(inverse, axis=0) < 0):
+            raise bad("the response tables are not increasing")
+        if max_code not in (255, 65535):
+            raise bad(f"max_code must be 255 or 65535, not {max_code}")
+        return model
+
+    def save(self, path, *, force: bool = False) -> None:
+        """Write the model as versioned JSON, atomically (refuses to overwrite unless force)."""
+        from ..modelfile import save_model_dict
+
+        save_model_dict(path, self.to_dict(), force=force)
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating,)):
+        return float(obj)
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj

@@ -1,0 +1,342 @@
+"""Joint solve for log-domain PCA response coefficients and log exposures.
+
+Implements Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration for Color
+Computer Vision*, ICCV 2011, §5: the response of each channel is modelled in the log domain
+with a PCA basis (Eq. 7),
+
+    g(I) = log f⁻¹(I) = g₀(I) + Σₙ hₙ(I) cₙ,
+
+and every pair of samples (I, I′) of one scene point in two frames gives (Eq. 8)
+
+    g(I′) − g(I) = K′ − K,          K = log(exposure).
+
+The log exposures are shared by the three channels and are either fixed (times known),
+refined around the given times (a Gaussian prior: shutters are inaccurate), or unknown and
+solved jointly, as in Kim & Pollefeys (PAMI 2008).  The equations are linear in the
+coefficients and the log exposures together, so the whole problem is one weighted linear
+least-squares fit; monotonicity of f⁻¹ is imposed as linear inequalities (a small QP solved
+with cvxpy) only when the unconstrained fit violates it.
+
+Outliers (§5): a sample is dropped from a pair when any channel is clipped in either frame,
+or when its HSV saturation exceeds β in either frame; what remains is fitted with a Huber
+loss by iteratively reweighted least squares (misalignment, motion, noise, JPEG).
+
+Normalisation: every basis function and the mean vanish at I = 1, so f⁻¹(1) = 1 holds by
+construction and the additive gauge of Eq. 8 is fixed; the remaining *exponential*
+ambiguity (f⁻¹ → (f⁻¹)^γ with all exposure ratios raised to γ, §5) is fixed by any two
+known exposure times.  With fewer than two, it is resolved by a ridge prior pulling the
+coefficients towards the basis mean (the most typical response of the curve database) and
+the result says so in its warnings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..errors import CalibrationError
+from ..samples import SampleSet, frame_masks
+
+#: Default HSV saturation threshold β.  Lin et al. (§7) use 0.4 for cameras with strong
+#: colour mapping and above 0.7 for most others; 0.5 drops the colours gamut mapping is
+#: most likely to have moved while keeping enough samples in ordinary scenes.
+DEFAULT_SATURATION_THRESHOLD = 0.5
+
+#: Std of code noise (normalised units) assumed for block means when weighting Eq. 8.
+CODE_NOISE = 1.0 / 255.0
+
+
+@dataclass
+class SolveResult:
+    """What the joint solve found, with everything needed for diagnostics."""
+
+    coefficients: np.ndarray            # (3, N)
+    log_exposures: np.ndarray           # (F,)
+    exposure_fixed: np.ndarray          # (F,) bool: held at the given time
+    pair_frames: np.ndarray             # (P, 2) frame indices of each row group
+    residual_rms: float                 # weighted RMS of Eq. 8 residuals (log units)
+    per_pair_rms: dict                  # (a, b) -> RMS of log residual
+    rejections: dict                    # reason -> count of (pair, sample) rows dropped
+    rows_used: int
+    rows_downweighted: int
+    monotone_constrained: bool
+    warnings: list = field(default_factory=list)
+    ambiguity_prior: bool = False
+
+
+def _gradient_on(basis_grid: np.ndarray, g: np.ndarray, x: np.ndarray) -> np.ndarray:
+    dg = np.gradient(g, basis_grid)
+    return np.interp(x, basis_grid, dg)
+
+
+def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int):
+    """Frame pairs (a, b), b brighter, and the samples valid in both."""
+    pairs = []
+    F = len(order)
+    for gap in range(1, min(max_rank_gap, F - 1) + 1):
+        for r in range(F - gap):
+            a, b = order[r], order[r + gap]
+            both = np.flatnonzero(valid[a] & valid[b])
+            if both.size:
+                pairs.append((a, b, both))
+    return pairs
+
+
+def _initial_log_exposures(values, valid, basis, log_times):
+    """Exposure guesses from the mean response where times are unknown (median ratios)."""
+    F = values.shape[0]
+    g0 = np.interp(values, basis.intensity, basis.mean)  # (F, n, 3)
+    est = np.where(np.isfinite(log_times), log_times, np.nan)
+    if np.all(np.isnan(est)):
+        # the brightest-looking frame sets the origin
+        est[int(np.argmax(np.nanmedian(np.where(valid[..., None], g0, np.nan), axis=(1, 2))))] = 0.0
+    for _ in range(F):
+        missing = np.flatnonzero(np.isnan(est))
+        if missing.size == 0:
+            break
+        known = np.flatnonzero(~np.isnan(est))
+        progressed = False
+        for j in missing:
+            best = None
+            for k in known:
+                both = valid[j] & valid[k]
+                if both.sum() >= 5 and (best is None or both.sum() > best[1]):
+                    best = (k, both.sum(), both)
+            if best is None:
+                continue
+            k, _, both = best
+            est[j] = est[k] + np.median(g0[j][both] - g0[k][both])
+            progressed = True
+        if not progressed:
+            break
+    if np.any(np.isnan(est)):
+        raise CalibrationError(
+            "some frames share no usable (unclipped, unsaturated) samples with any other "
+            "frame, so their exposures cannot be estimated")
+    return est
+
+
+def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
+                             n_components: int = 5, refine_exposures: bool = False,
+                             saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
+                             clip_margin: float = 2.0, exposure_prior_sigma: float = 0.05,
+                             max_rank_gap: int = 3, huber_k: float = 1.345,
+                             max_iterations: int = 8, ridge: float = 1e-4,
+                             masks: dict | None = None) -> SolveResult:
+    """Solve Eq. 8 of Lin et al. (ICCV 2011) for three channels' coefficients and exposures.
+
+    Parameters
+    ----------
+    samples : SampleSet
+        Block-mean intensities across the stack (normalised to [0, 1]).
+    basis : ResponseBasis
+        A log-domain basis (``basis.domain == "log"``), Eq. 7.
+    log_times : ndarray, shape (F,)
+        Log of the given exposure of each frame, NaN where unknown.
+    n_components : int
+        Number of basis functions N in Eq. 7.
+    refine_exposures : bool
+        Treat given times as a prior (std ``exposure_prior_sigma`` in log units) and
+        re-estimate them; otherwise they are fixed.
+    saturation_threshold : float
+        β of §5: samples whose HSV saturation exceeds it are dropped.
+    clip_margin : float
+        Codes (8-bit scale) from 0 or the maximum that count as clipped.
+    max_rank_gap : int
+        Each frame is paired with the next ``max_rank_gap`` frames in exposure order.
+    huber_k : float
+        Huber threshold in robust standard deviations (IRLS).
+    ridge : float
+        Weight of the ridge prior on the coefficients, relative to the mean data weight.
+
+    Returns
+    -------
+    SolveResult
+    """
+    if basis.domain != "log":
+        raise CalibrationError(
+            f"basis {basis.name!r} is a {basis.domain}-domain basis; Eq. 8 needs a "
+            "log-domain basis (convert it with ResponseBasis.to_log_domain)")
+    values = samples.values
+    F, n, _ = values.shape
+    N = int(n_components)
+    log_times = np.asarray(log_times, dtype=float)
+    if masks is None:
+        masks = frame_masks(samples, clip_margin=clip_margin,
+                            saturation_threshold=saturation_threshold)
+    clipped, saturated = masks["clipped"], masks["saturated"]
+    valid = ~(clipped | saturated)
+
+    known = np.isfinite(log_times)
+    fixed = known.copy() if not refine_exposures else np.zeros(F, bool)
+    warnings: list[str] = []
+    ambiguity_prior = False
+    if known.sum() < 2:
+        ambiguity_prior = True
+        warnings.append(
+            "fewer than two exposure times are known: the exponential ambiguity of the "
+            "response (Lin et al. §5) was resolved by a prior towards the basis mean "
+            "response; exposures are relative" + (" to the frame with a known time"
+                                                  if known.sum() == 1 else ""))
+
+    init = _initial_log_exposures(values, valid, basis, log_times)
+    gauge = None
+    if not fixed.any() and not (refine_exposures and known.any()):
+        # fix the additive gauge of K: the first known frame, else the frame chosen above
+        gauge = int(np.flatnonzero(known)[0]) if known.any() else int(np.argmin(np.abs(init)))
+        fixed[gauge] = True
+        if not known.any():
+            log_times = log_times.copy()
+            log_times[gauge] = 0.0
+    order = np.argsort(init, kind="stable")
+    pairs = _build_pairs(valid, order, max_rank_gap)
+    # rejection counts, over the same frame pairs the solve uses
+    rejections = {"clipped": 0, "saturated": 0}
+    for gap in range(1, min(max_rank_gap, F - 1) + 1):
+        for r in range(F - gap):
+            a, b = order[r], order[r + gap]
+            c_ab = clipped[a] | clipped[b]
+            rejections["clipped"] += int(c_ab.sum())
+            rejections["saturated"] += int(((saturated[a] | saturated[b]) & ~c_ab).sum())
+    if not pairs:
+        raise CalibrationError("no sample is unclipped and unsaturated in two frames: "
+                               "the stack cannot determine a response")
+    pa = np.concatenate([np.full(p[2].size, p[0]) for p in pairs])
+    pb = np.concatenate([np.full(p[2].size, p[1]) for p in pairs])
+    ps = np.concatenate([p[2] for p in pairs])
+    pair_id = np.concatenate([np.full(p[2].size, k) for k, p in enumerate(pairs)])
+    m = ps.size
+    if m < 20:
+        raise CalibrationError(f"only {m} usable sample pairs: too few to fit a response")
+
+    # per-channel design: dH = H(I') - H(I), rhs = -(g0(I') - g0(I))
+    Ia = values[pa, ps]  # (m, 3)
+    Ib = values[pb, ps]
+    dH, rhs = [], []
+    for c in range(3):
+        g0a, Ha = basis.design(Ia[:, c], N)
+        g0b, Hb = basis.design(Ib[:, c], N)
+        dH.append(Hb - Ha)
+        rhs.append(-(g0b - g0a))
+    n_free_k = F
+    ncols = 3 * N + n_free_k
+    rows = np.arange(3 * m)
+    # sparse system: coefficient block (dense N per row) and exposure block (-1, +1)
+    coef_cols = (np.repeat(np.arange(3), m)[:, None] * N + np.arange(N)[None, :])
+    data_coef = np.concatenate(dH, axis=0)
+    A_coef = sp.csr_matrix((data_coef.ravel(), (np.repeat(rows, N), coef_cols.ravel())),
+                           shape=(3 * m, ncols))
+    kb = np.tile(pb, 3)
+    ka = np.tile(pa, 3)
+    A_exp = sp.csr_matrix((np.concatenate([-np.ones(3 * m), np.ones(3 * m)]),
+                           (np.concatenate([rows, rows]), 3 * N + np.concatenate([kb, ka]))),
+                          shape=(3 * m, ncols))
+    A = (A_coef + A_exp).tocsr()
+    b = np.concatenate(rhs)
+
+    grid = basis.intensity
+    g0_grid = basis.mean
+    H_grid = basis.components[:N].T  # (K, N)
+    lo = max(1.0 / samples.max_code, 0.5 / 255)
+    mono_idx = np.flatnonzero(grid >= lo)
+    D = np.diff(np.eye(len(mono_idx)), axis=0)
+
+    coeffs = np.zeros((3, N))
+    K = init.copy()
+    K[fixed] = log_times[fixed]
+    robust = np.ones(3 * m)
+    monotone_constrained = False
+    for it in range(max_iterations):
+        # noise weights: var of g(I) from code noise through the slope of the current g
+        var = np.empty(3 * m)
+        for c in range(3):
+            g_c = g0_grid + H_grid @ coeffs[c]
+            slope_a = _gradient_on(grid, g_c, Ia[:, c])
+            slope_b = _gradient_on(grid, g_c, Ib[:, c])
+            var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2) + 1e-4
+        w = robust / var
+        x = _weighted_solve(A, b, w, fixed, log_times, known, refine_exposures,
+                            exposure_prior_sigma, ridge, N, g0_grid[mono_idx],
+                            H_grid[mono_idx], D)
+        x, constrained = x
+        monotone_constrained |= constrained
+        new_coeffs = x[:3 * N].reshape(3, N)
+        K = x[3 * N:]
+        resid = A @ x - b
+        u = resid / np.sqrt(var)
+        scale = 1.4826 * np.median(np.abs(u)) + 1e-12
+        new_robust = np.minimum(1.0, huber_k * scale / np.maximum(np.abs(u), 1e-12))
+        change = np.max(np.abs(new_coeffs - coeffs))
+        coeffs = new_coeffs
+        robust = new_robust
+        if it > 0 and change < 1e-5:
+            break
+    resid = A @ np.concatenate([coeffs.ravel(), K]) - b
+    w = robust / var
+    residual_rms = float(np.sqrt(np.average(resid ** 2, weights=w)))
+    per_pair = {}
+    r3 = resid.reshape(3, m)
+    for k, (a, bb, _) in enumerate(pairs):
+        sel = pair_id == k
+        per_pair[(int(a), int(bb))] = float(np.sqrt(np.mean(r3[:, sel] ** 2)))
+    return SolveResult(coefficients=coeffs, log_exposures=K, exposure_fixed=fixed,
+                       pair_frames=np.array([(a, bb) for a, bb, _ in pairs]),
+                       residual_rms=residual_rms, per_pair_rms=per_pair,
+                       rejections=rejections, rows_used=int(3 * m),
+                       rows_downweighted=int(np.sum(robust < 0.5)),
+                       monotone_constrained=monotone_constrained, warnings=warnings,
+                       ambiguity_prior=ambiguity_prior)
+
+
+def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge, N,
+                    g0_mono, H_mono, D):
+    """Minimise Σ w r² + priors, with exposures in ``fixed`` held; QP if not monotone."""
+    Aw = sp.diags(w) @ A
+    Q = np.asarray((A.T @ Aw).todense())
+    q = np.asarray(Aw.T @ b).ravel()
+    scale = np.trace(Q[:3 * N, :3 * N]) / (3 * N) if N else 1.0
+    Q[:3 * N, :3 * N] += ridge * scale * np.eye(3 * N)
+    if refine:
+        kk = np.flatnonzero(known)
+        prior_w = scale / (prior_sigma ** 2) * 1e-3
+        Q[3 * N + kk, 3 * N + kk] += prior_w
+        q[3 * N + kk] += prior_w * log_times[kk]
+    free = np.concatenate([np.ones(3 * N, bool), ~fixed])
+    xf = np.where(fixed, log_times, 0.0)
+    x_fixed = np.concatenate([np.zeros(3 * N), xf])
+    # eliminate fixed exposures
+    qf = q[free] - Q[np.ix_(free, ~free)] @ x_fixed[~free]
+    Qf = Q[np.ix_(free, free)]
+    Qf = 0.5 * (Qf + Qf.T)
+    try:
+        z = np.linalg.solve(Qf, qf)
+    except np.linalg.LinAlgError:
+        z = np.linalg.lstsq(Qf, qf, rcond=None)[0]
+    x = x_fixed.copy()
+    x[free] = z
+    constrained = False
+    DH = D @ H_mono
+    Dg0 = D @ g0_mono
+    eps = 1e-7
+    slopes = [Dg0 + DH @ x[c * N:(c + 1) * N] for c in range(3)]
+    if min(s.min() for s in slopes) < eps:
+        import cvxpy as cp
+
+        constrained = True
+        L = np.linalg.cholesky(Qf + 1e-12 * np.eye(len(qf)) * np.trace(Qf) / len(qf))
+        zv = cp.Variable(len(qf))
+        # ||Lᵀz||² − 2qᵀz has the same minimiser as the weighted least squares
+        objective = cp.Minimize(cp.sum_squares(L.T @ zv) - 2 * qf @ zv)
+        cons = [DH @ zv[c * N:(c + 1) * N] >= eps - Dg0 for c in range(3)]
+        prob = cp.Problem(objective, cons)
+        try:
+            prob.solve(solver=cp.CLARABEL)
+        except Exception:  # pragma: no cover - fall back to the other bundled solver
+            prob.solve(solver=cp.OSQP, eps_abs=1e-9, eps_rel=1e-9, max_iter=200000)
+        if zv.value is None:
+            raise CalibrationError("the monotone response fit did not converge "
+                                   f"(solver status {prob.status})")
+        x[free] = zv.value
+    return x, constrained

@@ -1,0 +1,299 @@
+"""Pixel correspondences across an exposure stack, and outlier masks with reasons.
+
+The JPEG-only path (Lin et al., ICCV 2011, §5) needs intensity pairs (I, I') at the same
+scene point in differently exposed frames.  This module reads a stack *streaming*: each
+frame is decoded, reduced at once to block means on a coarse grid (``cv2.resize`` with
+``INTER_AREA``), and dropped, so a stack of 24 MP frames never sits in memory as float
+copies.  Block means of flat regions average JPEG and sensor noise away; blocks that are not
+flat (edges, texture, demosaicing and sharpening artefacts) are avoided when the sample
+locations are chosen.
+
+Locations are chosen after the pass, from all reduced frames together: for every frame the
+intensity range is cut into bins and the flattest blocks of each bin are taken, so that
+every part of every frame's range is represented (stratified over intensity, preferring
+flat regions).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+#: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
+REJECTION_REASONS = ("clipped", "saturated", "not_flat")
+
+
+def _cv2():
+    os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+    import cv2
+
+    return cv2
+
+
+@dataclass
+class ReducedFrame:
+    """A frame reduced to block means, with what the full frame told about itself."""
+
+    blocks: np.ndarray        # (h, w, 3) float32 block means, in codes
+    block_max: np.ndarray     # (h, w) float32: highest code of any channel in the block's area
+    block_min: np.ndarray     # (h, w) float32: lowest code of any channel
+    max_code: int
+    shape: tuple              # full frame (H, W)
+    digest: str               # content hash, to find duplicate frames
+    source: str               # file name or "array #k"
+
+
+def _as_image_array(image, source: str) -> np.ndarray:
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise InputError(f"expected an HxWx3 RGB image, got shape {arr.shape}", source)
+    if arr.dtype == np.uint8 or arr.dtype == np.uint16:
+        return arr
+    if np.issubdtype(arr.dtype, np.floating):
+        if not np.all(np.isfinite(arr)):
+            raise InputError("the array holds NaN or infinite values", source)
+        raise InputError(
+            "float arrays are not camera codes; pass uint8 or uint16 images", source)
+    raise InputError(f"unsupported dtype {arr.dtype} (uint8 or uint16 needed)", source)
+
+
+def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
+    """Reduce one frame to ``block``×``block`` means, plus per-block extreme codes.
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        ``HxWx3`` uint8 or uint16 RGB.
+    block : int
+        Block edge in pixels (1 keeps every pixel).
+    source : str
+        Name used in error messages.
+    """
+    cv2 = _cv2()
+    arr = _as_image_array(image, source)
+    max_code = 255 if arr.dtype == np.uint8 else 65535
+    h, w = arr.shape[:2]
+    hb, wb = max(1, h // block), max(1, w // block)
+    crop = arr[: hb * block, : wb * block]
+    digest = hashlib.blake2b(np.ascontiguousarray(arr[::7, ::7]).tobytes(),
+                             digest_size=16).hexdigest()
+    if block == 1:
+        blocks = crop.astype(np.float32)
+        cmax = crop.max(axis=2).astype(np.float32)
+        cmin = crop.min(axis=2).astype(np.float32)
+    else:
+        # float input keeps sub-code precision in the means (integer output would round)
+        blocks = cv2.resize(crop.astype(np.float32), (wb, hb), interpolation=cv2.INTER_AREA)
+        # block extremes by morphological max/min on the full frame would cost as much as
+        # the decode; the max/min of a 2x-finer reduction catches partly clipped blocks
+        fine = cv2.resize(crop, (wb * 2, hb * 2), interpolation=cv2.INTER_AREA)
+        cmax = fine.max(axis=2).reshape(hb, 2, wb, 2).max(axis=(1, 3)).astype(np.float32)
+        cmin = fine.min(axis=2).reshape(hb, 2, wb, 2).min(axis=(1, 3)).astype(np.float32)
+    return ReducedFrame(blocks=np.ascontiguousarray(blocks, dtype=np.float32),
+                        block_max=cmax, block_min=cmin, max_code=max_code,
+                        shape=(h, w), digest=digest, source=source)
+
+
+@dataclass
+class SampleSet:
+    """Intensity samples at fixed locations across a stack.
+
+    Attributes
+    ----------
+    values : ndarray, shape (F, n, 3)
+        Block-mean codes normalised to [0, 1] (divided by ``max_code``).
+    block_max, block_min : ndarray, shape (F, n)
+        Extreme codes (normalised) inside each block: a block touching a clipped code is
+        clipped even when its mean is not.
+    flatness : ndarray, shape (n,)
+        Local contrast of each block (lower is flatter), on the frame that chose it.
+    locations : ndarray, shape (n, 2)
+        Block row and column.
+    max_code : int
+    sources : list of str
+    """
+
+    values: np.ndarray
+    block_max: np.ndarray
+    block_min: np.ndarray
+    flatness: np.ndarray
+    locations: np.ndarray
+    max_code: int
+    sources: list
+    block: int
+    frame_shape: tuple
+    digests: list = field(default_factory=list)
+
+    @property
+    def n_frames(self) -> int:
+        return self.values.shape[0]
+
+    @property
+    def n_samples(self) -> int:
+        return self.values.shape[1]
+
+
+def hsv_saturation(rgb: np.ndarray) -> np.ndarray:
+    """HSV saturation ``(max - min) / max`` of RGB values (0 where max is 0).
+
+    A numpy expression rather than ``skimage.color.rgb2hsv``: only S is needed, and the
+    full conversion is several times slower.
+    """
+    cmax = rgb.max(axis=-1)
+    cmin = rgb.min(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sat = np.where(cmax > 0, (cmax - cmin) / np.where(cmax > 0, cmax, 1), 0.0)
+    return sat
+
+
+def _local_contrast(blocks: np.ndarray) -> np.ndarray:
+    """Largest absolute difference to the 8 neighbours, over channels, relative to level."""
+    cv2 = _cv2()
+    mean = blocks.mean(axis=2)
+    kernel = np.ones((3, 3), np.uint8)
+    hi = cv2.dilate(blocks, kernel).max(axis=2) if blocks.shape[0] > 2 else blocks.max(axis=2)
+    lo = cv2.erode(blocks, kernel).min(axis=2) if blocks.shape[0] > 2 else blocks.min(axis=2)
+    spread = hi - lo
+    return spread / np.maximum(mean, 1.0)
+
+
+def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: int = 6,
+                     max_samples: int = 6000, clip_margin: float = 2.0,
+                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Choose sample blocks stratified over intensity in every frame, flattest first.
+
+    Returns
+    -------
+    flat_index : ndarray of int
+        Indices into the flattened block grid.
+    flatness : ndarray
+        The local contrast of the chosen blocks (max over frames).
+    """
+    rng = np.random.default_rng(seed)
+    max_code = reduced[0].max_code
+    # flatness: the worst local contrast over frames, ignoring frames where a block is
+    # clipped (clipped areas look flat but tell nothing)
+    contrast = np.stack([_local_contrast(r.blocks).ravel() for r in reduced])
+    valid = np.stack([((r.block_max < max_code - clip_margin * max_code / 255)
+                       & (r.block_min > clip_margin * max_code / 255)).ravel()
+                      for r in reduced])
+    masked = np.where(valid, contrast, -np.inf)
+    worst = masked.max(axis=0)
+    worst[~np.isfinite(worst)] = np.inf
+    # a tie-breaking jitter keeps equal-contrast blocks (synthetic flat patches) spread out
+    order_key = worst + rng.uniform(0, 1e-6, worst.shape)
+    chosen: set[int] = set()
+    for r, ok in zip(reduced, valid):
+        level = r.blocks.reshape(-1, 3).mean(axis=1) / max_code
+        bins = np.minimum((level * n_bins).astype(int), n_bins - 1)
+        cand = np.flatnonzero(ok & np.isfinite(worst))
+        if cand.size == 0:
+            continue
+        # flattest blocks first, then a stable sort by bin keeps that order inside each bin
+        cand = cand[np.argsort(order_key[cand], kind="stable")]
+        cand = cand[np.argsort(bins[cand], kind="stable")]
+        cb = bins[cand]
+        starts = np.searchsorted(cb, np.arange(n_bins))
+        ends = np.searchsorted(cb, np.arange(n_bins), side="right")
+        for s, e in zip(starts, ends):
+            chosen.update(cand[s: min(e, s + per_bin)].tolist())
+    idx = np.array(sorted(chosen), dtype=np.int64)
+    if idx.size > max_samples:
+        idx = np.sort(rng.choice(idx, size=max_samples, replace=False))
+    return idx, worst[idx] if idx.size else np.zeros(0)
+
+
+def working_block_size(shape, target_blocks: int = 400_000) -> int:
+    """Block edge that brings a frame of ``shape`` near ``target_blocks`` blocks (≥ 1)."""
+    h, w = shape[:2]
+    return max(1, int(np.floor(np.sqrt(h * w / target_blocks))))
+
+
+def collect_samples(frames, *, sources=None, block: int | None = None,
+                    n_bins: int = 48, per_bin: int = 6, max_samples: int = 6000,
+                    clip_margin: float = 2.0, seed: int = 0, progress=None,
+                    loader=None) -> SampleSet:
+    """Read a stack streaming and return samples at stratified flat locations.
+
+    Parameters
+    ----------
+    frames : sequence
+        ``HxWx3`` uint8/uint16 arrays, or paths (then ``loader`` decodes them one at a time).
+    sources : sequence of str, optional
+        Names for error messages (file names); defaults to ``"array #k"``.
+    block : int, optional
+        Block edge in pixels; by default chosen so a frame has ~400,000 blocks.
+    progress : callable, optional
+        Called as ``progress(k, n, source)`` after each frame is read.
+    loader : callable, optional
+        ``loader(path) -> array``; defaults to :func:`selfcal.io.read_image`.
+
+    Raises
+    ------
+    InputError
+        Frames of different sizes or bit depths, unreadable files (named).
+    """
+    from .io import read_image
+
+    loader = loader or read_image
+    n = len(frames)
+    if sources is None:
+        sources = [str(f) if isinstance(f, (str, os.PathLike)) else f"array #{k}"
+                   for k, f in enumerate(frames)]
+    reduced: list[ReducedFrame] = []
+    for k, frame in enumerate(frames):
+        src = sources[k]
+        image = loader(frame) if isinstance(frame, (str, os.PathLike)) else frame
+        arr = _as_image_array(image, src)
+        if block is None:
+            block = working_block_size(arr.shape)
+        if reduced and arr.shape[:2] != reduced[0].shape:
+            raise InputError(
+                f"frame size {arr.shape[1]}x{arr.shape[0]} differs from the first frame's "
+                f"{reduced[0].shape[1]}x{reduced[0].shape[0]} ({reduced[0].source})", src)
+        r = reduce_frame(arr, block=block, source=src)
+        if reduced and r.max_code != reduced[0].max_code:
+            raise InputError("bit depth differs from the first frame's "
+                             f"({reduced[0].source})", src)
+        reduced.append(r)
+        del image, arr
+        if progress is not None:
+            progress(k + 1, n, src)
+    idx, flatness = choose_locations(reduced, n_bins=n_bins, per_bin=per_bin,
+                                     max_samples=max_samples, clip_margin=clip_margin,
+                                     seed=seed)
+    max_code = reduced[0].max_code
+    values = np.stack([r.blocks.reshape(-1, 3)[idx] for r in reduced]) / max_code
+    bmax = np.stack([r.block_max.ravel()[idx] for r in reduced]) / max_code
+    bmin = np.stack([r.block_min.ravel()[idx] for r in reduced]) / max_code
+    wb = reduced[0].blocks.shape[1]
+    locations = np.stack([idx // wb, idx % wb], axis=1)
+    return SampleSet(values=values.astype(np.float64), block_max=bmax, block_min=bmin,
+                     flatness=flatness, locations=locations, max_code=max_code,
+                     sources=list(sources), block=block, frame_shape=reduced[0].shape,
+                     digests=[r.digest for r in reduced])
+
+
+def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
+                saturation_threshold: float = 0.5) -> dict:
+    """Per-frame outlier masks of Lin et al. (ICCV 2011, §5), with their reasons.
+
+    A sample is *clipped* in a frame when any channel of its block touches 0 or the
+    maximum code (within ``clip_margin`` codes, on the 8-bit scale), and *saturated* when
+    the HSV saturation of its block mean exceeds ``saturation_threshold`` (β).
+
+    Returns
+    -------
+    dict of str -> ndarray of bool, shape (F, n)
+        ``"clipped"`` and ``"saturated"`` masks (True = rejected for that reason).
+    """
+    margin = clip_margin / 255.0
+    clipped = (samples.block_max >= 1.0 - margin) | (samples.block_min <= margin)
+    saturated = hsv_saturation(samples.values) > saturation_threshold
+    return {"clipped": clipped, "saturated": saturated & ~clipped}
