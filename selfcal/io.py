@@ -169,16 +169,23 @@ def read_exposure_info(path) -> ExposureInfo:
         with Image.open(path) as im:
             exif = im.getexif()
             sub = exif.get_ifd(_EXIF_IFD)
+            exif = dict(exif)
     except FileNotFoundError:
         raise InputError("no such file", path) from None
     except Exception as exc:
         raise InputError(f"not a readable image ({exc})", path) from None
-    time = _rational(sub.get(_TAG_EXPOSURE_TIME))
+
+    def tag(code):
+        # TIFF/EP writers put the exposure tags in IFD0 rather than the EXIF sub-IFD
+        value = sub.get(code)
+        return exif.get(code) if value is None else value
+
+    time = _rational(tag(_TAG_EXPOSURE_TIME))
     if time is None or time <= 0:
-        apex = _rational(sub.get(_TAG_SHUTTER_APEX))
+        apex = _rational(tag(_TAG_SHUTTER_APEX))
         time = float(2.0 ** (-apex)) if apex is not None else None
-    fnum = _rational(sub.get(_TAG_FNUMBER))
-    iso = sub.get(_TAG_ISO)
+    fnum = _rational(tag(_TAG_FNUMBER))
+    iso = tag(_TAG_ISO)
     if isinstance(iso, tuple):
         iso = iso[0] if iso else None
     iso = _rational(iso)
@@ -240,6 +247,10 @@ def atomic_output(path, *, force: bool = False, inputs=()):
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
                                dir=path.parent)
     os.close(fd)
+    # mkstemp creates 0600; give the output the permissions an ordinary file would get
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     try:
         yield Path(tmp)
         os.replace(tmp, path)

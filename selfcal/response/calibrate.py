@@ -136,7 +136,6 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
-    from .basis import ResponseBasis, builtin_basis, load_basis_file
     from .model import ResponseModel
 
     frames = list(images)
@@ -147,8 +146,12 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     times, time_source = resolve_exposure_times(frames, exposure_times, sources)
 
     if basis is None:
+        from .basis import builtin_basis
+
         basis = builtin_basis()
-    elif not isinstance(basis, ResponseBasis):
+    elif _is_path(basis):
+        from .basis import load_basis_file
+
         basis = load_basis_file(basis)
     if basis.domain != "log":
         basis = basis.to_log_domain()

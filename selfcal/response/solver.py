@@ -239,8 +239,9 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     grid = basis.intensity
     g0_grid = basis.mean
     H_grid = basis.components[:N].T  # (K, N)
-    lo = max(1.0 / samples.max_code, 0.5 / 255)
-    mono_idx = np.flatnonzero(grid >= lo)
+    # monotone over the whole grid: the dark end below the first code has no data, and an
+    # unconstrained fit there can shoot up
+    mono_idx = np.arange(len(grid))
     D = np.diff(np.eye(len(mono_idx)), axis=0)
 
     coeffs = np.zeros((3, N))

@@ -1,0 +1,107 @@
+"""Shared helpers of the benchmark scripts: data location, stacks, OpenCV baselines."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+
+
+def data_dir(*parts) -> Path:
+    """Path into ../shared/data; exit with a clear message when it is absent."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        sys.exit(f"benchmark data not found: {path} (the benchmarks read ../shared/data)")
+    return path
+
+
+def real_stacks():
+    """The real stacks of issue 3: name -> (paths, nominal times in seconds)."""
+    from selfcal.io import read_exposure_info
+
+    stacks = {}
+    mem = data_dir("memorial")
+    times = [float(Fraction(t)) for t in (mem / "shutter_times.txt").read_text().split()]
+    paths = sorted(mem.glob("memorial*.png"))
+    stacks["memorial"] = (paths, times)
+    for name, folder, pattern in [("piccante", "piccante_canon_t2i/stack", "*.jpg"),
+                                  ("frobisher", "frobisher_canon_5d2", "*.jpg"),
+                                  ("ntu", "ntu_canon_m3", "*.JPG")]:
+        paths = sorted(data_dir(folder).glob(pattern))
+        stacks[name] = (paths, [read_exposure_info(p).exposure_time for p in paths])
+    return stacks
+
+
+def opencv_inverse_response(images_rgb, times, method: str) -> np.ndarray:
+    """OpenCV's CalibrateDebevec / CalibrateRobertson response as f⁻¹, (256, 3) RGB."""
+    import cv2
+
+    bgr = [np.ascontiguousarray(im[:, :, ::-1]) for im in images_rgb]
+    t = np.asarray(times, dtype=np.float32)
+    if method == "debevec":
+        cal = cv2.createCalibrateDebevec()
+    elif method == "robertson":
+        cal = cv2.createCalibrateRobertson()
+    else:
+        raise ValueError(method)
+    resp = cal.process(bgr, t).reshape(256, 3)[:, ::-1]
+    return resp.astype(np.float64)
+
+
+def best_scale_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
+    """RMSE after the least-squares scale s minimising ||s·estimate − truth||."""
+    s = float(np.sum(estimate * truth) / max(np.sum(estimate * estimate), 1e-30))
+    return float(np.sqrt(np.mean((s * estimate - truth) ** 2)))
+
+
+def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
+                            lo: int = 25, hi: int = 235) -> float:
+    """Scale-free linearisation error over adjacent exposure pairs (issue 3, acceptance 2).
+
+    RMS over adjacent pairs (sorted by time) and pixels with all channels in [lo, hi] in
+    both frames of log f⁻¹(I′) − log f⁻¹(I) − log(t′/t).
+    """
+    order = np.argsort(times)
+    log_lut = np.log(np.maximum(inverse_lut, 1e-12))
+    total, count = 0.0, 0
+    for a, b in zip(order[:-1], order[1:]):
+        if times[b] == times[a]:
+            continue
+        ia, ib = images_rgb[a], images_rgb[b]
+        ok = ((ia >= lo) & (ia <= hi)).all(axis=2) & ((ib >= lo) & (ib <= hi)).all(axis=2)
+        if not ok.any():
+            continue
+        la = np.stack([log_lut[ia[..., c][ok], c] for c in range(3)], axis=1)
+        lb = np.stack([log_lut[ib[..., c][ok], c] for c in range(3)], axis=1)
+        r = lb - la - np.log(times[b] / times[a])
+        total += float(np.sum(r ** 2))
+        count += r.size
+    return float(np.sqrt(total / max(count, 1)))
+
+
+class Timer:
+    def __enter__(self):
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc):
+        self.seconds = time.perf_counter() - self.t0
+
+
+def table(headers, rows) -> str:
+    """A plain-text table (also valid Markdown)."""
+    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    lines = ["| " + " | ".join(c.ljust(w) for c, w in zip(cells[0], widths)) + " |",
+             "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    for r in cells[1:]:
+        lines.append("| " + " | ".join(c.rjust(w) for c, w in zip(r, widths)) + " |")
+    return "\n".join(lines)
