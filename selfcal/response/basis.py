@@ -1,0 +1,901 @@
+r"""Response-function bases: the built-in log-domain PCA basis and the EMoR/DoRF readers.
+
+The JPEG-only path represents each channel's inverse response in the log domain,
+
+.. math::  g(I) = \log f^{-1}(I) = g_0(I) + \sum_{n=1}^{N} h_n(I)\, c_n        \qquad (7)
+
+(Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration for Color Computer
+Vision*, ICCV 2011, §5, Eq. 7, after Grossberg & Nayar's empirical model of response,
+EMoR, PAMI 2004), so that the exposure equation ``g(I') - g(I) = K'`` (Eq. 8) is linear in
+the coefficients ``c_n``.  :class:`ResponseBasis` holds ``g0`` and the ``h_n`` sampled on a
+grid of normalised intensities (K = 1024 points on [0, 1], like DoRF) and gives the solver
+the design matrix (:meth:`ResponseBasis.design`).
+
+Domains
+-------
+``domain="log"``
+    ``mean`` and ``components`` describe ``g = log f^-1`` (Eq. 7).  The built-in basis.
+``domain="linear"``
+    They describe ``f^-1`` itself, as Grossberg & Nayar's inverse EMoR file (invemor.txt)
+    does; read one with :func:`read_invemor`.
+
+Normalisation
+-------------
+All curves are normalised so that ``f^-1(1) = 1``: in the log domain every training curve
+has ``g(1) = 0``, so the mean and every component are exactly 0 at ``I = 1`` and *any*
+coefficients give ``f^-1(1) = 1``.  Eq. 8 then fixes the remaining exposure scale.
+
+The dark end
+------------
+``log f^-1(I) -> -inf`` as ``I -> 0``, and for a gamma-like curve ``log f^-1`` spans more
+than ten natural-log units over the darkest few codes; left alone, this region (where
+8-bit data are noise and quantisation anyway) would dominate a log-domain PCA.  The
+built-in basis handles it in two deliberate ways:
+
+1. **Floor.**  ``f^-1`` is floored at ``log_floor`` (ε, a linear value; 1e-5 for the
+   built-in basis, 16.6 stops below white and below the first 8-bit code of sRGB or of
+   any gamma up to 2.1) before the log, ``g = log max(f^-1, ε)``.
+   At ``I = 0`` every training curve has ``g = log ε``, so ``g0(0) = log ε`` and every
+   component is 0 there; the model's ``f^-1(0)`` is ε instead of 0 (a linear error of at
+   most ε, far below one 8-bit code of any response).  Solvers of Eq. 8 should ignore
+   samples whose ``f^-1`` could fall below ε (clipped/near-black codes), where the
+   floored log no longer obeys Eq. 8.
+2. **Weights.**  A log-domain error δg at intensity ``I`` is a linear error
+   ``≈ f^-1(I) δg``.  The PCA is therefore *weighted* per intensity by
+   ``w(I) = (rms_j f^-1_j(I) + κ)^2`` (κ a small constant that keeps some weight in the
+   log domain everywhere; 0.05 for the built-in basis, so that below about 5 % of white,
+   where 8-bit codes are coarse, errors count evenly in the log domain): the
+   components are the principal axes of
+   ``sqrt(w) (g - g0)`` mapped back by ``1/sqrt(w)``.  This orders components by the
+   linear-domain variance they explain, which is what linearising an image needs, while
+   the model stays log-domain for Eq. 8.  The weights are stored with the basis.
+
+Fitting a given inverse curve (:meth:`ResponseBasis.fit_inverse_response`) minimises the
+*linear-domain* error of ``f^-1`` (weighted log least squares as a start, then
+Levenberg–Marquardt on ``exp(g0 + H c) - f^-1``).
+"""
+
+from __future__ import annotations
+
+import functools
+import io as _io
+import re
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, ModelFileError
+
+__all__ = [
+    "ResponseBasis",
+    "ForwardBasis",
+    "ResponseCurveSet",
+    "log_pca_basis",
+    "builtin_basis",
+    "load_basis_file",
+    "read_emor",
+    "read_invemor",
+    "read_dorf_curves",
+    "read_dorf_mat",
+    "BASIS_FORMAT_VERSION",
+]
+
+BASIS_FORMAT_VERSION = 1
+_DOMAINS = ("log", "linear")
+
+
+def _as_readonly(a, dtype=np.float64) -> np.ndarray:
+    a = np.array(a, dtype=dtype, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+def _interp_weights(grid: np.ndarray, x: np.ndarray):
+    """Left indices and fractions for linear interpolation of ``x`` on an increasing grid."""
+    idx = np.searchsorted(grid, x, side="right") - 1
+    idx = np.clip(idx, 0, grid.size - 2)
+    t = (x - grid[idx]) / (grid[idx + 1] - grid[idx])
+    return idx, t
+
+
+def _check_intensity(intensity, what="intensity") -> np.ndarray:
+    x = np.asarray(intensity, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(x)):
+        raise InputError(f"{what} values must be finite")
+    if x.size and (x.min() < -1e-9 or x.max() > 1 + 1e-9):
+        raise InputError(f"{what} values must lie in [0, 1] (normalised intensity)")
+    return np.clip(x, 0.0, 1.0)
+
+
+# --------------------------------------------------------------------------------------
+# the basis
+# --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ResponseBasis:
+    """Mean and principal components of inverse responses on a grid (Lin et al. 2011, Eq. 7).
+
+    Attributes
+    ----------
+    intensity : ndarray, shape (K,)
+        Increasing grid of normalised intensities on [0, 1] (K = 1024, like DoRF/EMoR).
+    mean : ndarray, shape (K,)
+        ``g0`` on the grid: mean ``log f^-1`` (``domain="log"``) or mean ``f^-1``
+        (``domain="linear"``).
+    components : ndarray, shape (N_max, K)
+        ``h_1 .. h_N_max`` on the grid, most important first.
+    domain : {"log", "linear"}
+        What ``mean`` and ``components`` describe (see the module docstring).
+    name : str
+        A short name ("selfcal built-in", "inverse EMoR", ...).
+    log_floor : float
+        ε, the linear floor applied before the log when the basis was built
+        (``g = log max(f^-1, ε)``); 0 for a linear-domain basis.
+    weights : ndarray, shape (K,), optional
+        Per-intensity PCA weights the basis was built with (informative).
+    explained_variance : ndarray, shape (N_max,), optional
+        (Weighted) variance of the training set along each component.
+    description : str
+        Free text: how the basis was made.
+    """
+
+    intensity: np.ndarray
+    mean: np.ndarray
+    components: np.ndarray
+    domain: str = "log"
+    name: str = ""
+    log_floor: float = 0.0
+    weights: np.ndarray | None = None
+    explained_variance: np.ndarray | None = None
+    description: str = field(default="")
+
+    def __post_init__(self):
+        grid = _as_readonly(self.intensity)
+        mean = _as_readonly(self.mean)
+        comps = _as_readonly(self.components)
+        if comps.ndim == 1:
+            comps = _as_readonly(comps[None, :])
+        if grid.ndim != 1 or grid.size < 2:
+            raise InputError("basis intensity grid must be 1-D with at least 2 points")
+        if np.any(np.diff(grid) <= 0) or grid[0] < 0 or grid[-1] > 1:
+            raise InputError("basis intensity grid must increase within [0, 1]")
+        if mean.shape != grid.shape or comps.ndim != 2 or comps.shape[1] != grid.size:
+            raise InputError(f"basis shapes disagree: grid {grid.shape}, mean {mean.shape}, "
+                             f"components {comps.shape}")
+        if not (np.all(np.isfinite(mean)) and np.all(np.isfinite(comps))):
+            raise InputError("basis mean and components must be finite")
+        if self.domain not in _DOMAINS:
+            raise InputError(f"basis domain must be one of {_DOMAINS}, not {self.domain!r}")
+        if not (np.isfinite(self.log_floor) and self.log_floor >= 0):
+            raise InputError("log_floor must be a non-negative number")
+        object.__setattr__(self, "intensity", grid)
+        object.__setattr__(self, "mean", mean)
+        object.__setattr__(self, "components", comps)
+        object.__setattr__(self, "log_floor", float(self.log_floor))
+        object.__setattr__(self, "name", str(self.name))
+        object.__setattr__(self, "description", str(self.description))
+        for key in ("weights", "explained_variance"):
+            v = getattr(self, key)
+            if v is not None:
+                object.__setattr__(self, key, _as_readonly(v))
+
+    # -- basics -------------------------------------------------------------------------
+
+    @property
+    def n_components(self) -> int:
+        """Number of components available (``N_max``)."""
+        return int(self.components.shape[0])
+
+    def _n(self, n) -> int:
+        if n is None:
+            return self.n_components
+        n = int(n)
+        if not 0 <= n <= self.n_components:
+            raise InputError(f"asked for {n} components; the basis {self.name!r} has "
+                             f"{self.n_components}")
+        return n
+
+    def truncate(self, n: int) -> "ResponseBasis":
+        """A copy keeping only the first ``n`` components."""
+        n = self._n(n)
+        ev = None if self.explained_variance is None else self.explained_variance[:n]
+        return ResponseBasis(self.intensity, self.mean, self.components[:n], self.domain,
+                             self.name, self.log_floor, self.weights, ev, self.description)
+
+    def __repr__(self) -> str:
+        return (f"ResponseBasis(name={self.name!r}, domain={self.domain!r}, "
+                f"K={self.intensity.size}, n_components={self.n_components}, "
+                f"log_floor={self.log_floor:g})")
+
+    # -- evaluation ---------------------------------------------------------------------
+
+    def design(self, intensity, n: int | None = None):
+        """Mean and first ``n`` components at arbitrary intensities (linear interpolation).
+
+        This is the linear model of Lin et al. 2011, Eq. 7, ``g(I) = g0(I) + H(I) c``; the
+        Eq. 8 solver builds its system ``[H(I') - H(I)] c - K' = g0(I) - g0(I')`` from it.
+
+        Parameters
+        ----------
+        intensity : array_like
+            Normalised intensities in [0, 1] (any shape; flattened).
+        n : int, optional
+            Number of components (default all).
+
+        Returns
+        -------
+        g0 : ndarray, shape (M,)
+            The mean at each intensity.
+        H : ndarray, shape (M, n)
+            ``H[m, j] = h_{j+1}(intensity[m])``.
+        """
+        n = self._n(n)
+        x = _check_intensity(intensity)
+        idx, t = _interp_weights(self.intensity, x)
+        g0 = self.mean[idx] * (1.0 - t) + self.mean[idx + 1] * t
+        c = self.components[:n]
+        h = c[:, idx].T * (1.0 - t)[:, None] + c[:, idx + 1].T * t[:, None]
+        return g0, h
+
+    def model_values(self, coeffs, intensity=None) -> np.ndarray:
+        """``g0 + sum_n c_n h_n``: ``log f^-1`` (log domain) or ``f^-1`` (linear domain)."""
+        c = np.asarray(coeffs, dtype=np.float64).reshape(-1)
+        n = self._n(c.size)
+        if intensity is None:
+            return self.mean + c @ self.components[:n]
+        g0, h = self.design(intensity, n)
+        return g0 + h @ c
+
+    def inverse_response(self, coeffs, intensity=None) -> np.ndarray:
+        """The inverse response ``f^-1`` for coefficients ``c`` (Lin et al. 2011, Eq. 7).
+
+        Parameters
+        ----------
+        coeffs : array_like, shape (n,)
+            Coefficients of the first ``n`` components (``n`` may be 0).
+        intensity : array_like, optional
+            Where to evaluate (values in [0, 1]); default the basis grid.
+
+        Returns
+        -------
+        ndarray
+            ``exp(g0 + H c)`` for a log-domain basis, ``g0 + H c`` for a linear one.
+            For the log domain, ``f^-1(1) = 1`` exactly and ``f^-1(0) = log_floor``.
+        """
+        v = self.model_values(coeffs, intensity)
+        if self.domain == "log":
+            return np.exp(np.minimum(v, 50.0))
+        return v
+
+    def to_log_domain(self, log_floor: float = 1e-5) -> "ResponseBasis":
+        """A log-domain basis (Eq. 7) from a linear-domain one, by linearising at the mean.
+
+        ``log(g0 + H c) ≈ log g0 + (H / g0) c`` (first order in ``c``): the mean becomes
+        ``log max(g0, ε)`` and each component ``h_n / max(g0, ε)``.  Exact at ``c = 0``;
+        the span is the tangent space of the linear model at its mean, which is what the
+        Eq. 8 solver needs (e.g. Grossberg & Nayar's inverse EMoR read by
+        :func:`read_invemor`).  ``f^-1(1) = 1`` is kept when the linear basis has it.
+
+        Parameters
+        ----------
+        log_floor : float
+            ε > 0, the floor before the log (see the module docstring).
+
+        Returns
+        -------
+        ResponseBasis
+            ``self`` when already in the log domain.
+        """
+        if self.domain == "log":
+            return self
+        if not log_floor > 0:
+            raise InputError("log_floor must be positive")
+        g0 = np.maximum(self.mean, log_floor)
+        comps = self.components / g0
+        comps[:, self.mean <= log_floor] = 0.0
+        return ResponseBasis(self.intensity, np.log(g0), comps, "log",
+                             f"{self.name} (log, linearised at the mean)", log_floor,
+                             description=(self.description + "; " if self.description else "")
+                             + "converted to the log domain by first-order linearisation")
+
+    # -- fitting ------------------------------------------------------------------------
+
+    def fit_inverse_response(self, intensity, inverse_response, n: int, *,
+                             refine: bool = True) -> np.ndarray:
+        """Coefficients of the first ``n`` components that best match a given ``f^-1``.
+
+        Minimises the linear-domain squared error ``sum_m (f^-1_model(I_m) - f^-1(I_m))^2``
+        (the RMSE on [0, 1] when the samples are evenly spread).  Linear domain: one linear
+        least-squares solve.  Log domain (Eq. 7): weighted log-domain least squares with
+        weights ``max(f^-1, ε)`` (a log error δg costs ``f^-1 δg`` in linear terms) as the
+        start, then Levenberg–Marquardt on ``exp(g0 + H c) - f^-1``.
+
+        Parameters
+        ----------
+        intensity : array_like, shape (M,)
+            Normalised intensities in [0, 1].
+        inverse_response : array_like, shape (M,)
+            The target ``f^-1`` at those intensities (normalised: ``f^-1(1) = 1``).
+        n : int
+            Number of components to use.
+        refine : bool
+            Run the non-linear refinement (log domain only).
+
+        Returns
+        -------
+        ndarray, shape (n,)
+        """
+        n = self._n(n)
+        x = _check_intensity(intensity)
+        t = np.asarray(inverse_response, dtype=np.float64).reshape(-1)
+        if t.shape != x.shape:
+            raise InputError(f"{t.size} inverse-response values for {x.size} intensities")
+        if not np.all(np.isfinite(t)):
+            raise InputError("inverse-response values must be finite")
+        if n == 0:
+            return np.zeros(0)
+        g0, h = self.design(x, n)
+        if self.domain == "linear":
+            return np.linalg.lstsq(h, t - g0, rcond=None)[0]
+        eps = max(self.log_floor, 1e-12)
+        tf = np.maximum(t, eps)
+        w = tf
+        c0 = np.linalg.lstsq(h * w[:, None], w * (np.log(tf) - g0), rcond=None)[0]
+        if not refine:
+            return c0
+        from scipy.optimize import least_squares
+
+        def resid(c):
+            return np.exp(np.minimum(g0 + h @ c, 50.0)) - t
+
+        def jac(c):
+            return np.exp(np.minimum(g0 + h @ c, 50.0))[:, None] * h
+
+        method = "lm" if x.size >= n else "trf"
+        res = least_squares(resid, c0, jac=jac, method=method, xtol=1e-12, ftol=1e-12,
+                            gtol=1e-12, max_nfev=200 * (n + 1))
+        c = res.x
+        # keep the better of start and refinement (LM never worsens, but be safe)
+        if np.sum(resid(c) ** 2) > np.sum(resid(c0) ** 2):
+            c = c0
+        return c
+
+    # -- files --------------------------------------------------------------------------
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        d = {
+            "format_version": np.array(BASIS_FORMAT_VERSION, dtype=np.int64),
+            "intensity": self.intensity,
+            "mean": self.mean,
+            "components": self.components,
+            "domain": np.array(self.domain),
+            "name": np.array(self.name),
+            "log_floor": np.array(self.log_floor, dtype=np.float64),
+            "description": np.array(self.description),
+        }
+        if self.weights is not None:
+            d["weights"] = self.weights
+        if self.explained_variance is not None:
+            d["explained_variance"] = self.explained_variance
+        return d
+
+    def to_bytes(self) -> bytes:
+        """The .npz file content, byte-for-byte reproducible (fixed zip timestamps)."""
+        buf = _io.BytesIO()
+        with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+            for key, arr in self._arrays().items():
+                member = _io.BytesIO()
+                np.lib.format.write_array(member, np.asarray(arr, order="C"), allow_pickle=False)
+                info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = 0o644 << 16
+                zf.writestr(info, member.getvalue(), compresslevel=9)
+        return buf.getvalue()
+
+    def save(self, path, *, force: bool = False):
+        """Write the basis as a .npz file, atomically.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            Output file (``.npz``).
+        force : bool
+            Allow replacing an existing file.
+
+        Returns
+        -------
+        pathlib.Path
+        """
+        from ..io import write_bytes_atomic
+
+        return write_bytes_atomic(path, self.to_bytes(), force=force)
+
+    @classmethod
+    def load(cls, path) -> "ResponseBasis":
+        """Read a basis written by :meth:`save`.
+
+        Raises
+        ------
+        ModelFileError
+            When the file is missing, not a .npz, or lacks the basis arrays.
+        """
+        try:
+            with open(path, "rb") as fh:
+                return cls._from_npz(fh, path)
+        except OSError as exc:
+            raise ModelFileError(f"cannot read response basis ({exc.strerror or exc})", path) from None
+
+    @classmethod
+    def _from_npz(cls, fh, path) -> "ResponseBasis":
+        try:
+            with np.load(fh, allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+        except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
+            raise ModelFileError(f"not a response-basis .npz file ({exc})", path) from None
+        missing = {"intensity", "mean", "components", "domain"} - set(d)
+        if missing:
+            raise ModelFileError(f"response-basis file lacks {sorted(missing)}", path)
+        def scalar(key, default, kind):
+            v = d.get(key)
+            if v is None:
+                return default
+            v = np.asarray(v)
+            if v.size != 1:
+                raise ModelFileError(f"response-basis entry {key!r} must be a single value", path)
+            return kind(v.reshape(-1)[0])
+
+        version = scalar("format_version", 1, int)
+        if version > BASIS_FORMAT_VERSION:
+            raise ModelFileError(f"response-basis format {version} is newer than this selfcal "
+                                 f"reads ({BASIS_FORMAT_VERSION})", path)
+        try:
+            return cls(
+                intensity=d["intensity"], mean=d["mean"], components=d["components"],
+                domain=scalar("domain", "log", str), name=scalar("name", "", str),
+                log_floor=scalar("log_floor", 0.0, float),
+                weights=d.get("weights"), explained_variance=d.get("explained_variance"),
+                description=scalar("description", "", str),
+            )
+        except InputError as exc:
+            raise ModelFileError(exc.reason, path) from None
+
+
+# --------------------------------------------------------------------------------------
+# building a log-domain PCA basis
+# --------------------------------------------------------------------------------------
+
+def log_pca_basis(intensity, inverse_curves, n_components: int = 25, *,
+                  log_floor: float = 1e-5, weight_offset: float = 0.05,
+                  name: str = "", description: str = "") -> ResponseBasis:
+    """Weighted log-domain PCA of inverse responses (the model of Lin et al. 2011, Eq. 7).
+
+    ``g_j = log max(f^-1_j, ε)``; ``g0`` is their mean; the components are the principal
+    axes of ``sqrt(w) (g_j - g0)`` divided by ``sqrt(w)``, with per-intensity weights
+    ``w(I) = (rms_j f^-1_j(I) + κ)^2`` (see the module docstring, *The dark end*).
+    Components are ``w``-orthonormal, exactly 0 where all curves agree (``I = 0`` and
+    ``I = 1``), and signed so that their largest weighted value is positive.
+
+    Parameters
+    ----------
+    intensity : array_like, shape (K,)
+        Increasing grid on [0, 1].
+    inverse_curves : array_like, shape (J, K)
+        ``f^-1`` of J curves on the grid, normalised to ``f^-1(1) = 1``.
+    n_components : int
+        Components to keep.
+    log_floor : float
+        ε > 0, the floor applied before the log.
+    weight_offset : float
+        κ >= 0 in the weights.
+    name, description : str
+        Stored with the basis.
+
+    Returns
+    -------
+    ResponseBasis
+        ``domain="log"``.
+    """
+    grid = np.asarray(intensity, dtype=np.float64)
+    f = np.asarray(inverse_curves, dtype=np.float64)
+    if f.ndim != 2 or f.shape[1] != grid.size:
+        raise InputError(f"inverse curves must be (J, {grid.size}); got {f.shape}")
+    if not log_floor > 0:
+        raise InputError("log_floor must be positive")
+    if not np.all(np.isfinite(f)):
+        raise InputError("inverse curves must be finite")
+    if f.shape[0] < 2:
+        raise InputError("need at least two curves for a PCA")
+    n_components = int(min(n_components, f.shape[0] - 1, grid.size))
+    g = np.log(np.maximum(f, log_floor))
+    g0 = g.mean(axis=0)
+    x = g - g0
+    s = np.sqrt(np.mean(f ** 2, axis=0)) + weight_offset
+    _, sv, vt = np.linalg.svd(x * s, full_matrices=False)
+    vt = vt[:n_components]
+    big = np.argmax(np.abs(vt), axis=1)
+    vt = vt * np.sign(vt[np.arange(vt.shape[0]), big])[:, None]
+    comps = np.divide(vt, s, out=np.zeros_like(vt), where=s > 0)
+    # where all curves agree (I = 0 at the floor, I = 1 at 0) the components are exactly 0
+    agree = np.ptp(g, axis=0) == 0
+    comps[:, agree] = 0.0
+    g0 = np.where(agree, g[0], g0)
+    return ResponseBasis(grid, g0, comps, "log", name, log_floor, s ** 2,
+                         sv[:n_components] ** 2 / f.shape[0], description)
+
+
+# --------------------------------------------------------------------------------------
+# the built-in basis
+# --------------------------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=1)
+def builtin_basis() -> ResponseBasis:
+    """The log-domain PCA basis shipped with selfcal (``selfcal/data/response_basis.npz``).
+
+    Built by ``scripts/make_response_basis.py`` from the curve family of
+    :mod:`selfcal.response.curve_family` (no DoRF/EMoR data), as in Lin et al. 2011,
+    Eq. 7.  Cached: the same object is returned on every call.
+
+    Returns
+    -------
+    ResponseBasis
+    """
+    from importlib import resources
+
+    res = resources.files("selfcal").joinpath("data", "response_basis.npz")
+    try:
+        with res.open("rb") as fh:
+            return ResponseBasis._from_npz(fh, str(res))
+    except OSError as exc:
+        raise ModelFileError(f"built-in response basis missing ({exc}); reinstall selfcal or "
+                             "run scripts/make_response_basis.py", str(res)) from None
+
+
+def load_basis_file(path) -> ResponseBasis:
+    """Load a response basis from a file: a selfcal ``.npz`` or Grossberg & Nayar's invemor.txt.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``*.npz`` written by :meth:`ResponseBasis.save`, or an inverse-EMoR text file.
+
+    Returns
+    -------
+    ResponseBasis
+        As stored (a text file gives a linear-domain basis; see
+        :meth:`ResponseBasis.to_log_domain`).
+
+    Raises
+    ------
+    InputError
+        Naming the file, when it is missing or is neither kind (a forward emor.txt is
+        recognised and refused with a hint).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError("no such response-basis file", p)
+    with open(p, "rb") as fh:
+        head = fh.read(4)
+    if head == b"PK\x03\x04" or p.suffix.lower() == ".npz":
+        return ResponseBasis.load(p)
+    try:
+        return read_invemor(p)
+    except InputError:
+        try:
+            read_emor(p)
+        except InputError:
+            raise InputError("neither a selfcal .npz basis nor an inverse-EMoR text file "
+                             "(blocks 'B =', 'g0 =', 'hinv(n)=')", p) from None
+        raise InputError("this is the forward EMoR basis (emor.txt); the JPEG path needs "
+                         "the inverse basis (invemor.txt)", p) from None
+
+
+# --------------------------------------------------------------------------------------
+# Grossberg & Nayar file formats
+# --------------------------------------------------------------------------------------
+
+@dataclass(frozen=True, eq=False)
+class ForwardBasis:
+    """Grossberg & Nayar's EMoR forward basis: ``f(E) = f0(E) + sum_n c_n h_n(E)``.
+
+    Attributes
+    ----------
+    irradiance : ndarray, shape (K,)
+        The ``E`` grid.
+    mean : ndarray, shape (K,)
+        ``f0``.
+    components : ndarray, shape (N, K)
+        ``h_1 .. h_N``.
+    name : str
+    """
+
+    irradiance: np.ndarray
+    mean: np.ndarray
+    components: np.ndarray
+    name: str = ""
+
+    @property
+    def n_components(self) -> int:
+        return int(self.components.shape[0])
+
+    def response(self, coeffs, irradiance=None) -> np.ndarray:
+        """``f0 + sum_n c_n h_n`` on the grid or at given irradiances (linear interpolation)."""
+        c = np.asarray(coeffs, dtype=np.float64).reshape(-1)
+        if c.size > self.n_components:
+            raise InputError(f"{c.size} coefficients for {self.n_components} components")
+        v = self.mean + c @ self.components[: c.size]
+        if irradiance is None:
+            return v
+        return np.interp(_check_intensity(irradiance, "irradiance"), self.irradiance, v)
+
+
+@dataclass(frozen=True, eq=False)
+class ResponseCurveSet:
+    """A set of sampled response curves, as in Grossberg & Nayar's DoRF.
+
+    Attributes
+    ----------
+    x : ndarray, shape (J, K)
+        Abscissae of each curve: irradiance for ``kind="forward"``, intensity for
+        ``kind="inverse"``.
+    y : ndarray, shape (J, K)
+        Brightness (forward) or irradiance (inverse) values.
+    kind : {"forward", "inverse"}
+    names : tuple of str
+        Curve names (DoRF text file) or ``"curve 1"``... (.mat copies have none).
+    graphs : tuple of str
+        The DoRF "graph" line of each curve (e.g. which channel), "" when unknown.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    kind: str
+    names: tuple
+    graphs: tuple
+
+    def __len__(self) -> int:
+        return int(self.y.shape[0])
+
+    def inverse_curves(self, intensity=None) -> np.ndarray:
+        """Inverse responses ``f^-1`` on an intensity grid, shape (J, len(intensity)).
+
+        Forward curves are inverted by monotone interpolation (a plateau maps to its
+        left end); ``f^-1(0) = 0``, ``f^-1(1) = 1``.
+        """
+        i = np.linspace(0.0, 1.0, 1024) if intensity is None else _check_intensity(intensity)
+        out = np.empty((len(self), i.size))
+        for j in range(len(self)):
+            x, y = self.x[j], self.y[j]
+            if self.kind == "inverse":
+                out[j] = np.interp(i, x, y)
+            else:
+                b = np.maximum.accumulate(np.clip(y, 0.0, 1.0)) + x * 1e-12
+                b = (b - b[0]) / (b[-1] - b[0])
+                out[j] = np.interp(i, b, x)
+                out[j] = np.where(i <= 0, x[0], np.where(i >= 1, x[-1], out[j]))
+        return out
+
+
+_HEADER = re.compile(r"^\s*([A-Za-z][A-Za-z0-9_]*(?:\(\s*\d+\s*\))?)\s*=\s*(.*)$")
+
+
+def _read_text(path) -> str:
+    try:
+        return Path(path).read_text(encoding="latin-1")
+    except OSError as exc:
+        raise InputError(f"cannot read file ({exc.strerror or exc})", path) from None
+
+
+def _parse_floats(tokens, path, lineno) -> list[float]:
+    try:
+        return [float(t) for t in tokens]
+    except ValueError:
+        raise InputError(f"line {lineno}: expected numbers, found {' '.join(tokens)[:60]!r}",
+                         path) from None
+
+
+def _read_named_blocks(path) -> dict[str, np.ndarray]:
+    """Parse ``name =`` headers each followed by numbers (the EMoR text layout)."""
+    blocks: dict[str, list[float]] = {}
+    current = None
+    for lineno, line in enumerate(_read_text(path).splitlines(), 1):
+        if not line.strip():
+            continue
+        m = _HEADER.match(line)
+        if m:
+            current = re.sub(r"\s+", "", m.group(1))
+            if current in blocks:
+                raise InputError(f"line {lineno}: block {current!r} appears twice", path)
+            blocks[current] = _parse_floats(m.group(2).split(), path, lineno)
+            continue
+        if current is None:
+            raise InputError(f"line {lineno}: numbers before any 'name =' header", path)
+        blocks[current].extend(_parse_floats(line.split(), path, lineno))
+    return {k: np.asarray(v, dtype=np.float64) for k, v in blocks.items()}
+
+
+def _emor_blocks(path, grid_key, mean_key, comp_prefix):
+    blocks = _read_named_blocks(path)
+    for key in (grid_key, mean_key, f"{comp_prefix}(1)"):
+        if key not in blocks:
+            raise InputError(f"no '{key} =' block; is this an EMoR file?", path)
+    comps = []
+    while f"{comp_prefix}({len(comps) + 1})" in blocks:
+        comps.append(blocks[f"{comp_prefix}({len(comps) + 1})"])
+    k = blocks[grid_key].size
+    if k < 2:
+        raise InputError(f"block '{grid_key}' has {k} values", path)
+    for key, arr in [(grid_key, blocks[grid_key]), (mean_key, blocks[mean_key])] + [
+            (f"{comp_prefix}({i + 1})", c) for i, c in enumerate(comps)]:
+        if arr.size != k:
+            raise InputError(f"block '{key}' has {arr.size} values, expected {k}", path)
+    grid = blocks[grid_key]
+    if np.any(np.diff(grid) <= 0):
+        raise InputError(f"block '{grid_key}' is not an increasing grid", path)
+    return grid, blocks[mean_key], np.vstack(comps)
+
+
+def read_emor(path) -> ForwardBasis:
+    """Read Grossberg & Nayar's EMoR forward basis (emor.txt).
+
+    The file holds blocks ``E =`` (irradiance grid), ``f0 =`` (mean response) and
+    ``h(1)=`` .. ``h(25)=`` (components), each 1024 numbers, four per line (Grossberg &
+    Nayar, *Modeling the Space of Camera Response Functions*, PAMI 2004).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    ForwardBasis
+
+    Raises
+    ------
+    InputError
+        Naming the file, when it is missing, unreadable, or lacks a block.
+    """
+    grid, mean, comps = _emor_blocks(path, "E", "f0", "h")
+    return ForwardBasis(grid, mean, comps, "EMoR (Grossberg & Nayar)")
+
+
+def read_invemor(path) -> ResponseBasis:
+    """Read Grossberg & Nayar's inverse EMoR basis (invemor.txt) as a linear-domain basis.
+
+    Blocks ``B =`` (intensity grid), ``g0 =`` (mean inverse response) and ``hinv(1)=`` ..
+    ``hinv(25)=``: ``f^-1(B) = g0(B) + sum_n c_n hinv_n(B)``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    ResponseBasis
+        ``domain="linear"``, ``log_floor=0``.
+
+    Raises
+    ------
+    InputError
+        Naming the file, when it is missing, unreadable, or lacks a block.
+    """
+    grid, mean, comps = _emor_blocks(path, "B", "g0", "hinv")
+    if grid[0] < -1e-9 or grid[-1] > 1 + 1e-9:
+        raise InputError("block 'B' must lie in [0, 1]", path)
+    return ResponseBasis(np.clip(grid, 0.0, 1.0), mean, comps, "linear",
+                         "inverse EMoR (Grossberg & Nayar)", 0.0,
+                         description=f"read from {Path(path).name}")
+
+
+def read_dorf_curves(path) -> ResponseCurveSet:
+    """Read the DoRF text database (dorfCurves.txt) of forward response curves.
+
+    Each curve is a block of lines: the curve's name, a "graph" line (which plot of the
+    source it came from, e.g. a colour channel), ``I =``, the irradiance samples (1024
+    numbers), ``B =``, the brightness samples (Grossberg & Nayar, *What is the Space of
+    Camera Response Functions?*, CVPR 2003).  Numbers may run over several lines.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    ResponseCurveSet
+        ``kind="forward"``, ``x`` = irradiance, ``y`` = brightness.
+
+    Raises
+    ------
+    InputError
+        Naming the file and line, on a malformed or empty file.
+    """
+    lines = [(n, ln.strip()) for n, ln in enumerate(_read_text(path).splitlines(), 1)]
+    lines = [(n, ln) for n, ln in lines if ln]
+    names, graphs, xs, ys = [], [], [], []
+    pos = 0
+
+    def numbers_after(pos, key, count=None):
+        # "key =" then numbers: up to the next "B =" header (for I) or ``count`` values (B)
+        n, ln = lines[pos]
+        m = _HEADER.match(ln)
+        if not m or re.sub(r"\s+", "", m.group(1)) != key:
+            raise InputError(f"line {n}: expected '{key} =', found {ln[:40]!r}", path)
+        vals = _parse_floats(m.group(2).split(), path, n)
+        pos += 1
+        while pos < len(lines) and (len(vals) < count if count is not None
+                                    else not _HEADER.match(lines[pos][1])):
+            n2, ln2 = lines[pos]
+            vals.extend(_parse_floats(ln2.split(), path, n2))
+            pos += 1
+        return np.asarray(vals), pos
+
+    while pos < len(lines):
+        if pos + 3 >= len(lines):
+            raise InputError(f"line {lines[pos][0]}: incomplete curve block at the end", path)
+        names.append(lines[pos][1])
+        graphs.append(lines[pos + 1][1])
+        x, pos = numbers_after(pos + 2, "I")
+        if pos >= len(lines):
+            raise InputError(f"curve {names[-1]!r}: no 'B =' block", path)
+        y, pos = numbers_after(pos, "B", count=x.size)
+        if x.size < 2 or x.size != y.size:
+            raise InputError(f"curve {names[-1]!r}: {x.size} irradiance and {y.size} "
+                             "brightness values", path)
+        if xs and x.size != xs[0].size:
+            raise InputError(f"curve {names[-1]!r}: {x.size} samples, others have "
+                             f"{xs[0].size}", path)
+        xs.append(x)
+        ys.append(y)
+    if not names:
+        raise InputError("no curves in the file", path)
+    return ResponseCurveSet(np.vstack(xs), np.vstack(ys), "forward", tuple(names), tuple(graphs))
+
+
+def read_dorf_mat(path) -> ResponseCurveSet:
+    """Read a MATLAB copy of DoRF: forward (``I``, ``B``) or inverse (``invB``, ``invI``).
+
+    ``201_CRF_data.mat`` holds ``I`` (irradiance grids) and ``B`` (201 forward curves);
+    ``dorfCurvesInv.mat`` holds ``invB`` (intensity grids) and ``invI`` (201 inverse
+    curves), each 201 x 1024 (Grossberg & Nayar, CVPR 2003).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    ResponseCurveSet
+        ``kind="forward"`` (x = irradiance, y = brightness) or ``kind="inverse"``
+        (x = intensity, y = irradiance); names "curve 1" ... (the .mat files carry none).
+
+    Raises
+    ------
+    InputError
+        Naming the file, when it cannot be read or has neither variable pair.
+    """
+    from scipy.io import loadmat
+
+    try:
+        d = loadmat(str(path))
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except Exception as exc:  # scipy raises several types for corrupt files
+        raise InputError(f"not a readable MATLAB file ({exc})", path) from None
+    if "invI" in d and "invB" in d:
+        x, y, kind = d["invB"], d["invI"], "inverse"
+    elif "I" in d and "B" in d:
+        x, y, kind = d["I"], d["B"], "forward"
+    else:
+        keys = sorted(k for k in d if not k.startswith("__"))
+        raise InputError(f"neither (I, B) nor (invB, invI) variables; found {keys}", path)
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim == 1 or x.shape[0] == 1:
+        x = np.broadcast_to(x.reshape(1, -1), y.shape)
+    if y.ndim != 2 or x.shape != y.shape:
+        raise InputError(f"curve arrays have shapes {x.shape} and {y.shape}", path)
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise InputError("curve arrays contain non-finite values", path)
+    names = tuple(f"curve {j + 1}" for j in range(y.shape[0]))
+    return ResponseCurveSet(np.array(x), y, kind, names, ("",) * y.shape[0])
