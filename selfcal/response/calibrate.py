@@ -15,7 +15,8 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..samples import collect_samples, frame_masks
-from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
+from .solver import (DEFAULT_SATURATION_THRESHOLD, normalise_at_white,
+                     solve_exposure_equations)
 
 #: A frame whose given time and pixels disagree by more than this factor is reported.
 CONTRADICTION_FACTOR = 1.25
@@ -144,6 +145,11 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
             "one frame only: a response needs at least two frames at different exposures")
     sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
     times, time_source = resolve_exposure_times(frames, exposure_times, sources)
+    warnings: list[str] = []
+    if time_source == "exif":
+        lacking = [src for src, t in zip(sources, times) if t is None]
+        for src in lacking:
+            warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
 
     if basis is None:
         from .basis import builtin_basis
@@ -163,7 +169,6 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
 
     samples = collect_samples(frames, sources=sources, max_samples=max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress)
-    warnings: list[str] = []
 
     # duplicates: identical pixels at different given times contradict each other
     keep = list(range(len(frames)))
@@ -236,14 +241,15 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     coeffs = result.coefficients
     grid = basis.intensity
     g = basis.mean[None, :] + coeffs @ basis.components[:n_components]
-    inverse = np.exp(g).T
-    inverse = np.maximum.accumulate(inverse, axis=0)
-    inverse /= inverse[-1]
+    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
+    top = [float(np.max(sub.values[..., c][valid])) if valid.any() else 1.0
+           for c in range(3)]
+    g = np.stack([normalise_at_white(grid, g[c], top[c]) for c in range(3)])
+    inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
 
     def inverse_fn(vals):
         return np.stack([np.interp(vals[:, c], grid, inverse[:, c]) for c in range(3)], axis=1)
 
-    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
     delta = _delta_eq12(sub.values, valid, inverse_fn, result.log_exposures,
                         [tuple(p) for p in result.pair_frames])
 

@@ -124,6 +124,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                              clip_margin: float = 2.0, exposure_prior_sigma: float = 0.05,
                              max_rank_gap: int = 3, huber_k: float = 1.345,
                              max_iterations: int = 8, ridge: float = 1e-4,
+                             smooth_weight: float = 0.0, prior_weight: float = 1.0,
                              masks: dict | None = None) -> SolveResult:
     """Solve Eq. 8 of Lin et al. (ICCV 2011) for three channels' coefficients and exposures.
 
@@ -150,6 +151,9 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Huber threshold in robust standard deviations (IRLS).
     ridge : float
         Weight of the ridge prior on the coefficients, relative to the mean data weight.
+    smooth_weight : float
+        Weight (relative to the mean data weight) of the curvature penalty on g between
+        the brightest valid sample and I = 1, where f⁻¹(1) = 1 is extrapolation.
 
     Returns
     -------
@@ -244,7 +248,25 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     mono_idx = np.arange(len(grid))
     D = np.diff(np.eye(len(mono_idx)), axis=0)
 
+    # Beyond the brightest valid sample (clipping keeps the last codes unobserved) the
+    # normalisation f⁻¹(1) = 1 is pure extrapolation; a curvature penalty there makes it
+    # a smooth continuation of the observed curve instead of a jump the basis allows.
+    smooth_terms = []
+    step = grid[1] - grid[0]
+    for c in range(3):
+        vals = np.where(valid, values[..., c], np.nan)
+        top = np.nanmax(vals) if np.isfinite(vals).any() else 0.0
+        idx = np.flatnonzero(grid >= top - 3 * step)
+        if idx.size >= 3:
+            D2 = np.diff(np.eye(idx.size), n=2, axis=0) / step
+            smooth_terms.append((c, D2 @ H_grid[idx], D2 @ g0_grid[idx]))
+
+    ev = getattr(basis, "explained_variance", None)
+    prior_precision = (prior_weight / np.asarray(ev[:N], dtype=float)
+                       if ev is not None and prior_weight > 0 else None)
+
     coeffs = np.zeros((3, N))
+    noise_scale = 1.0
     K = init.copy()
     K[fixed] = log_times[fixed]
     robust = np.ones(3 * m)
@@ -257,10 +279,12 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
             slope_a = _gradient_on(grid, g_c, Ia[:, c])
             slope_b = _gradient_on(grid, g_c, Ib[:, c])
             var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2) + 1e-4
-        w = robust / var
+        # the data term is a likelihood only with the noise at its measured level
+        w = robust / (var * noise_scale ** 2)
         x = _weighted_solve(A, b, w, fixed, log_times, known, refine_exposures,
                             exposure_prior_sigma, ridge, N, g0_grid[mono_idx],
-                            H_grid[mono_idx], D)
+                            H_grid[mono_idx], D, smooth_terms, smooth_weight,
+                            prior_precision)
         x, constrained = x
         monotone_constrained |= constrained
         new_coeffs = x[:3 * N].reshape(3, N)
@@ -269,6 +293,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         u = resid / np.sqrt(var)
         scale = 1.4826 * np.median(np.abs(u)) + 1e-12
         new_robust = np.minimum(1.0, huber_k * scale / np.maximum(np.abs(u), 1e-12))
+        noise_scale = max(scale, 1e-3)
         change = np.max(np.abs(new_coeffs - coeffs))
         coeffs = new_coeffs
         robust = new_robust
@@ -292,13 +317,23 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
 
 
 def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge, N,
-                    g0_mono, H_mono, D):
+                    g0_mono, H_mono, D, smooth_terms=(), smooth_weight=0.0,
+                    prior_precision=None):
     """Minimise Σ w r² + priors, with exposures in ``fixed`` held; QP if not monotone."""
     Aw = sp.diags(w) @ A
     Q = np.asarray((A.T @ Aw).todense())
     q = np.asarray(Aw.T @ b).ravel()
     scale = np.trace(Q[:3 * N, :3 * N]) / (3 * N) if N else 1.0
-    Q[:3 * N, :3 * N] += ridge * scale * np.eye(3 * N)
+    if prior_precision is not None:
+        # Gaussian prior c_n ~ N(0, λ_n) from the curve database's PCA variances: it
+        # decides what the data leave open (the bend in the never-observed last codes)
+        Q[:3 * N, :3 * N] += np.diag(np.tile(prior_precision, 3))
+    else:
+        Q[:3 * N, :3 * N] += ridge * scale * np.eye(3 * N)
+    for c, D2H, D2g0 in smooth_terms:
+        blk = slice(c * N, (c + 1) * N)
+        Q[blk, blk] += smooth_weight * scale * (D2H.T @ D2H)
+        q[blk] -= smooth_weight * scale * (D2H.T @ D2g0)
     if refine:
         kk = np.flatnonzero(known)
         prior_w = scale / (prior_sigma ** 2) * 1e-3
@@ -341,3 +376,44 @@ def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge
                                    f"(solver status {prob.status})")
         x[free] = zv.value
     return x, constrained
+
+
+def normalise_at_white(grid: np.ndarray, g: np.ndarray, top: float,
+                       window: float = 8 / 255) -> np.ndarray:
+    """Normalise a log inverse response so that f⁻¹(1) = 1 by extrapolating the data.
+
+    Eq. 8 only sees differences of g, and the last codes below the maximum are always
+    clipped, so the value g(1) that fixes the scale of f⁻¹ is never observed: a basis
+    that can bend sharply in the last few codes leaves the whole curve's scale free.
+    Here g is kept as fitted up to ``top`` (the brightest valid sample), continued
+    linearly beyond it with the slope it has over the last ``window`` below ``top``, and
+    shifted so that the continuation reaches 0 at I = 1.
+
+    Parameters
+    ----------
+    grid : ndarray, shape (K,)
+        Normalised intensity grid.
+    g : ndarray, shape (K,)
+        Fitted log inverse response on the grid.
+    top : float
+        Brightest intensity with valid data.
+    window : float
+        Width of the range below ``top`` that sets the slope.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        The normalised log inverse response (0 at I = 1).
+    """
+    top = float(np.clip(top, grid[1], grid[-1]))
+    sel = (grid >= top - window) & (grid <= top)
+    if sel.sum() >= 2:
+        slope = np.polyfit(grid[sel], g[sel], 1)[0]
+    else:
+        slope = (g[-1] - g[-2]) / (grid[-1] - grid[-2])
+    slope = max(slope, 1e-6)
+    g_top = np.interp(top, grid, g)
+    out = g.copy()
+    beyond = grid > top
+    out[beyond] = g_top + slope * (grid[beyond] - top)
+    return out - (g_top + slope * (1.0 - top))

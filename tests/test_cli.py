@@ -1,0 +1,128 @@
+"""The command line: help, exit codes, messages naming files, no overwriting."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from selfcal_cli.main import EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, main
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+
+
+def run(argv, capsys):
+    code = main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err
+
+
+def test_help_lists_commands(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for command in ("demo", "calibrate"):
+        assert command in out
+    assert "exit codes" in out
+
+
+def test_calibrate_help_lists_options(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["calibrate", "--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for option in ("--times", "--unknown-exposures", "--refine-exposures",
+                   "--saturation-threshold", "--basis", "--plot", "--force"):
+        assert option in out
+
+
+def test_console_script_is_installed():
+    result = subprocess.run([sys.executable, "-m", "selfcal_cli", "--version"],
+                            capture_output=True, text=True)
+    assert result.returncode == 0
+    assert result.stdout.startswith("selfcal ")
+
+
+def test_bad_time_is_a_usage_error(capsys, tmp_path):
+    with pytest.raises(SystemExit) as info:
+        main(["calibrate", "a.jpg", "b.jpg", "-o", str(tmp_path / "m.json"),
+              "--times", "1/0", "1"])
+    assert info.value.code == 2
+    assert "1/0" in capsys.readouterr().err
+
+
+def test_calibrate_fixture_stack(capsys, tmp_path):
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    assert len(frames) >= 3
+    out = tmp_path / "model.json"
+    plot = tmp_path / "response.png"
+    code, text = run(["calibrate", *frames, "-o", out, "--plot", plot], capsys)
+    assert code == 0, text
+    doc = json.loads(out.read_text())
+    assert doc["format"] == "selfcal-model" and doc["kind"] == "response"
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "verdict" in text and "exif" in text
+    # the truth of the fixtures: the recovered curve is close to it
+    truth = json.loads((FIXTURES / "truth.json").read_text())
+    import numpy as np
+
+    import selfcal
+
+    model = selfcal.load_model(out)
+    inv_true = np.stack([truth["inverse_response"][c] for c in "RGB"], axis=1)
+    est = model.inverse_response()
+    assert np.sqrt(np.mean((est[1:255] - inv_true[1:255]) ** 2)) < 0.03
+
+    # a second run refuses to overwrite, and leaves the file as it was
+    before = out.read_bytes()
+    code, text = run(["calibrate", *frames, "-o", out], capsys)
+    assert code == EXIT_OUTPUT
+    assert "exists" in text and "--force" in text
+    assert out.read_bytes() == before
+    code, text = run(["calibrate", *frames, "-o", out, "--force"], capsys)
+    assert code == 0
+
+
+def test_calibrate_refuses_to_write_over_input(capsys):
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    before = frames[0].read_bytes()
+    code, text = run(["calibrate", *frames, "-o", frames[0], "--force"], capsys)
+    assert code == EXIT_OUTPUT
+    assert frames[0].read_bytes() == before
+
+
+def test_truncated_file_named_in_error(capsys, tmp_path):
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    broken = tmp_path / "broken.jpg"
+    broken.write_bytes(frames[1].read_bytes()[:500])
+    code, text = run(["calibrate", frames[0], broken, frames[2], "-o", tmp_path / "m.json"],
+                     capsys)
+    assert code == EXIT_INPUT
+    assert "broken.jpg" in text and "truncated" in text
+    assert "Traceback" not in text
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_one_frame_cannot_calibrate(capsys, tmp_path):
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    code, text = run(["calibrate", frames[0], "-o", tmp_path / "m.json"], capsys)
+    assert code == EXIT_CALIBRATION
+    assert "one frame" in text
+
+
+def test_demo_reports_error_against_truth(capsys, tmp_path):
+    out = tmp_path / "demo"
+    code, text = run(["demo", "-o", out], capsys)
+    assert code == 0, text
+    assert (out / "model.json").exists() and (out / "response.png").exists()
+    assert len(list(out.glob("*.jpg"))) == 6
+    line = next(ln for ln in text.splitlines() if "RMSE of f⁻¹" in ln)
+    errors = [float(tok) for tok in line.replace(",", " ").split() if tok[:1] == "0"]
+    assert len(errors) == 3 and max(errors) < 0.03
+    # running again without --force keeps what is there
+    code, text = run(["demo", "-o", out], capsys)
+    assert code == EXIT_OUTPUT

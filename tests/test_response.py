@@ -1,0 +1,247 @@
+"""The JPEG-only path: recovered curves against the simulator's truth, exposures, bad input."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+import selfcal
+from selfcal import synth
+from selfcal.errors import CalibrationError, InputError, ModelFileError
+
+TIMES = list(synth.DEMO_EXPOSURE_TIMES)
+
+
+def rmse_vs_truth(model, stack):
+    truth = stack.inverse_response()
+    est = model.inverse_response(np.arange(stack.max_code + 1))
+    inner = slice(1, stack.max_code)
+    return float(np.sqrt(np.mean((est[inner] - truth[inner]) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def srgb_stack():
+    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=1)
+    scene = synth.make_scene(192, 288, saturation=0.5, seed=1)
+    return synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=1)
+
+
+@pytest.fixture(scope="module")
+def film_stack():
+    stack = synth.demo_stack(seed=0)
+    return stack
+
+
+@pytest.fixture(scope="module")
+def srgb_model(srgb_stack):
+    return selfcal.calibrate_response(srgb_stack.images, TIMES)
+
+
+def test_known_times_recover_truth(srgb_model, srgb_stack):
+    assert rmse_vs_truth(srgb_model, srgb_stack) < 0.01
+    # exposures were fixed at the given times
+    np.testing.assert_allclose(srgb_model.exposures, TIMES)
+    assert srgb_model.diagnostics["verdict"] == "ok"
+    inv = srgb_model.inverse_response()
+    assert inv[-1] == pytest.approx([1, 1, 1])
+    assert np.all(np.diff(inv, axis=0) >= 0)
+
+
+def test_per_channel_curves_differ_as_truth_does(film_stack):
+    model = selfcal.calibrate_response(film_stack.images, list(film_stack.exposure_times))
+    truth = film_stack.inverse_response()
+    est = model.inverse_response()
+    err = np.sqrt(np.mean((est[1:255] - truth[1:255]) ** 2, axis=0))
+    assert np.all(err < 0.012), err
+    # the channels' true curves differ; the recovered ones keep that order at mid-grey
+    assert np.argsort(est[128]).tolist() == np.argsort(truth[128]).tolist()
+
+
+def test_two_known_times_fix_ambiguity(srgb_stack):
+    times = [TIMES[0], None, None, None, None, TIMES[-1]]
+    model = selfcal.calibrate_response(srgb_stack.images, times)
+    assert rmse_vs_truth(model, srgb_stack) < 0.015
+    # the unknown frames' exposures come out near the true (jittered) ones
+    rel = model.exposures[1:5] / srgb_stack.true_exposures[1:5]
+    assert np.all(np.abs(rel - 1) < 0.08), rel
+    assert not model.diagnostics["ambiguity_resolved_by_prior"]
+
+
+def test_unknown_times_warn_about_ambiguity(srgb_stack):
+    model = selfcal.calibrate_response(srgb_stack.images, [None] * 6)
+    assert model.diagnostics["ambiguity_resolved_by_prior"]
+    assert any("exponential ambiguity" in w for w in model.diagnostics["warnings"])
+    # ratios between frames are still ordered like the truth
+    assert np.all(np.diff(model.exposures) > 0)
+
+
+def test_refine_exposures_beats_wrong_nominal_times():
+    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.gamma(2.2), seed=3)
+    scene = synth.make_scene(192, 288, seed=3)
+    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.12, jpeg_quality=90, seed=3)
+    refined = selfcal.calibrate_response(stack.images, TIMES, refine_exposures=True)
+    true = stack.true_exposures
+    # compare ratios to the first frame (the overall scale is the prior's)
+    err_nominal = np.abs(np.log(np.array(TIMES) / TIMES[0]) - np.log(true / true[0]))
+    err_refined = np.abs(np.log(refined.exposures / refined.exposures[0]) - np.log(true / true[0]))
+    assert err_refined.mean() < 0.5 * err_nominal.mean()
+
+
+def test_rejections_are_counted_by_reason():
+    pipe = synth.default_pipeline(gamut="smooth", seed=4)
+    scene = synth.make_scene(192, 288, saturation=1.0, seed=4)
+    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=90, seed=4)
+    model = selfcal.calibrate_response(stack.images, TIMES)
+    rejected = model.diagnostics["samples"]["rejected"]
+    assert rejected["clipped"] > 0 and rejected["saturated"] > 0
+    strict = selfcal.calibrate_response(stack.images, TIMES, saturation_threshold=0.2)
+    assert strict.diagnostics["samples"]["rejected"]["saturated"] > rejected["saturated"]
+
+
+def test_contradicting_time_is_reported(srgb_stack):
+    times = list(TIMES)
+    times[3] = times[3] * 2.5  # EXIF lies about one frame
+    model = selfcal.calibrate_response(srgb_stack.images, times)
+    flagged = [c["frame"] for c in model.diagnostics["contradicting_times"]]
+    assert flagged == ["array #3"]
+    assert any("array #3" in w and "contradict" in w for w in model.diagnostics["warnings"])
+
+
+def test_sixteen_bit_stack():
+    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=5)
+    scene = synth.make_scene(128, 192, seed=5)
+    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=None,
+                                 bit_depth=16, seed=5)
+    model = selfcal.calibrate_response(stack.images, TIMES)
+    assert model.max_code == 65535
+    assert rmse_vs_truth(model, stack) < 0.01
+
+
+def test_linearize_applies_inverse_per_channel(srgb_model, srgb_stack):
+    image = srgb_stack.images[2]
+    lin = srgb_model.linearize(image)
+    assert lin.dtype == np.float32 and lin.shape == image.shape
+    lut = srgb_model.inverse_response()
+    assert lin[5, 7, 1] == pytest.approx(lut[image[5, 7, 1], 1], rel=1e-6)
+    # float input in [0, 1] gives the same as codes
+    lin_f = srgb_model.linearize(image.astype(np.float32) / 255)
+    np.testing.assert_allclose(lin_f, lin, atol=1e-5)
+    with pytest.raises(InputError):
+        srgb_model.linearize(np.full((2, 2, 3), np.nan, np.float32))
+
+
+def test_save_load_round_trip(srgb_model, srgb_stack, tmp_path):
+    path = tmp_path / "model.json"
+    srgb_model.save(path)
+    loaded = selfcal.load_model(path)
+    np.testing.assert_array_equal(loaded.linearize(srgb_stack.images[1]),
+                                  srgb_model.linearize(srgb_stack.images[1]))
+    np.testing.assert_allclose(loaded.exposures, srgb_model.exposures)
+    with pytest.raises(selfcal.OutputExistsError):
+        srgb_model.save(path)
+    srgb_model.save(path, force=True)
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda d: d.update(version=99), "version"),
+    (lambda d: d.update(format="other"), "not a selfcal model"),
+    (lambda d: d.pop("inverse_response"), "inverse_response"),
+    (lambda d: d["inverse_response"][0].reverse(), "not increasing"),
+])
+def test_load_rejects_bad_model_files(srgb_model, tmp_path, mutate, message):
+    path = tmp_path / "m.json"
+    srgb_model.save(path)
+    doc = json.loads(path.read_text())
+    mutate(doc)
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match=message) as info:
+        selfcal.load_model(path)
+    assert str(path) in str(info.value)
+
+
+def test_load_rejects_non_json(tmp_path):
+    path = tmp_path / "m.json"
+    path.write_text("{not json")
+    with pytest.raises(ModelFileError, match="not valid JSON"):
+        selfcal.load_model(path)
+
+
+def test_deterministic(srgb_stack):
+    a = selfcal.calibrate_response(srgb_stack.images, TIMES)
+    b = selfcal.calibrate_response(srgb_stack.images, TIMES)
+    np.testing.assert_array_equal(a.inverse, b.inverse)
+
+
+# ------------------------------------------------------------------ bad input
+
+def test_one_frame_is_an_error(srgb_stack):
+    with pytest.raises(CalibrationError, match="one frame"):
+        selfcal.calibrate_response(srgb_stack.images[:1], TIMES[:1])
+
+
+def test_frames_of_different_sizes(srgb_stack):
+    frames = list(srgb_stack.images[:3])
+    frames[2] = frames[2][:-4]
+    with pytest.raises(InputError, match="array #2.*differs"):
+        selfcal.calibrate_response(frames, TIMES[:3])
+
+
+def test_duplicate_frame_with_other_time(srgb_stack):
+    frames = [srgb_stack.images[0], srgb_stack.images[1], srgb_stack.images[1]]
+    with pytest.raises(InputError, match="array #2.*identical"):
+        selfcal.calibrate_response(frames, TIMES[:3])
+
+
+def test_all_clipped_frame_is_dropped_with_warning(srgb_stack):
+    frames = list(srgb_stack.images) + [np.full_like(srgb_stack.images[0], 255)]
+    model = selfcal.calibrate_response(frames, TIMES + [1.0])
+    assert any("array #6" in w and "clipped" in w for w in model.diagnostics["warnings"])
+    assert "array #6" not in model.diagnostics["frames_used"]
+    assert math.isnan(model.exposures[6])
+
+
+def test_nan_array_is_an_error(srgb_stack):
+    frames = [srgb_stack.images[0].astype(np.float32), srgb_stack.images[1]]
+    frames[0][0, 0, 0] = np.nan
+    with pytest.raises(InputError, match="array #0.*NaN"):
+        selfcal.calibrate_response(frames, TIMES[:2])
+
+
+def test_same_time_everywhere_is_an_error(srgb_stack):
+    with pytest.raises(CalibrationError, match="same exposure"):
+        selfcal.calibrate_response(srgb_stack.images[:3], [0.01] * 3)
+
+
+def test_bad_time_value_names_frame(srgb_stack):
+    with pytest.raises(InputError, match="array #1.*positive"):
+        selfcal.calibrate_response(srgb_stack.images[:2], [0.01, -1])
+
+
+def test_files_truncated_or_not_images(tmp_path, srgb_stack):
+    paths = srgb_stack.write(tmp_path / "stack")
+    data = paths[2].read_bytes()
+    paths[2].write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match="frame.*truncated"):
+        selfcal.calibrate_response(paths)
+    paths[2].write_text("hello")
+    with pytest.raises(InputError, match="not an image"):
+        selfcal.calibrate_response(paths)
+
+
+def test_exif_times_are_used_and_missing_exif_warned(tmp_path, srgb_stack):
+    paths = srgb_stack.write(tmp_path / "stack")
+    model = selfcal.calibrate_response(paths)
+    assert model.diagnostics["exposure_source"] == "exif"
+    np.testing.assert_allclose(model.exposures, srgb_stack.exposure_times, rtol=1e-4)
+    # strip EXIF from one file: its time becomes unknown, and the warning names it
+    from selfcal.io import encode_image
+
+    paths[4].write_bytes(encode_image(srgb_stack.images[4], ".png"))
+    stripped = paths[4]
+    model = selfcal.calibrate_response(paths)
+    assert any(str(stripped) in w and "no exposure time" in w
+               for w in model.diagnostics["warnings"])
+    assert model.exposures[4] == pytest.approx(srgb_stack.true_exposures[4], rel=0.08)
