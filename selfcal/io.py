@@ -109,7 +109,7 @@ def read_image_size(path) -> tuple[int, int]:
     except FileNotFoundError:
         raise InputError("no such file", path) from None
     except Exception as exc:  # Pillow raises several types for bad headers
-        raise InputError(f"not a readable image ({exc})", path) from None
+        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
     return height, width
 
 
@@ -173,7 +173,7 @@ def read_exposure_info(path) -> ExposureInfo:
     except FileNotFoundError:
         raise InputError("no such file", path) from None
     except Exception as exc:
-        raise InputError(f"not a readable image ({exc})", path) from None
+        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
 
     def tag(code):
         # TIFF/EP writers put the exposure tags in IFD0 rather than the EXIF sub-IFD

@@ -124,7 +124,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                              clip_margin: float = 2.0, exposure_prior_sigma: float = 0.05,
                              max_rank_gap: int = 3, huber_k: float = 1.345,
                              max_iterations: int = 8, ridge: float = 1e-4,
-                             smooth_weight: float = 0.0, prior_weight: float = 1.0,
+                             white_sigma: float = 0.003, prior_weight: float = 1.0,
                              masks: dict | None = None) -> SolveResult:
     """Solve Eq. 8 of Lin et al. (ICCV 2011) for three channels' coefficients and exposures.
 
@@ -151,9 +151,11 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Huber threshold in robust standard deviations (IRLS).
     ridge : float
         Weight of the ridge prior on the coefficients, relative to the mean data weight.
-    smooth_weight : float
-        Weight (relative to the mean data weight) of the curvature penalty on g between
-        the brightest valid sample and I = 1, where f⁻¹(1) = 1 is extrapolation.
+    white_sigma : float
+        Std (log units) of the prior that the observed curve continues straight from the
+        brightest valid sample to g(1) = 0.
+    prior_weight : float
+        Scale of the Gaussian prior on the coefficients from the basis' PCA variances.
 
     Returns
     -------
@@ -249,22 +251,31 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     D = np.diff(np.eye(len(mono_idx)), axis=0)
 
     # Beyond the brightest valid sample (clipping keeps the last codes unobserved) the
-    # normalisation f⁻¹(1) = 1 is pure extrapolation; a curvature penalty there makes it
-    # a smooth continuation of the observed curve instead of a jump the basis allows.
-    smooth_terms = []
-    step = grid[1] - grid[0]
+    # normalisation f⁻¹(1) = 1 is pure extrapolation, and a basis that can bend sharply in
+    # the last codes makes a constant shift of g over the observed range (the scale of
+    # f⁻¹) almost free.  A Gaussian prior (std ``white_sigma``) on
+    #     J(c) = g(top) + s·(1 − top),   s = (g(top) − g(top − w)) / w,
+    # i.e. on how far the straight continuation of the observed curve misses g(1) = 0,
+    # removes that freedom.
+    white_terms = []
+    window = 8.0 / 255.0
     for c in range(3):
         vals = np.where(valid, values[..., c], np.nan)
-        top = np.nanmax(vals) if np.isfinite(vals).any() else 0.0
-        idx = np.flatnonzero(grid >= top - 3 * step)
-        if idx.size >= 3:
-            D2 = np.diff(np.eye(idx.size), n=2, axis=0) / step
-            smooth_terms.append((c, D2 @ H_grid[idx], D2 @ g0_grid[idx]))
+        if not np.isfinite(vals).any():
+            continue
+        top = float(min(np.nanmax(vals), grid[-2]))
+        lo_pt = max(top - window, 0.0)
+        r = (1.0 - top) / max(top - lo_pt, 1e-6)
+        g0_pts, H_pts = basis.design(np.array([top, lo_pt]), N)
+        a = H_pts[0] * (1 + r) - H_pts[1] * r
+        b0 = g0_pts[0] * (1 + r) - g0_pts[1] * r
+        white_terms.append((c, a, b0))
 
     ev = getattr(basis, "explained_variance", None)
     prior_precision = (prior_weight / np.asarray(ev[:N], dtype=float)
                        if ev is not None and prior_weight > 0 else None)
 
+    alternate = bool((refine_exposures or known.sum() < 2) and not fixed.all())
     coeffs = np.zeros((3, N))
     noise_scale = 1.0
     K = init.copy()
@@ -278,14 +289,29 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
             g_c = g0_grid + H_grid @ coeffs[c]
             slope_a = _gradient_on(grid, g_c, Ia[:, c])
             slope_b = _gradient_on(grid, g_c, Ib[:, c])
-            var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2) + 1e-4
+            var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2)
+        # Residuals in code units (errors-in-variables): scaling g and K together by γ
+        # scales var by γ², so the data term cannot shrink the exponential ambiguity
+        # towards γ → 0; the floor is relative for the same reason.
+        var = np.maximum(var, 0.05 * np.median(var))
         # the data term is a likelihood only with the noise at its measured level
         w = robust / (var * noise_scale ** 2)
-        x = _weighted_solve(A, b, w, fixed, log_times, known, refine_exposures,
-                            exposure_prior_sigma, ridge, N, g0_grid[mono_idx],
-                            H_grid[mono_idx], D, smooth_terms, smooth_weight,
-                            prior_precision)
-        x, constrained = x
+        if alternate:
+            # Block coordinate descent: curves with the exposures held, then exposures
+            # with the curves held.  A joint step could rescale g and K together along
+            # the exponential ambiguity, which the (slope-weighted) data barely oppose;
+            # alternating leaves the scale where the times (or the mean curve) put it.
+            x, constrained = _weighted_solve(A, b, w, np.ones(F, bool), K, known, False,
+                                             exposure_prior_sigma, ridge, N,
+                                             g0_grid[mono_idx], H_grid[mono_idx], D,
+                                             white_terms, white_sigma, prior_precision)
+            x[3 * N:] = _exposure_step(A, b, w, x, N, fixed, K, log_times, known,
+                                       refine_exposures, exposure_prior_sigma)
+        else:
+            x, constrained = _weighted_solve(A, b, w, fixed, log_times, known,
+                                             refine_exposures, exposure_prior_sigma, ridge,
+                                             N, g0_grid[mono_idx], H_grid[mono_idx], D,
+                                             white_terms, white_sigma, prior_precision)
         monotone_constrained |= constrained
         new_coeffs = x[:3 * N].reshape(3, N)
         K = x[3 * N:]
@@ -299,6 +325,23 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         robust = new_robust
         if it > 0 and change < 1e-5:
             break
+    if refine_exposures and known.sum() >= 2:
+        # The data fix exposure *ratios* only up to the exponential ambiguity (γ), which
+        # the alternation above drifts along slowly; the given times fix it: take γ and
+        # the offset from a fit of the estimates to the given times, keep the per-frame
+        # deviations (the shutter errors), and refit the curves with those exposures.
+        from scipy.stats import theilslopes
+
+        # Theil–Sen: one lying EXIF time must not tilt the scale of all the others
+        L = log_times[known]
+        gamma, alpha = theilslopes(K[known], L)[:2]
+        if gamma > 0:
+            K = (K - alpha) / gamma
+            x, _ = _weighted_solve(A, b, w, np.ones(F, bool), K, known, False,
+                                   exposure_prior_sigma, ridge, N, g0_grid[mono_idx],
+                                   H_grid[mono_idx], D, white_terms, white_sigma,
+                                   prior_precision)
+            coeffs = x[:3 * N].reshape(3, N)
     resid = A @ np.concatenate([coeffs.ravel(), K]) - b
     w = robust / var
     residual_rms = float(np.sqrt(np.average(resid ** 2, weights=w)))
@@ -316,8 +359,27 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                        ambiguity_prior=ambiguity_prior)
 
 
+def _exposure_step(A, b, w, x, N, fixed, K, log_times, known, refine, prior_sigma):
+    """Log exposures minimising the weighted Eq. 8 residuals with the curves held."""
+    AK = A[:, 3 * N:]
+    y = b - A[:, :3 * N] @ x[:3 * N]
+    AKw = sp.diags(w) @ AK
+    Q = np.asarray((AK.T @ AKw).todense())
+    q = np.asarray(AKw.T @ y).ravel()
+    if refine:
+        kk = np.flatnonzero(known)
+        Q[kk, kk] += 1.0 / prior_sigma ** 2
+        q[kk] += log_times[kk] / prior_sigma ** 2
+    out = K.copy()
+    free = ~fixed
+    if free.any():
+        qf = q[free] - Q[np.ix_(free, fixed)] @ K[fixed]
+        out[free] = np.linalg.lstsq(Q[np.ix_(free, free)], qf, rcond=None)[0]
+    return out
+
+
 def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge, N,
-                    g0_mono, H_mono, D, smooth_terms=(), smooth_weight=0.0,
+                    g0_mono, H_mono, D, white_terms=(), white_sigma=0.01,
                     prior_precision=None):
     """Minimise Σ w r² + priors, with exposures in ``fixed`` held; QP if not monotone."""
     Aw = sp.diags(w) @ A
@@ -330,13 +392,14 @@ def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge
         Q[:3 * N, :3 * N] += np.diag(np.tile(prior_precision, 3))
     else:
         Q[:3 * N, :3 * N] += ridge * scale * np.eye(3 * N)
-    for c, D2H, D2g0 in smooth_terms:
+    for c, a, b0 in white_terms:
         blk = slice(c * N, (c + 1) * N)
-        Q[blk, blk] += smooth_weight * scale * (D2H.T @ D2H)
-        q[blk] -= smooth_weight * scale * (D2H.T @ D2g0)
+        Q[blk, blk] += np.outer(a, a) / white_sigma ** 2
+        q[blk] -= a * b0 / white_sigma ** 2
     if refine:
         kk = np.flatnonzero(known)
-        prior_w = scale / (prior_sigma ** 2) * 1e-3
+        # same units as the data term (noise-scaled weights): a proper Gaussian prior
+        prior_w = 1.0 / prior_sigma ** 2
         Q[3 * N + kk, 3 * N + kk] += prior_w
         q[3 * N + kk] += prior_w * log_times[kk]
     free = np.concatenate([np.ones(3 * N, bool), ~fixed])
