@@ -88,11 +88,11 @@ def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
         cmax = crop.max(axis=2).astype(np.float32)
         cmin = crop.min(axis=2).astype(np.float32)
     else:
-        # float input keeps sub-code precision in the means (integer output would round)
-        blocks = cv2.resize(crop.astype(np.float32), (wb, hb), interpolation=cv2.INTER_AREA)
-        # block extremes by morphological max/min on the full frame would cost as much as
-        # the decode; the max/min of a 2x-finer reduction catches partly clipped blocks
+        # INTER_AREA to a grid twice as fine, in the frame's own integer type (a float
+        # copy of a 24 MP frame costs more than its decode); the 2x2 means of that grid
+        # keep quarter-code precision, and its max/min catch partly clipped blocks
         fine = cv2.resize(crop, (wb * 2, hb * 2), interpolation=cv2.INTER_AREA)
+        blocks = fine.reshape(hb, 2, wb, 2, 3).mean(axis=(1, 3), dtype=np.float32)
         cmax = fine.max(axis=2).reshape(hb, 2, wb, 2).max(axis=(1, 3)).astype(np.float32)
         cmin = fine.min(axis=2).reshape(hb, 2, wb, 2).min(axis=(1, 3)).astype(np.float32)
     return ReducedFrame(blocks=np.ascontiguousarray(blocks, dtype=np.float32),
@@ -239,9 +239,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     InputError
         Frames of different sizes or bit depths, unreadable files (named).
     """
-    from .io import read_image
+    from .io import JPEG_SUFFIXES, read_image, read_image_size
 
-    loader = loader or read_image
     n = len(frames)
     if sources is None:
         sources = [str(f) if isinstance(f, (str, os.PathLike)) else f"array #{k}"
@@ -249,15 +248,36 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     reduced: list[ReducedFrame] = []
     for k, frame in enumerate(frames):
         src = sources[k]
-        image = loader(frame) if isinstance(frame, (str, os.PathLike)) else frame
+        if isinstance(frame, (str, os.PathLike)):
+            full_shape = read_image_size(frame)
+            if block is None:
+                block = working_block_size(full_shape)
+            # JPEGs decode straight to local means (DCT scaling) when blocks are large:
+            # only block means are kept, and the full decode is the cost that dominates
+            factor = 1
+            if loader is None and Path(frame).suffix.lower() in JPEG_SUFFIXES:
+                factor = max([f for f in (1, 2, 4, 8) if f * 3 <= block] or [1])
+            image = (loader or read_image)(frame) if factor == 1 else read_image(
+                frame, reduce=factor)
+        else:
+            image = frame
+            full_shape = None
+            factor = 1
         arr = _as_image_array(image, src)
-        if block is None:
-            block = working_block_size(arr.shape)
-        if reduced and arr.shape[:2] != reduced[0].shape:
+        if full_shape is None:
+            full_shape = arr.shape[:2]
+            if block is None:
+                block = working_block_size(full_shape)
+        if reduced and tuple(full_shape) != reduced[0].shape:
             raise InputError(
-                f"frame size {arr.shape[1]}x{arr.shape[0]} differs from the first frame's "
+                f"frame size {full_shape[1]}x{full_shape[0]} differs from the first frame's "
                 f"{reduced[0].shape[1]}x{reduced[0].shape[0]} ({reduced[0].source})", src)
-        r = reduce_frame(arr, block=block, source=src)
+        # reduced decodes may round their size up; crop to the common block grid
+        hb, wb = full_shape[0] // block, full_shape[1] // block
+        step = max(1, int(round(block / factor)))
+        arr = arr[: hb * step, : wb * step]
+        r = reduce_frame(arr, block=step, source=src)
+        r.shape = tuple(full_shape)
         if reduced and r.max_code != reduced[0].max_code:
             raise InputError("bit depth differs from the first frame's "
                              f"({reduced[0].source})", src)
