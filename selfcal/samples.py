@@ -92,9 +92,14 @@ def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
         # copy of a 24 MP frame costs more than its decode); the 2x2 means of that grid
         # keep quarter-code precision, and its max/min catch partly clipped blocks
         fine = cv2.resize(crop, (wb * 2, hb * 2), interpolation=cv2.INTER_AREA)
-        blocks = fine.reshape(hb, 2, wb, 2, 3).mean(axis=(1, 3), dtype=np.float32)
-        cmax = fine.max(axis=2).reshape(hb, 2, wb, 2).max(axis=(1, 3)).astype(np.float32)
-        cmin = fine.min(axis=2).reshape(hb, 2, wb, 2).min(axis=(1, 3)).astype(np.float32)
+        blocks = cv2.resize(fine.astype(np.float32), (wb, hb), interpolation=cv2.INTER_AREA)
+        # OpenCV's per-channel max/min and 2x2 morphology beat numpy's strided reductions
+        c0, c1, c2 = cv2.split(fine)
+        kernel = np.ones((2, 2), np.uint8)
+        cmax = cv2.dilate(cv2.max(cv2.max(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
+        cmin = cv2.erode(cv2.min(cv2.min(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
+        cmax = cmax.astype(np.float32)
+        cmin = cmin.astype(np.float32)
     return ReducedFrame(blocks=np.ascontiguousarray(blocks, dtype=np.float32),
                         block_max=cmax, block_min=cmin, max_code=max_code,
                         shape=(h, w), digest=digest, source=source)
@@ -188,17 +193,18 @@ def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: 
     worst[~np.isfinite(worst)] = np.inf
     # a tie-breaking jitter keeps equal-contrast blocks (synthetic flat patches) spread out
     order_key = worst + rng.uniform(0, 1e-6, worst.shape)
+    flattest_first = np.argsort(order_key)
+    flattest_first = flattest_first[np.isfinite(worst[flattest_first])]
     chosen: set[int] = set()
     for r, ok in zip(reduced, valid):
-        level = r.blocks.reshape(-1, 3).mean(axis=1) / max_code
-        bins = np.minimum((level * n_bins).astype(int), n_bins - 1)
-        cand = np.flatnonzero(ok & np.isfinite(worst))
+        cand = flattest_first[ok[flattest_first]]
         if cand.size == 0:
             continue
-        # flattest blocks first, then a stable sort by bin keeps that order inside each bin
-        cand = cand[np.argsort(order_key[cand], kind="stable")]
-        cand = cand[np.argsort(bins[cand], kind="stable")]
-        cb = bins[cand]
+        level = r.blocks.reshape(-1, 3)[cand].mean(axis=1) / max_code
+        bins = np.minimum((level * n_bins).astype(np.int16), n_bins - 1)
+        # a stable sort by bin keeps the flattest-first order inside each bin
+        by_bin = np.argsort(bins, kind="stable")
+        cand, cb = cand[by_bin], bins[by_bin]
         starts = np.searchsorted(cb, np.arange(n_bins))
         ends = np.searchsorted(cb, np.arange(n_bins), side="right")
         for s, e in zip(starts, ends):
