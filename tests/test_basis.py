@@ -216,6 +216,27 @@ def test_family_deterministic_and_valid():
     assert np.all(np.diff(inv, axis=1) >= 0)
 
 
+def test_family_white_end_is_clipped_not_asymptotic():
+    # real cameras clip: f reaches white with a usable slope, so f^-1 is not near-vertical
+    # in the last codes (measured curves: 5th percentiles ~0.94 at 254/255, ~0.80 at 250/255)
+    _, inv, _ = cf.generate_inverse_curves(300, intensity=[250 / 255, 254 / 255], seed=21)
+    assert inv[:, 1].min() >= np.exp(-np.log(255 / 254) / cf.MIN_WHITE_SLOPE) - 1e-3
+    assert np.percentile(inv[:, 0], 5) > 0.75
+    # an asymptotic curve is clipped where its relative slope d log f / d log E falls to the
+    # bound; a curve that is steep enough at white is left alone
+    sig = cf.log_logistic(2.0, 0.1)
+    clipped = cf.with_white_clip(sig, 0.08)
+    assert clipped is not sig and "+white(" in clipped.name
+    e = np.array([0.0, 0.999, 1.0])
+    y = clipped(e)
+    assert y[0] == 0 and y[-1] == pytest.approx(1.0)
+    assert np.log(y[-1] / y[-2]) / -np.log(0.999) == pytest.approx(0.08, rel=0.1)
+    g = cf.gamma_curve(2.2)
+    assert cf.with_white_clip(g, 0.08) is g
+    with pytest.raises(InputError):
+        cf.with_white_clip(g, 0.0)
+
+
 def test_named_members():
     e = np.linspace(0, 1, 101)
     np.testing.assert_allclose(cf.gamma_curve(2.2)(e), e ** (1 / 2.2))
