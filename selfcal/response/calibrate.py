@@ -15,8 +15,7 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..samples import collect_samples, frame_masks
-from .solver import (DEFAULT_SATURATION_THRESHOLD, normalise_at_white,
-                     solve_exposure_equations)
+from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
 
 #: A frame whose given time and pixels disagree by more than this factor is reported.
 CONTRADICTION_FACTOR = 1.25
@@ -242,9 +241,7 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     grid = basis.intensity
     g = basis.mean[None, :] + coeffs @ basis.components[:n_components]
     valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
-    top = [float(np.max(sub.values[..., c][valid])) if valid.any() else 1.0
-           for c in range(3)]
-    g = np.stack([normalise_at_white(grid, g[c], top[c]) for c in range(3)])
+    # f⁻¹(1) = 1 is built into the basis (Eq. 7 normalisation)
     inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
 
     def inverse_fn(vals):

@@ -124,7 +124,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                              clip_margin: float = 2.0, exposure_prior_sigma: float = 0.05,
                              max_rank_gap: int = 3, huber_k: float = 1.345,
                              max_iterations: int = 8, ridge: float = 1e-4,
-                             white_sigma: float = 0.003, prior_weight: float = 1.0,
+                             white_sigma: float = 0.03, prior_weight: float = 100.0,
                              monotone: bool = True,
                              masks: dict | None = None) -> SolveResult:
     """Solve Eq. 8 of Lin et al. (ICCV 2011) for three channels' coefficients and exposures.
@@ -156,7 +156,12 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Std (log units) of the prior that the observed curve continues straight from the
         brightest valid sample to g(1) = 0.
     prior_weight : float
-        Scale of the Gaussian prior on the coefficients from the basis' PCA variances.
+        Scale of the Gaussian prior c_n ~ N(0, λ_n / prior_weight) from the basis' PCA
+        variances λ_n.  The data term counts every pair equation as independent, but one
+        sample location enters up to 3·(F−1) correlated equations (channels, pairs) and
+        JPEG errors are spatially correlated, so the prior is weighted up by about that
+        factor; 100 was chosen on synthetic stacks (every 10th DoRF curve rendered by
+        selfcal.synth, see bench/bench_response_synthetic.py) between 30 and 1000.
     monotone : bool
         Constrain f⁻¹ to be non-decreasing (a QP when the plain fit is not).
 
@@ -447,43 +452,3 @@ def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge
         x[free] = zv.value
     return x, constrained
 
-
-def normalise_at_white(grid: np.ndarray, g: np.ndarray, top: float,
-                       window: float = 8 / 255) -> np.ndarray:
-    """Normalise a log inverse response so that f⁻¹(1) = 1 by extrapolating the data.
-
-    Eq. 8 only sees differences of g, and the last codes below the maximum are always
-    clipped, so the value g(1) that fixes the scale of f⁻¹ is never observed: a basis
-    that can bend sharply in the last few codes leaves the whole curve's scale free.
-    Here g is kept as fitted up to ``top`` (the brightest valid sample), continued
-    linearly beyond it with the slope it has over the last ``window`` below ``top``, and
-    shifted so that the continuation reaches 0 at I = 1.
-
-    Parameters
-    ----------
-    grid : ndarray, shape (K,)
-        Normalised intensity grid.
-    g : ndarray, shape (K,)
-        Fitted log inverse response on the grid.
-    top : float
-        Brightest intensity with valid data.
-    window : float
-        Width of the range below ``top`` that sets the slope.
-
-    Returns
-    -------
-    ndarray, shape (K,)
-        The normalised log inverse response (0 at I = 1).
-    """
-    top = float(np.clip(top, grid[1], grid[-1]))
-    sel = (grid >= top - window) & (grid <= top)
-    if sel.sum() >= 2:
-        slope = np.polyfit(grid[sel], g[sel], 1)[0]
-    else:
-        slope = (g[-1] - g[-2]) / (grid[-1] - grid[-2])
-    slope = max(slope, 1e-6)
-    g_top = np.interp(top, grid, g)
-    out = g.copy()
-    beyond = grid > top
-    out[beyond] = g_top + slope * (grid[beyond] - top)
-    return out - (g_top + slope * (1.0 - top))
