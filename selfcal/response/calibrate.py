@@ -214,6 +214,8 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         sub, basis, log_times, n_components=n_components,
         refine_exposures=refine_exposures, saturation_threshold=saturation_threshold,
         clip_margin=clip_margin, masks=sub_masks)
+    if progress is not None:
+        progress("solve", 1, 1, "")
     warnings.extend(result.warnings)
 
     # do the pixels contradict the given times?  Re-estimate with the times as a prior.
