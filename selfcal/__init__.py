@@ -27,10 +27,17 @@ from .errors import (
 from .modelfile import load_model
 from .response.calibrate import calibrate_response
 from .response.model import ResponseModel
+from .choose import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
+from .raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "calibrate",
+    "calibrate_pipeline",
+    "CalibrationResult",
+    "read_raw_linear",
+    "RawImage",
     "calibrate_response",
     "load_model",
     "ResponseModel",
