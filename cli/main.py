@@ -93,37 +93,48 @@ def _print_response_summary(model, out_path=None) -> None:
 
 # ------------------------------------------------------------------------- commands
 
+def _pipeline_output_path(out: Path) -> Path:
+    return out.with_name(out.stem + ".pipeline" + (out.suffix or ".json"))
+
+
 def cmd_calibrate(args) -> int:
     import selfcal
 
     images = [Path(p) for p in args.images]
-    times = None
-    if args.times is not None:
-        if len(args.times) != len(images):
-            raise selfcal.InputError(
-                f"--times gives {len(args.times)} values for {len(images)} images")
-        times = args.times
-    if args.unknown_exposures:
-        if times is not None:
-            raise selfcal.InputError("--times and --unknown-exposures contradict each other")
-        times = [None] * len(images)
+    times = args.times
+    if args.unknown_exposures and times is not None:
+        raise selfcal.InputError("--times and --unknown-exposures contradict each other")
     out = Path(args.output)
+    pipeline_out = Path(args.pipeline_output) if args.pipeline_output else \
+        _pipeline_output_path(out)
+    for target in (out, pipeline_out):
+        if any(target.resolve() == p.resolve() for p in images):
+            raise selfcal.OutputExistsError(f"{target}: refusing to write over an input file")
     if out.exists() and not args.force:
         raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
-    if any(out.resolve() == p.resolve() for p in images):
-        raise selfcal.OutputExistsError(f"{out}: refusing to write over an input file")
-    model = selfcal.calibrate_response(
-        images, times, refine_exposures=args.refine_exposures,
-        n_components=args.components, saturation_threshold=args.saturation_threshold,
-        basis=args.basis, progress=_progress_bar("calibrate"))
-    model.save(out, force=args.force)
-    if args.plot:
-        from selfcal.report import plot_response
+    result = selfcal.calibrate(
+        images, exposure_times=times, progress=_progress_bar("calibrate"),
+        exposure_source="unknown" if args.unknown_exposures else "auto",
+        refine_exposures=args.refine_exposures, n_components=args.components,
+        saturation_threshold=args.saturation_threshold, basis=args.basis)
+    for line in result.summary_lines():
+        _say(line)
+    written = []
+    if result.response is not None:
+        result.response.save(out, force=args.force)
+        written.append(out)
+        if args.plot:
+            from selfcal.report import plot_response
 
-        plot_response(model, args.plot, force=args.force)
-    _print_response_summary(model, out)
-    if args.plot:
-        _say(f"wrote {args.plot}")
+            plot_response(result.response, args.plot, force=args.force)
+            written.append(Path(args.plot))
+        _print_response_summary(result.response)
+    if result.pipeline is not None:
+        target = out if result.response is None else pipeline_out
+        result.pipeline.save(target, force=args.force)
+        written.append(target)
+    for path in written:
+        _say(f"wrote {path}")
     return EXIT_OK
 
 
@@ -190,11 +201,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_demo)
 
     p = sub.add_parser(
-        "calibrate", help="estimate per-channel response curves from an exposure stack",
-        description="Estimate each channel's camera response from a bracketed stack of "
-                    "JPEG/PNG/TIFF frames (log-PCA model, Lin et al. ICCV 2011 §5).",
+        "calibrate", help="calibrate a camera from a bracketed stack and/or RAW+JPEG pairs",
+        description="Calibrate a camera from what is given, choosing the path itself: "
+                    "frames at >= 2 exposures -> per-channel response curves (log-PCA "
+                    "model, Lin et al. ICCV 2011 §5); RAW+JPEG pairs (same file stem) -> "
+                    "the RAW pipeline model (rank-based matrix, tone curves, gamut LUT, "
+                    "RBF inverse colour mapping); a bracketed RAW+JPEG session -> both.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("images", nargs="+", metavar="IMAGE", help="frames of one scene")
+    p.add_argument("images", nargs="+", metavar="FILE",
+                   help="frames of one scene, raw files (paired with the JPEG of the same "
+                        "stem), or folders")
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json",
                    help="model file to write")
     p.add_argument("--times", nargs="+", type=_parse_time, metavar="T",
@@ -212,6 +228,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--basis", metavar="FILE",
                    help="response basis: invemor.txt (Grossberg-Nayar) or a selfcal .npz")
     p.add_argument("--plot", metavar="PNG", help="write curves and a BTF scatter here")
+    p.add_argument("--pipeline-output", metavar="PIPELINE.json",
+                   help="where the RAW-path model goes when both paths are taken "
+                        "(default: MODEL.pipeline.json)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=cmd_calibrate)
     return parser
