@@ -233,6 +233,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default: MODEL.pipeline.json)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=cmd_calibrate)
+
+    from .hdr_commands import register as register_hdr_commands
+
+    register_hdr_commands(sub)
     return parser
 
 

@@ -29,6 +29,7 @@ from .response.calibrate import calibrate_response
 from .response.model import ResponseModel
 from .choose import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
 from .raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
+from .hdr import merge_hdr  # noqa: F401  (HDR radiance maps, selfcal.hdr)
 
 __version__ = "0.1.0"
 

@@ -1,0 +1,287 @@
+"""``selfcal merge`` and ``selfcal linearize``: radiance maps and linear images.
+
+Registered on the main parser by :func:`register`; nothing numerical lives here (the work
+is :func:`selfcal.merge_hdr`, :func:`selfcal.hdr.linearize_images` and
+:mod:`selfcal.hdr_io`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from .main import (
+    EPILOG,
+    EXIT_CALIBRATION,
+    EXIT_INPUT,
+    EXIT_OK,
+    EXIT_OUTPUT,
+    _parse_time,
+    _progress_bar,
+    _say,
+)
+
+RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
+
+
+def _check_outputs(outputs, inputs, force: bool) -> None:
+    """Refuse before any work: outputs over inputs, existing outputs without --force."""
+    import selfcal
+
+    resolved_inputs = {Path(p).resolve() for p in inputs}
+    seen = set()
+    for out in outputs:
+        if out is None:
+            continue
+        out = Path(out)
+        r = out.resolve()
+        if r in resolved_inputs:
+            raise selfcal.OutputExistsError(f"{out}: refusing to write over an input file")
+        if r in seen:
+            raise selfcal.InputError(f"{out}: named as two different outputs")
+        seen.add(r)
+        if out.is_dir():
+            raise selfcal.OutputExistsError(f"{out}: is a directory")
+        if out.exists() and not force:
+            raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
+
+
+def _quiet_opencv() -> None:
+    """OpenCV's own log lines (e.g. libtiff on EXIF tags in IFD0) are not our messages."""
+    try:
+        import cv2
+
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    except (ImportError, AttributeError):
+        pass
+
+
+def _load_model(path):
+    import selfcal
+
+    return selfcal.load_model(path)
+
+
+# ------------------------------------------------------------------------- merge
+
+def cmd_merge(args) -> int:
+    import numpy as np
+
+    import selfcal
+    from selfcal.hdr import merge_hdr
+    from selfcal.hdr_io import RADIANCE_SUFFIXES, write_preview, write_radiance
+
+    images = [Path(p) for p in args.images]
+    out = Path(args.output)
+    if out.suffix.lower() not in RADIANCE_SUFFIXES:
+        raise selfcal.InputError(f"{out}: unsupported radiance format {out.suffix!r} "
+                                 f"(use {RADIANCE_FORMATS})")
+    if args.preview and Path(args.preview).suffix.lower() not in (".jpg", ".jpeg", ".png"):
+        raise selfcal.InputError(f"{args.preview}: the preview is a .jpg or .png")
+    if args.times is not None and len(args.times) != len(images):
+        raise selfcal.InputError(f"--times gives {len(args.times)} values for "
+                                 f"{len(images)} images")
+    _check_outputs([out, args.preview], images + ([Path(args.model)] if args.model else []),
+                   args.force)
+    model = _load_model(args.model) if args.model else None
+    for p in images:
+        if not p.is_file():
+            raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
+
+    if args.linear and model is not None:
+        raise selfcal.InputError("--linear and --model contradict each other (linear images "
+                                 "need no response model)")
+    _quiet_opencv()
+    result = merge_hdr(images, args.times, model, weighting=args.weighting,
+                       align=args.align or False, deghost=args.deghost,
+                       reference=args.reference, linear=args.linear,
+                       progress=_progress_bar("merge"))
+    write_radiance(out, result.radiance, force=args.force, half=args.half, inputs=images)
+    if args.preview:
+        write_preview(args.preview, result.radiance, force=args.force, inputs=images,
+                      mask=~result.unmeasured)
+
+    # summary
+    how = ("linear input" if args.linear else
+           f"model from {args.model}" if args.model else "model calibrated on the fly")
+    unit = ("t·ISO/100/N² from EXIF" if result.exposure_source.startswith("exif")
+            else "the given times" if result.exposure_source.startswith("given")
+            else "the model's estimates")
+    _say(f"frames: {len(images)}  ({how}; exposure e = {unit}"
+         + (", corrected by the model" if result.exposure_source.endswith("+model") else "")
+         + ")")
+    _say(f"{'frame':<32} {'e':>10} {'used':>7}" + ("  shift" if result.transforms else ""))
+    used = result.diagnostics.get("frame_used_fraction", [])
+    for k, (src, e) in enumerate(zip(result.sources, result.exposures)):
+        mark = " (reference)" if k == result.reference else ""
+        line = f"{Path(src).name:<32} {float(e):>10.4g} {100 * used[k]:6.1f}%"
+        if result.transforms is not None:
+            t = result.transforms[k]
+            line += f"  {-t[0, 2]:+.1f},{-t[1, 2]:+.1f} px"
+        _say(line + mark)
+    rad = result.radiance
+    measured = ~result.unmeasured
+    if measured.any():
+        lum = rad[measured] @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+        lum = lum[lum > 0]
+        if lum.size:
+            lo, hi = np.percentile(lum, [0.1, 99.9])
+            _say(f"radiance: {rad.shape[1]}x{rad.shape[0]}, luminance {lo:.4g} .. {hi:.4g} "
+                 f"(0.1-99.9%), {np.log2(hi / max(lo, 1e-30)):.1f} stops; 1 = white at e = 1")
+    _say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
+         "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
+    for w in result.warnings:
+        _say(f"warning: {w}")
+    _say(f"wrote {out}")
+    if args.preview:
+        _say(f"wrote {args.preview}")
+    return EXIT_OK
+
+
+# ------------------------------------------------------------------------- linearize
+
+def cmd_linearize(args) -> int:
+    import selfcal
+    from selfcal.hdr import linearize_images
+    from selfcal.hdr_io import write_linear
+    from selfcal.io import read_exposure_info
+
+    images = [Path(p) for p in args.images]
+    folder = Path(args.output)
+    if folder.exists() and not folder.is_dir():
+        raise selfcal.OutputExistsError(f"{folder}: exists and is not a directory")
+    outputs = [folder / (p.stem + ".tif") for p in images]
+    names = {}
+    for p, o in zip(images, outputs):
+        if o.name in names:
+            raise selfcal.InputError(f"{p}: would be written to the same file as {names[o.name]}"
+                                     f" ({o})")
+        names[o.name] = p
+    _check_outputs(outputs, images + [Path(args.model)], args.force)
+    for p in images:
+        if not p.is_file():
+            raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
+    model = _load_model(args.model)
+    _quiet_opencv()
+    bar = _progress_bar("linearize")
+    written = []
+    for (src, linear), o in zip(linearize_images(images, model, progress=bar), outputs):
+        info = read_exposure_info(src)
+        write_linear(o, linear, float32=args.float, force=args.force, inputs=images,
+                     exposure_time=info.exposure_time, f_number=info.f_number, iso=info.iso)
+        written.append(o)
+        del linear
+    kind = "float32" if args.float else "16-bit"
+    _say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "
+         "f⁻¹(max code) = 1, EXIF exposure tags kept) -> " + f"{folder}/")
+    for o in written:
+        _say(f"wrote {o}")
+    return EXIT_OK
+
+
+# ------------------------------------------------------------------------- parser
+
+def register(subparsers) -> None:
+    """Add the ``merge`` and ``linearize`` commands to the main parser's subparsers."""
+    p = subparsers.add_parser(
+        "merge", help="merge a bracketed stack into an HDR radiance map",
+        description="Merge a bracketed exposure stack into a radiance map: the weighted mean "
+                    "of f⁻¹(I)/t (Debevec & Malik 1997) with clipped pixels given no weight; "
+                    f"output {RADIANCE_FORMATS}.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="frames of one scene")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.exr",
+                   help="radiance map to write (.exr, .hdr or .tif)")
+    p.add_argument("--model", metavar="MODEL.json",
+                   help="response model (default: calibrate on these frames)")
+    p.add_argument("--times", nargs="+", type=_parse_time, metavar="T",
+                   help="exposure time per image (1/250, 0.004, or ? for unknown); "
+                        "default: EXIF (time, f-number and ISO)")
+    p.add_argument("--align", choices=("mtb", "homography"),
+                   help="align handheld frames to the reference: translation (median "
+                        "threshold bitmaps) or homography (ECC)")
+    p.add_argument("--deghost", action="store_true",
+                   help="exclude frames that disagree with the reference frame (moving things)")
+    p.add_argument("--weighting", choices=("hat", "noise"), default="hat",
+                   help="hat (Debevec) or noise-aware (inverse variance) weights "
+                        "(default %(default)s)")
+    p.add_argument("--linear", action="store_true",
+                   help="the images are linear already (e.g. from selfcal linearize); "
+                        "no response model")
+    p.add_argument("--reference", type=int, metavar="K",
+                   help="index of the reference frame (default: the middle exposure)")
+    p.add_argument("--half", action="store_true", help="16-bit half floats (EXR, TIFF)")
+    p.add_argument("--preview", metavar="PREVIEW.jpg",
+                   help="also write a tone-mapped preview (Reinhard global operator)")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=_guarded(cmd_merge))
+
+    p = subparsers.add_parser(
+        "linearize", help="write linearised (f⁻¹) images with a response model",
+        description="Apply a model's inverse response to each image and write linear "
+                    "16-bit (default) or float32 TIFFs, one per input, named after it.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="images to linearise")
+    p.add_argument("--model", required=True, metavar="MODEL.json", help="response model")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="folder for the linear TIFFs (created if missing)")
+    p.add_argument("--float", action="store_true", help="float32 TIFF instead of 16-bit")
+    p.add_argument("--force", action="store_true", help="overwrite existing outputs")
+    p.set_defaults(func=_guarded(cmd_linearize))
+
+
+def _guarded(command):
+    """Map write failures (not caught by the main front end) to the output exit code."""
+
+    def run(args) -> int:
+        from selfcal.hdr_io import OutputWriteError
+
+        try:
+            return command(args)
+        except (OutputWriteError, PermissionError, IsADirectoryError) as exc:
+            _say(f"selfcal: error: {exc}")
+            return EXIT_OUTPUT
+
+    run.__name__ = command.__name__
+    return run
+
+
+def main(argv=None) -> int:
+    """Stand-alone front end with only these commands (for tests before registration).
+
+    Same error handling and exit codes as :func:`selfcal_cli.main.main`.
+    """
+    import selfcal
+
+    parser = argparse.ArgumentParser(prog="selfcal", epilog=EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    register(sub)
+    args = parser.parse_args(argv)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", selfcal.SelfcalWarning)
+            code = args.func(args)
+        for w in caught:
+            if issubclass(w.category, selfcal.SelfcalWarning):
+                _say(f"warning: {w.message}")
+        return code
+    except selfcal.OutputExistsError as exc:
+        _say(f"selfcal: error: {exc}")
+        return EXIT_OUTPUT
+    except selfcal.InputError as exc:
+        _say(f"selfcal: error: {exc}")
+        return EXIT_INPUT
+    except selfcal.CalibrationError as exc:
+        _say(f"selfcal: cannot calibrate: {exc}")
+        return EXIT_CALIBRATION
+    except KeyboardInterrupt:
+        _say("selfcal: interrupted")
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

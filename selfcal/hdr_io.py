@@ -1,0 +1,302 @@
+"""Writing radiance maps, linearised images and tone-mapped previews, atomically.
+
+Formats chosen by the file suffix:
+
+* ``.exr`` -- OpenEXR, 32-bit float or 16-bit half (``half=True``), through OpenCV
+  (``OPENCV_IO_ENABLE_OPENEXR=1`` is set before OpenCV is imported);
+* ``.hdr`` / ``.pic`` -- Radiance RGBE (Ward, *Real Pixels*, Graphics Gems II, 1991), through
+  OpenCV (8-bit mantissas with a shared exponent: about 1 % relative precision);
+* ``.tif`` / ``.tiff`` -- float32 (or float16 with ``half=True``) RGB TIFF, through tifffile.
+
+Every file is written to a temporary file with the same suffix in the target folder and
+renamed onto the target (:func:`selfcal.io.atomic_output`); an existing file is replaced
+only with ``force=True``, and an input never.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError, SelfcalError
+from .io import _cv2, atomic_output, write_image
+
+__all__ = [
+    "OutputWriteError",
+    "RADIANCE_SUFFIXES",
+    "EXR_COMPRESSIONS",
+    "write_radiance",
+    "read_radiance",
+    "tonemap_reinhard",
+    "write_preview",
+    "write_linear",
+]
+
+RADIANCE_SUFFIXES = {".exr", ".hdr", ".pic", ".tif", ".tiff"}
+
+
+class OutputWriteError(SelfcalError, OSError):
+    """An output file could not be written (the encoder failed or the disk refused)."""
+
+
+def _check_radiance(radiance) -> np.ndarray:
+    arr = np.asarray(radiance)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise InputError(f"expected an HxWx3 radiance array, got shape {arr.shape}")
+    if not np.issubdtype(arr.dtype, np.floating):
+        raise InputError(f"radiance must be float, got {arr.dtype}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError("radiance holds NaN or infinite values")
+    return arr
+
+
+#: OpenEXR compressions (lossless ones; PIZ is the usual choice for photographs).
+EXR_COMPRESSIONS = ("piz", "zip", "zips", "rle", "none")
+
+
+def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
+                   inputs=(), compression: str = "piz") -> Path:
+    """Write an RGB radiance map as OpenEXR, Radiance HDR or float TIFF, atomically.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The output file; its suffix chooses the format (``.exr``, ``.hdr``/``.pic``,
+        ``.tif``/``.tiff``).
+    radiance : numpy.ndarray
+        ``HxWx3`` float RGB (channel last, as :func:`selfcal.merge_hdr` returns it).
+    force : bool
+        Replace an existing file.
+    half : bool
+        16-bit half floats (EXR ``IMWRITE_EXR_TYPE_HALF``; float16 TIFF).  Ignored for
+        RGBE, which has its own 32-bit shared-exponent encoding.
+    inputs : iterable of paths
+        Files never to be written over.
+    compression : {"piz", "zip", "zips", "rle", "none"}
+        OpenEXR compression (all lossless).  PIZ (wavelet) is the default: on a 24 MP
+        merged frame it wrote 5-10x faster than OpenCV's default ZIP at a similar size.
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    InputError
+        Unknown suffix or compression, or a radiance array that is not finite ``HxWx3`` float.
+    OutputExistsError
+        The file exists and ``force`` is false, or it is one of ``inputs``.
+    OutputWriteError
+        The encoder or the file system failed.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in RADIANCE_SUFFIXES:
+        raise InputError(f"unsupported radiance format {path.suffix!r} "
+                         "(use .exr, .hdr or .tif)", path)
+    arr = _check_radiance(radiance)
+    if suffix in (".tif", ".tiff"):
+        data = arr.astype(np.float16 if half else np.float32, copy=False)
+        _write_tiff(path, data, force=force, inputs=inputs)
+        return path
+
+    cv2 = _cv2()
+    bgr = np.ascontiguousarray(arr[:, :, ::-1], dtype=np.float32)
+    if suffix == ".exr":
+        codes = {"piz": cv2.IMWRITE_EXR_COMPRESSION_PIZ, "zip": cv2.IMWRITE_EXR_COMPRESSION_ZIP,
+                 "zips": cv2.IMWRITE_EXR_COMPRESSION_ZIPS,
+                 "rle": cv2.IMWRITE_EXR_COMPRESSION_RLE, "none": cv2.IMWRITE_EXR_COMPRESSION_NO}
+        if compression not in codes:
+            raise InputError(f"unknown EXR compression {compression!r} "
+                             f"({', '.join(EXR_COMPRESSIONS)})")
+        kind = cv2.IMWRITE_EXR_TYPE_HALF if half else cv2.IMWRITE_EXR_TYPE_FLOAT
+        params = [cv2.IMWRITE_EXR_TYPE, kind, cv2.IMWRITE_EXR_COMPRESSION, codes[compression]]
+    else:
+        bgr = np.maximum(bgr, 0.0)      # RGBE has no negative values
+        params = []
+    with atomic_output(path, force=force, inputs=inputs) as tmp:
+        try:
+            ok = cv2.imwrite(str(tmp), bgr, params)
+        except cv2.error as exc:
+            raise OutputWriteError(f"{path}: OpenCV could not write it ({exc})") from None
+        if not ok:
+            raise OutputWriteError(f"{path}: OpenCV could not write it (no {suffix} encoder?)")
+    return path
+
+
+def read_radiance(path) -> np.ndarray:
+    """Read an EXR, RGBE or float TIFF radiance map as float32 ``HxWx3`` RGB."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("no such file", path)
+    suffix = path.suffix.lower()
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+
+        arr = tifffile.imread(path)
+        return np.asarray(arr, dtype=np.float32)
+    cv2 = _cv2()
+    bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if bgr is None:
+        raise InputError("cannot be decoded as a radiance map", path)
+    return np.ascontiguousarray(bgr[:, :, ::-1], dtype=np.float32)
+
+
+# --------------------------------------------------------------------------------------
+# tone-mapped previews
+# --------------------------------------------------------------------------------------
+
+def _srgb_encode(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def tonemap_reinhard(radiance, *, key: float = 0.18, white: float | None = None,
+                     mask=None, rows: int = 512) -> np.ndarray:
+    """Global photographic tone mapping (Reinhard et al., SIGGRAPH 2002, Eq. 1-4), to uint8.
+
+    ``L`` is the Rec. 709 luminance; ``L̄`` its log-average over the (measured) pixels;
+    ``Lm = key · L / L̄``; ``Ld = Lm (1 + Lm / Lw²) / (1 + Lm)`` with the white point
+    ``Lw`` (default: the 99.5th percentile of ``Lm``, so a few specular pixels do not
+    darken the image); colours keep their ratios, ``RGB_d = RGB · Ld / L``, then the sRGB
+    transfer function and 8-bit codes.  Statistics come from a subsample; the mapping runs
+    in strips of rows, so a 24 MP map needs little extra memory.
+
+    Parameters
+    ----------
+    radiance : numpy.ndarray
+        ``HxWx3`` float RGB, linear.
+    key : float
+        The key value ``a`` (0.18: mid-grey).
+    white : float, optional
+        ``Lw`` in units of the scaled luminance ``Lm``.
+    mask : numpy.ndarray, optional
+        bool ``HxW``: pixels to take the statistics from (e.g. ``~result.unmeasured``).
+    rows : int
+        Strip height.
+
+    Returns
+    -------
+    numpy.ndarray
+        uint8 ``HxWx3`` sRGB-encoded RGB.
+    """
+    arr = _check_radiance(radiance)
+    h, w = arr.shape[:2]
+    luma = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    step = max(1, int(math.sqrt(h * w / 250_000)))
+    sub = arr[::step, ::step].astype(np.float32)
+    lum = np.maximum(sub @ luma, 0.0)
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)[::step, ::step]
+        if m.any():
+            lum = lum[m]
+    lum = lum[lum > 0]
+    if lum.size == 0:
+        return np.zeros(arr.shape, dtype=np.uint8)
+    log_avg = float(np.exp(np.mean(np.log(lum.astype(np.float64)))))
+    scale = key / log_avg
+    lw = float(np.percentile(lum * scale, 99.5)) if white is None else float(white)
+    lw = max(lw, 1e-6)
+    out = np.empty(arr.shape, dtype=np.uint8)
+    for y in range(0, h, rows):
+        block = np.maximum(arr[y:y + rows].astype(np.float32), 0.0)
+        lum_b = block @ luma
+        lm = lum_b * scale
+        ld = lm * (1 + lm / (lw * lw)) / (1 + lm)
+        ratio = np.divide(ld, lum_b, out=np.zeros_like(ld), where=lum_b > 0)
+        out[y:y + rows] = (_srgb_encode(block * ratio[..., None]) * 255 + 0.5).astype(np.uint8)
+    return out
+
+
+def write_preview(path, radiance, *, force: bool = False, inputs=(), key: float = 0.18,
+                  mask=None, jpeg_quality: int = 92) -> Path:
+    """Write a tone-mapped preview (JPEG or PNG) of a radiance map, atomically.
+
+    The tone mapping is :func:`tonemap_reinhard` (Reinhard et al. 2002, global operator).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.jpg``/``.jpeg`` or ``.png``.
+    radiance : numpy.ndarray
+        ``HxWx3`` float RGB.
+    force, inputs
+        As in :func:`write_radiance`.
+    key : float
+        The key value of the tone mapping.
+    mask : numpy.ndarray, optional
+        Pixels for the tone-mapping statistics.
+    jpeg_quality : int
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".jpg", ".jpeg", ".png"):
+        raise InputError(f"unsupported preview format {path.suffix!r} (use .jpg or .png)",
+                         path)
+    image = tonemap_reinhard(radiance, key=key, mask=mask)
+    return write_image(path, image, force=force, inputs=inputs, jpeg_quality=jpeg_quality)
+
+
+# --------------------------------------------------------------------------------------
+# linear images
+# --------------------------------------------------------------------------------------
+
+def _rational(x: float, max_den: int = 1_000_000):
+    from fractions import Fraction
+
+    fr = Fraction(float(x)).limit_denominator(max_den)
+    return fr.numerator, fr.denominator
+
+
+def write_linear(path, linear, *, float32: bool = False, force: bool = False, inputs=(),
+                 exposure_time=None, f_number=None, iso=None) -> Path:
+    """Write a linearised image as a 16-bit or float32 RGB TIFF, atomically.
+
+    16-bit: ``round(clip(x, 0, 1) · 65535)`` (``f⁻¹(max code) = 1`` maps to 65535);
+    float32: the values as they are.  Exposure time, f-number and ISO, when given, go into
+    IFD0 (TIFF/EP style), where :func:`selfcal.io.read_exposure_info` finds them, so the
+    files can be merged with ``merge_hdr(paths, linear=True)``.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        ``.tif`` or ``.tiff``.
+    linear : numpy.ndarray
+        ``HxWx3`` float linear RGB.
+    float32 : bool
+        Write float32 instead of 16-bit integers.
+    force, inputs
+        As in :func:`write_radiance`.
+    exposure_time, f_number, iso : float, optional
+    """
+    path = Path(path)
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        raise InputError(f"linear images are written as TIFF, not {path.suffix!r}", path)
+    arr = _check_radiance(linear)
+    if float32:
+        data = arr.astype(np.float32, copy=False)
+    else:
+        data = np.empty(arr.shape, dtype=np.uint16)
+        rows = 512
+        for y in range(0, arr.shape[0], rows):
+            data[y:y + rows] = np.clip(arr[y:y + rows] * 65535.0 + 0.5, 0, 65535)
+    tags = []
+    if exposure_time is not None:
+        tags.append((33434, 5, 1, _rational(exposure_time), False))
+    if f_number is not None:
+        tags.append((33437, 5, 1, _rational(f_number, 100), False))
+    if iso is not None:
+        tags.append((34855, 3, 1, int(round(iso)), False))
+    _write_tiff(path, data, force=force, inputs=inputs, extratags=tags)
+    return path
+
+
+def _write_tiff(path, data, *, force, inputs, extratags=()):
+    import tifffile
+
+    with atomic_output(path, force=force, inputs=inputs) as tmp:
+        try:
+            tifffile.imwrite(tmp, data, photometric="rgb", extratags=list(extratags))
+        except OSError as exc:
+            raise OutputWriteError(f"{path}: cannot be written ({exc})") from None

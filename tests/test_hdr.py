@@ -1,0 +1,572 @@
+"""HDR merge (selfcal.hdr), radiance output (selfcal.hdr_io) and the merge/linearize CLI."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+import cv2  # noqa: E402
+
+import selfcal  # noqa: E402
+from selfcal import synth  # noqa: E402
+from selfcal.hdr import (  # noqa: E402
+    HDRResult,
+    NoiseModel,
+    estimate_alignment,
+    linearize_images,
+    merge_hdr,
+    warp_to_reference,
+)
+from selfcal.hdr_io import (  # noqa: E402
+    OutputWriteError,
+    read_radiance,
+    write_linear,
+    write_preview,
+    write_radiance,
+)
+from selfcal.response.model import ResponseModel  # noqa: E402
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+TIMES = [1 / 250, 1 / 60, 1 / 15, 1 / 4]
+CURVES = (synth.ToneCurve.film(contrast=0.97, toe=0.09, shoulder=0.79, exposure=1.08),
+          synth.ToneCurve.film(contrast=1.00, toe=0.10, shoulder=0.80, exposure=1.00),
+          synth.ToneCurve.film(contrast=1.03, toe=0.11, shoulder=0.81, exposure=0.95))
+
+
+def true_model(stack, n=None) -> ResponseModel:
+    """A ResponseModel holding the simulator's true inverse response."""
+    n = len(stack.images) if n is None else n
+    return ResponseModel(intensity=np.arange(256) / 255.0, inverse=stack.inverse_response(),
+                         coefficients=np.zeros((3, 1)), basis_name="truth",
+                         exposures=np.asarray(stack.true_exposures, dtype=float),
+                         exposure_times=list(stack.exposure_times),
+                         sources=[f"array #{k}" for k in range(n)])
+
+
+def truth_radiance(stack) -> np.ndarray:
+    """f⁻¹(I)/t of the simulator: M·ρ·exposure_scale (gamut mapping aside)."""
+    return (stack.radiance.astype(np.float64) @ stack.pipeline.matrix.T) * stack.exposure_scale
+
+
+def simple_pipeline():
+    return synth.CameraPipeline(matrix=np.eye(3), curves=CURVES, gamut="clip")
+
+
+@pytest.fixture(scope="module")
+def stack():
+    scene = synth.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=3)
+    return synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=90,
+                                seed=3)
+
+
+def rel_error(estimate, truth, mask, scale=None):
+    ratio = estimate[mask] / truth[mask]
+    if scale is None:
+        scale = 1.0
+    elif scale == "best":
+        scale = float(np.median(ratio))
+    return float(np.median(np.abs(ratio / scale - 1)))
+
+
+# ------------------------------------------------------------------ radiance accuracy
+
+@pytest.mark.parametrize("weighting", ["hat", "noise"])
+def test_radiance_matches_truth_with_true_response(stack, weighting):
+    result = merge_hdr(stack.images, stack.true_exposures, true_model(stack),
+                       weighting=weighting)
+    assert isinstance(result, HDRResult)
+    assert result.radiance.dtype == np.float32 and result.radiance.shape == (96, 144, 3)
+    assert result.unmeasured.dtype == bool and result.unmeasured.shape == (96, 144)
+    truth = truth_radiance(stack)
+    err = rel_error(result.radiance, truth, ~result.unmeasured)
+    assert err < 0.03, err
+    assert result.exposure_source == "given"
+    np.testing.assert_allclose(result.exposures, stack.true_exposures)
+
+
+def test_radiance_with_on_the_fly_calibration(stack):
+    stages = []
+    result = merge_hdr(stack.images, stack.exposure_times,
+                       progress=lambda stage, done, total, detail="": stages.append(stage))
+    assert "merge" in stages and "read" in stages
+    truth = truth_radiance(stack)
+    mask = ~result.unmeasured
+    assert rel_error(result.radiance, truth, mask, scale="best") < 0.06
+    # f⁻¹(white) = 1 and times in seconds: the scale is the simulator's, within 10 %
+    assert abs(np.median(result.radiance[mask] / truth[mask]) - 1) < 0.1
+    assert result.model is not None and result.diagnostics["model_verdict"] == "ok"
+
+
+def test_noise_weighting_formula():
+    from selfcal.hdr import noise_variance
+
+    nm = NoiseModel(shot=1e-4, read=1e-3, code=1.0)
+    v = noise_variance(np.array([0.25]), np.array([2.0]), 0.5, nm)
+    expected = (1e-4 * 0.25 + 1e-6 + (2.0 / 255) ** 2) / 0.25
+    np.testing.assert_allclose(v, expected)
+    with pytest.raises(selfcal.InputError):
+        NoiseModel(shot=-1)
+
+
+def test_weighting_callable(stack):
+    model = true_model(stack)
+    flat = merge_hdr(stack.images, stack.true_exposures, model,
+                     weighting=lambda z: np.ones_like(z))
+    truth = truth_radiance(stack)
+    assert rel_error(flat.radiance, truth, ~flat.unmeasured) < 0.05
+    with pytest.raises(selfcal.InputError, match="weighting"):
+        merge_hdr(stack.images, stack.true_exposures, model, weighting=lambda z: -z)
+    with pytest.raises(selfcal.InputError, match="weighting"):
+        merge_hdr(stack.images, stack.true_exposures, model, weighting="median")
+
+
+def test_linear_raw_frames(stack):
+    result = merge_hdr(stack.raws, stack.true_exposures, linear=True, weighting="noise")
+    truth = stack.radiance.astype(np.float64) * stack.exposure_scale
+    assert rel_error(result.radiance, truth, ~result.unmeasured) < 0.01
+    with pytest.raises(selfcal.InputError, match="linear"):
+        merge_hdr(stack.raws, stack.true_exposures, true_model(stack), linear=True)
+    with pytest.raises(selfcal.InputError, match="linear=True"):
+        merge_hdr(stack.raws, stack.true_exposures)
+
+
+def test_pipeline_model_with_to_raw(stack):
+    """A model with only ``to_raw`` (the RAW path's backward model) plugs in."""
+    model = true_model(stack)
+
+    class Backward:
+        def to_raw(self, rendered):
+            return model.linearize(rendered)
+
+    a = merge_hdr(stack.images, stack.true_exposures, model)
+    b = merge_hdr(stack.images, stack.true_exposures, Backward())
+    np.testing.assert_allclose(b.radiance, a.radiance, rtol=1e-5)
+    np.testing.assert_array_equal(a.unmeasured, b.unmeasured)
+
+
+# ------------------------------------------------------------------ clipping
+
+def test_clipped_channel_gives_zero_weight():
+    """A frame clipped in one channel contributes nothing at that pixel (any channel)."""
+    model = ResponseModel(intensity=np.linspace(0, 1, 256), inverse=np.repeat(
+        (np.linspace(0, 1, 256) ** 2.2)[:, None], 3, axis=1), coefficients=np.zeros((3, 1)),
+        basis_name="gamma", exposures=np.array([1.0, 4.0]), exposure_times=[1.0, 4.0],
+        sources=["a", "b"])
+    short = np.full((4, 5, 3), 100, np.uint8)
+    long = np.full((4, 5, 3), 180, np.uint8)
+    long[1, 2, 0] = 255          # red clipped in the long frame at one pixel
+    long[2, 3, 2] = 1            # blue crushed in the long frame at another
+    result = merge_hdr([short, long], [1.0, 4.0], model)
+    lin = model.inverse_response()
+    only_short = lin[100] / 1.0
+    for y, x in [(1, 2), (2, 3)]:
+        np.testing.assert_allclose(result.radiance[y, x], only_short, rtol=1e-6)
+        assert result.frame_count[y, x] == 1
+    mixed = result.radiance[0, 0]
+    assert not np.allclose(mixed, only_short)
+    assert result.frame_count[0, 0] == 2
+    assert not result.unmeasured.any()
+
+
+def test_unmeasured_region_flagged_and_filled():
+    scene = synth.make_scene(64, 96, dynamic_range_stops=8, saturation=0.2, seed=5)
+    scene[8:24, 10:30] = 500.0      # far brighter than white in the shortest frame
+    scene[40:56, 60:80] = 0.0       # black in the longest frame
+    st = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0,
+                              jpeg_quality=None, seed=5,
+                              sensor=synth.SensorModel(read_noise=0.0))
+    result = merge_hdr(st.images, st.true_exposures, true_model(st))
+    assert result.unmeasured[10:22, 12:28].all()
+    assert result.unmeasured[42:54, 62:78].all()
+    outside = np.ones(result.unmeasured.shape, bool)
+    outside[6:26, 8:32] = False
+    outside[38:58, 58:82] = False
+    assert result.unmeasured[outside].mean() < 0.02
+    # highlights come from the darkest frame (f⁻¹(white)/e_min, a lower bound) ...
+    np.testing.assert_allclose(result.radiance[15, 20], 1.0 / st.true_exposures[0], rtol=1e-5)
+    # ... shadows from the brightest frame
+    np.testing.assert_allclose(result.radiance[48, 70], 0.0, atol=1e-6)
+    assert any("clipped in every frame" in w for w in result.warnings)
+
+
+# ------------------------------------------------------------------ exposures
+
+def test_exif_exposure_scale_across_sessions(tmp_path):
+    """t·ISO/100/N² puts two brackets with different apertures on one scale."""
+    scene = synth.make_scene(64, 96, dynamic_range_stops=10, saturation=0.2, seed=2)
+    a = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=2)
+    # session b: f/16 (a quarter of the light) at 4x the times: the same pixels
+    b = synth.simulate_stack(scene, simple_pipeline(), [4 * t for t in TIMES], jitter=0.0,
+                             exposure_scale=a.exposure_scale / 4, seed=2)
+    b.f_number = 16.0
+    pa = a.write(tmp_path / "a")
+    pb = b.write(tmp_path / "b")
+    model = true_model(a)
+    ra = merge_hdr(pa, model=model)
+    rb = merge_hdr(pb, model=model)
+    assert ra.exposure_source == rb.exposure_source == "exif"
+    np.testing.assert_allclose(ra.exposures, np.array(TIMES) / 64, rtol=1e-3)
+    mask = ~(ra.unmeasured | rb.unmeasured)
+    ratio = np.median(rb.radiance[mask] / ra.radiance[mask])
+    assert abs(ratio - 1) < 0.02, ratio
+
+
+def test_contradicted_exif_time_uses_model_estimate(tmp_path):
+    scene = synth.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=4)
+    st = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=4)
+    st.exposure_times = np.array(st.exposure_times)
+    st.exposure_times[2] *= 2.0          # a wrong EXIF time
+    paths = st.write(tmp_path)
+    result = merge_hdr(paths)
+    assert any("contradicted" in w for w in result.warnings), result.warnings
+    assert result.exposure_source == "exif+model"
+    rel = result.exposures / (np.array(TIMES) / 64)
+    assert abs(rel[2] - 1) < 0.1, rel
+    # (the curve calibrated with a wrong time is itself less accurate than usual)
+    truth = truth_radiance(st)
+    assert rel_error(result.radiance, truth, ~result.unmeasured, scale="best") < 0.12
+
+
+def test_refined_exposures_are_used_with_a_warning(stack):
+    result = merge_hdr(stack.images, np.array(stack.exposure_times) * [1, 1.05, 1, 1],
+                       calibrate_options={"refine_exposures": True})
+    assert any("refined" in w for w in result.warnings), result.warnings
+
+
+def test_unknown_exposures_need_a_model(stack):
+    other = true_model(stack)
+    other.sources = ["x.jpg", "y.jpg", "z.jpg", "w.jpg"]
+    with pytest.raises(selfcal.CalibrationError, match="array #0"):
+        merge_hdr(stack.images, None, other)
+
+
+def test_bad_inputs_name_the_file(stack, tmp_path):
+    small = stack.images[1][:50]
+    with pytest.raises(selfcal.InputError, match="array #1"):
+        merge_hdr([stack.images[0], small], [1, 2], true_model(stack))
+    with pytest.raises(selfcal.InputError, match="missing.jpg"):
+        merge_hdr([tmp_path / "missing.jpg"], [1], true_model(stack))
+    bad = tmp_path / "cut.jpg"
+    bad.write_bytes((FIXTURES / "stack" / "frame_00.jpg").read_bytes()[:2000])
+    with pytest.raises(selfcal.InputError, match="cut.jpg"):
+        merge_hdr([bad, FIXTURES / "stack" / "frame_01.jpg"], [1, 2], true_model(stack))
+
+
+# ------------------------------------------------------------------ alignment
+
+def _shifted_stack(shifts, seed=6):
+    big = synth.make_scene(128, 176, dynamic_range_stops=10, saturation=0.3, seed=seed)
+    st = synth.simulate_stack(big, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=None,
+                              seed=seed)
+    y0, x0 = 16, 16
+    frames = [im[y0 + dy:y0 + dy + 96, x0 + dx:x0 + dx + 144]
+              for im, (dx, dy) in zip(st.images, shifts)]
+    return st, frames
+
+
+def test_mtb_recovers_integer_shift():
+    shifts = [(5, -3), (0, 0), (0, 0), (-4, 6)]
+    st, frames = _shifted_stack(shifts)
+    transforms = estimate_alignment(frames, st.true_exposures, method="mtb", reference=1)
+    for (dx, dy), t in zip(shifts, transforms):
+        np.testing.assert_allclose(t[:2, 2], [-dx, -dy], atol=0.01)
+        np.testing.assert_allclose(t[:2, :2], np.eye(2))
+    # the merge with alignment agrees with the truth much better than without
+    truth = truth_radiance(st)[16:112, 16:160]
+    model = true_model(st)
+    plain = merge_hdr(frames, st.true_exposures, model, reference=1)
+    aligned = merge_hdr(frames, st.true_exposures, model, align="mtb", reference=1)
+    inner = np.zeros((96, 144), bool)
+    inner[8:-8, 8:-8] = True
+    e_plain = rel_error(plain.radiance, truth, inner & ~plain.unmeasured)
+    e_aligned = rel_error(aligned.radiance, truth, inner & ~aligned.unmeasured)
+    assert e_aligned < 0.5 * e_plain, (e_aligned, e_plain)
+
+
+def textured_scene(h, w, seed):
+    """Log-normal texture at two scales, with slowly varying colour."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    fine = gaussian_filter(rng.standard_normal((h, w)), 2.0)
+    coarse = gaussian_filter(rng.standard_normal((h, w)), 12.0)
+    lum = np.exp2(fine / fine.std() + 2.5 * coarse / coarse.std() - 5)
+    colour = gaussian_filter(rng.standard_normal((h, w, 3)), (6, 6, 0))
+    colour = np.clip(1 + 0.2 * colour / colour.std(), 0.5, 1.5)
+    return (lum[..., None] * colour).astype(np.float32)
+
+
+def test_on_the_fly_calibration_uses_aligned_frames():
+    shifts = [(5, -3), (0, 0), (0, 0), (-4, 6)]
+    st, frames = _shifted_stack(shifts)
+    result = merge_hdr(frames, st.true_exposures, align="mtb", reference=1)
+    assert "aligned" in result.diagnostics["calibrated_on"]
+    assert not any("contradict" in w for w in result.warnings), result.warnings
+    for (dx, dy), t in zip(shifts, result.transforms):
+        np.testing.assert_allclose(t[:2, 2], [-dx, -dy])
+    truth = truth_radiance(st)[16:112, 16:160]
+    inner = np.zeros((96, 144), bool)
+    inner[8:-8, 8:-8] = True
+    assert rel_error(result.radiance, truth, inner & ~result.unmeasured, scale="best") < 0.06
+
+
+def test_mtb_on_featureless_dark_frames_keeps_zero_shift():
+    """OpenCV's MTB returns its largest shift when the bitmaps carry nothing; we keep 0."""
+    rng = np.random.default_rng(0)
+    dark = [rng.integers(0, 3, (96, 144, 3)).astype(np.uint8) for _ in range(2)]
+    transforms = estimate_alignment(dark, [1.0, 2.0], method="mtb", reference=0)
+    np.testing.assert_allclose(transforms[1], np.eye(3))
+
+
+@pytest.mark.parametrize("working_size", [1024, 130])      # 130: estimated on a smaller grid
+def test_homography_alignment_recovers_small_warp(working_size):
+    scene = textured_scene(128, 192, seed=8)
+    pipe = simple_pipeline()
+    m = np.array([[1.01, 0.012, -2.5], [-0.008, 0.995, 1.7], [2e-5, -1.5e-5, 1.0]])
+    warped = cv2.warpPerspective(scene, m, (192, 128), flags=cv2.INTER_LINEAR
+                                 | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
+    a = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, seed=8)
+    b = synth.simulate_stack(warped, pipe, TIMES, jitter=0.0, seed=8)
+    frames = [b.images[0], a.images[1], a.images[2], b.images[3]]
+    transforms = estimate_alignment(frames, a.true_exposures, true_model(a),
+                                    method="homography", reference=1,
+                                    working_size=working_size)
+    expected = np.linalg.inv(m)
+    corners = np.array([[16, 16, 1], [176, 16, 1], [16, 112, 1], [176, 112, 1]], float)
+    for k in (0, 3):
+        got = corners @ transforms[k].T
+        want = corners @ expected.T
+        err = np.hypot(*(got[:, :2] / got[:, 2:] - want[:, :2] / want[:, 2:]).T)
+        assert err.max() < 0.25, (k, err)
+    np.testing.assert_allclose(transforms[1], np.eye(3))
+
+
+def test_warp_to_reference_integer_and_general():
+    img = np.arange(5 * 7 * 3, dtype=np.uint8).reshape(5, 7, 3)
+    t = np.array([[1, 0, 2], [0, 1, -1], [0, 0, 1]], float)
+    out = warp_to_reference(img, t)
+    np.testing.assert_array_equal(out[1:, :5], img[:4, 2:])
+    assert (out[0] == 0).all()
+    h = np.array([[1, 0, 0.5], [0, 1, 0], [0, 0, 1]], float)
+    out = warp_to_reference(img.astype(np.float32), h)
+    np.testing.assert_allclose(out[:, :-1], (img[:, :-1] + img[:, 1:]) / 2.0, atol=1e-3)
+
+
+# ------------------------------------------------------------------ deghosting
+
+def test_deghosting_flags_a_moving_object():
+    scene = synth.make_scene(96, 144, dynamic_range_stops=10, saturation=0.3, seed=9)
+    moved = scene.copy()
+    moved[30:60, 90:120] = scene[30:60, 90:120] * 0.25     # a dark object, in frame 2 only
+    pipe = simple_pipeline()
+    a = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, seed=9)
+    b = synth.simulate_stack(moved, pipe, TIMES, jitter=0.0, seed=9)
+    frames = list(a.images)
+    frames[2] = b.images[2]
+    model = true_model(a)
+    truth = truth_radiance(a)
+    plain = merge_hdr(frames, a.true_exposures, model, reference=1)
+    clean = merge_hdr(frames, a.true_exposures, model, reference=1, deghost=True)
+    obj = np.zeros((96, 144), bool)
+    obj[32:58, 92:118] = True
+    # where frame 2 saw the object and the reference frame is unclipped
+    usable = obj & (((b.images[2] > 2) & (b.images[2] < 253)).all(axis=2)
+                    & ((a.images[1] > 2) & (a.images[1] < 253)).all(axis=2))
+    assert usable.sum() > 300
+    assert clean.ghost[usable].mean() > 0.9
+    away = np.ones(obj.shape, bool)
+    away[28:62, 88:122] = False
+    assert clean.ghost[away].mean() < 0.005
+    assert clean.diagnostics["deghost_excluded_fraction"][2] > 0
+    e_plain = rel_error(plain.radiance, truth, obj & ~plain.unmeasured)
+    e_clean = rel_error(clean.radiance, truth, obj & ~clean.unmeasured)
+    assert e_clean < 0.05 < e_plain, (e_clean, e_plain)
+    assert not plain.ghost.any()
+
+
+# ------------------------------------------------------------------ output files
+
+@pytest.mark.parametrize("name,half,rtol", [("r.exr", False, 0), ("r.exr", True, 1e-3),
+                                            ("r.hdr", False, 1e-2), ("r.tif", False, 0),
+                                            ("r.tiff", True, 1e-3)])
+def test_radiance_round_trip(tmp_path, name, half, rtol):
+    rng = np.random.default_rng(0)
+    radiance = np.exp(rng.uniform(-6, 6, (20, 30, 3))).astype(np.float32)
+    path = write_radiance(tmp_path / name, radiance, half=half)
+    back = read_radiance(path)
+    assert back.shape == radiance.shape and back.dtype == np.float32
+    if rtol == 0:
+        np.testing.assert_array_equal(back, radiance)
+    elif name.endswith(".hdr"):
+        # RGBE: 8-bit mantissas sharing the largest channel's exponent
+        peak = radiance.max(axis=2, keepdims=True)
+        assert np.all(np.abs(back - radiance) <= rtol * peak)
+    else:
+        np.testing.assert_allclose(back, radiance, rtol=rtol)
+    if name.endswith(".exr"):
+        bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        np.testing.assert_allclose(bgr[:, :, ::-1], back)
+    if name.endswith((".tif", ".tiff")):
+        import tifffile
+
+        assert tifffile.imread(path).dtype == (np.float16 if half else np.float32)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+
+
+def test_outputs_atomic_and_not_overwritten(tmp_path, monkeypatch):
+    radiance = np.ones((8, 8, 3), np.float32)
+    out = tmp_path / "r.exr"
+    out.write_bytes(b"old")
+    with pytest.raises(selfcal.OutputExistsError):
+        write_radiance(out, radiance)
+    assert out.read_bytes() == b"old"
+    with pytest.raises(selfcal.OutputExistsError, match="input"):
+        write_radiance(out, radiance, force=True, inputs=[out])
+    # an encoder failure leaves the old file and no temporary file
+    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)
+    with pytest.raises(OutputWriteError):
+        write_radiance(out, radiance, force=True)
+    monkeypatch.undo()
+    assert out.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["r.exr"]
+    write_radiance(out, radiance, force=True)
+    np.testing.assert_array_equal(read_radiance(out), radiance)
+    with pytest.raises(selfcal.InputError, match="format"):
+        write_radiance(tmp_path / "r.png", radiance)
+    with pytest.raises(selfcal.InputError, match="NaN"):
+        write_radiance(tmp_path / "n.exr", np.full((2, 2, 3), np.nan, np.float32))
+    preview = write_preview(tmp_path / "p.jpg", radiance * 10)
+    assert cv2.imread(str(preview)).shape == (8, 8, 3)
+    with pytest.raises(selfcal.OutputExistsError):
+        write_preview(tmp_path / "p.jpg", radiance)
+
+
+def test_linearize_images_and_linear_tiff(stack, tmp_path):
+    model = true_model(stack)
+    out = list(linearize_images(stack.images[:2], model))
+    assert [s for s, _ in out] == ["array #0", "array #1"]
+    np.testing.assert_array_equal(out[0][1], model.linearize(stack.images[0]))
+    path = write_linear(tmp_path / "l.tif", out[0][1], exposure_time=1 / 250, f_number=8,
+                        iso=100)
+    import tifffile
+
+    back = tifffile.imread(path)
+    assert back.dtype == np.uint16
+    np.testing.assert_allclose(back / 65535.0, out[0][1], atol=1 / 65535)
+    info = selfcal.io.read_exposure_info(path)
+    assert info.exposure_time == pytest.approx(1 / 250) and info.f_number == 8
+    fpath = write_linear(tmp_path / "f.tif", out[0][1], float32=True)
+    np.testing.assert_array_equal(tifffile.imread(fpath), out[0][1])
+
+
+# ------------------------------------------------------------------ command line
+
+def run_cli(argv, capsys):
+    from selfcal_cli import hdr_commands
+
+    code = hdr_commands.main([str(a) for a in argv])
+    captured = capsys.readouterr()
+    return code, captured.out + captured.err
+
+
+@pytest.fixture(scope="module")
+def fixture_model(tmp_path_factory):
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    path = tmp_path_factory.mktemp("model") / "model.json"
+    selfcal.calibrate_response(frames).save(path)
+    return path
+
+
+def test_cli_merge(fixture_model, tmp_path, capsys):
+    from selfcal_cli.main import EXIT_INPUT, EXIT_OUTPUT
+
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    out = tmp_path / "out.exr"
+    preview = tmp_path / "p.jpg"
+    code, text = run_cli(["merge", *frames, "--model", fixture_model, "-o", out,
+                          "--preview", preview, "--align", "mtb", "--deghost",
+                          "--weighting", "noise"], capsys)
+    assert code == 0, text
+    radiance = read_radiance(out)
+    assert radiance.shape == (128, 192, 3) and np.isfinite(radiance).all()
+    assert cv2.imread(str(preview)) is not None
+    assert "unmeasured" in text and "wrote" in text and "EXIF" in text
+    before = out.read_bytes()
+    code, text = run_cli(["merge", *frames, "--model", fixture_model, "-o", out], capsys)
+    assert code == EXIT_OUTPUT and "--force" in text and str(out) in text
+    assert out.read_bytes() == before
+    code, text = run_cli(["merge", *frames, "-o", out, "--force", "--half"], capsys)
+    assert code == 0, text
+    assert "calibrated on the fly" in text
+    # bad input: a truncated frame is named
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(frames[0].read_bytes()[:3000])
+    code, text = run_cli(["merge", cut, *frames[1:], "--model", fixture_model,
+                          "-o", tmp_path / "x.exr"], capsys)
+    assert code == EXIT_INPUT and "cut.jpg" in text
+    assert not (tmp_path / "x.exr").exists()
+    code, text = run_cli(["merge", *frames, "-o", tmp_path / "x.png"], capsys)
+    assert code == EXIT_INPUT and "x.png" in text
+    code, text = run_cli(["merge", *frames, "--model", tmp_path / "none.json",
+                          "-o", tmp_path / "x.exr"], capsys)
+    assert code == EXIT_INPUT and "none.json" in text
+    # never over an input
+    tif = tmp_path / "frame.tif"
+    selfcal.io.write_image(tif, selfcal.io.read_image(frames[0]))
+    code, text = run_cli(["merge", tif, *frames[1:], "-o", tif, "--force"], capsys)
+    assert code == EXIT_OUTPUT and "input" in text
+
+
+def test_cli_linearize(fixture_model, tmp_path, capsys):
+    import tifffile
+
+    from selfcal_cli.main import EXIT_INPUT, EXIT_OUTPUT
+
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))[:3]
+    out = tmp_path / "lin"
+    code, text = run_cli(["linearize", "--model", fixture_model, *frames, "-o", out], capsys)
+    assert code == 0, text
+    files = sorted(out.iterdir())
+    assert [f.name for f in files] == [f.stem + ".tif" for f in frames]
+    model = selfcal.load_model(fixture_model)
+    data = tifffile.imread(files[0])
+    assert data.dtype == np.uint16
+    expected = model.linearize(selfcal.io.read_image(frames[0]))
+    np.testing.assert_allclose(data / 65535.0, expected, atol=1 / 65535)
+    code, text = run_cli(["linearize", "--model", fixture_model, *frames, "-o", out], capsys)
+    assert code == EXIT_OUTPUT and frames[0].stem in text
+    code, text = run_cli(["linearize", "--model", fixture_model, *frames, "-o", out,
+                          "--float", "--force"], capsys)
+    assert code == 0, text
+    assert tifffile.imread(files[0]).dtype == np.float32
+    code, text = run_cli(["linearize", "--model", tmp_path / "nope.json", *frames,
+                          "-o", tmp_path / "l2"], capsys)
+    assert code == EXIT_INPUT and "nope.json" in text
+    # a TIFF input in the output folder would be overwritten by its own output: refused
+    src = tmp_path / "same" / "frame.tif"
+    src.parent.mkdir()
+    shutil.copy(files[0], src)
+    code, text = run_cli(["linearize", "--model", fixture_model, src, "-o", src.parent,
+                          "--force"], capsys)
+    assert code == EXIT_OUTPUT and "input" in text
+
+
+def test_cli_merge_times_and_help(tmp_path, capsys):
+    from selfcal_cli import hdr_commands
+
+    with pytest.raises(SystemExit) as info:
+        hdr_commands.main(["merge", "--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for option in ("--model", "--align", "--deghost", "--weighting", "--preview", "--force",
+                   "--times"):
+        assert option in out
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))
+    code, text = run_cli(["merge", *frames, "--times", "1/250", "-o", tmp_path / "a.exr"],
+                         capsys)
+    assert code == 3 and "--times" in text
