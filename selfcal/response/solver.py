@@ -71,17 +71,37 @@ def _gradient_on(basis_grid: np.ndarray, g: np.ndarray, x: np.ndarray) -> np.nda
     return np.interp(x, basis_grid, dg)
 
 
-def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int):
-    """Frame pairs (a, b), b brighter, and the samples valid in both."""
+def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
+                 values: np.ndarray, log_exposures: np.ndarray,
+                 stuck_ratio: float = 1.5, stuck_codes: float = 1.0 / 255):
+    """Frame pairs (a, b), b brighter, and the samples valid in both.
+
+    A sample whose code in some channel does not move between two frames whose exposures
+    differ by ``stuck_ratio`` or more is clipped in that channel, whatever its code: this
+    catches black floors and white ceilings away from 0 and the maximum code (scanned
+    film, cameras that crush black at a pedestal, stacks saved with a black offset).
+
+    Returns
+    -------
+    pairs : list of (a, b, sample indices)
+    stuck : int
+        Sample pairs dropped as not responding to the exposure change.
+    """
     pairs = []
+    stuck = 0
     F = len(order)
     for gap in range(1, min(max_rank_gap, F - 1) + 1):
         for r in range(F - gap):
             a, b = order[r], order[r + gap]
-            both = np.flatnonzero(valid[a] & valid[b])
+            ok = valid[a] & valid[b]
+            if log_exposures[b] - log_exposures[a] >= np.log(stuck_ratio):
+                frozen = (np.abs(values[b] - values[a]) < stuck_codes).any(axis=1)
+                stuck += int((ok & frozen).sum())
+                ok &= ~frozen
+            both = np.flatnonzero(ok)
             if both.size:
                 pairs.append((a, b, both))
-    return pairs
+    return pairs, stuck
 
 
 def _initial_log_exposures(values, valid, basis, log_times):
@@ -205,9 +225,9 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
             log_times = log_times.copy()
             log_times[gauge] = 0.0
     order = np.argsort(init, kind="stable")
-    pairs = _build_pairs(valid, order, max_rank_gap)
+    pairs, stuck = _build_pairs(valid, order, max_rank_gap, values, init)
     # rejection counts, over the same frame pairs the solve uses
-    rejections = {"clipped": 0, "saturated": 0}
+    rejections = {"clipped": stuck, "saturated": 0}
     for gap in range(1, min(max_rank_gap, F - 1) + 1):
         for r in range(F - gap):
             a, b = order[r], order[r + gap]
