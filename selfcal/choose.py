@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import CalibrationError, InputError, SelfcalWarning
-from .io import IMAGE_SUFFIXES, ExposureInfo
+from .io import IMAGE_SUFFIXES, ExposureInfo, effective_exposure_times
 from .raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff, read_raw_exposure_info
 
 __all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
@@ -283,22 +283,6 @@ def _names(paths, limit=4) -> str:
     return ", ".join(names)
 
 
-def _effective_times(infos: list[ExposureInfo]) -> list:
-    """Exposure time scaled to the first timed frame's ISO and aperture (t·ISO/N²), as
-    :func:`selfcal.response.calibrate.resolve_exposure_times` does."""
-    ref = next((i for i in infos if i.exposure_time is not None), None)
-    out = []
-    for info in infos:
-        t = info.exposure_time
-        if t is not None and ref is not None:
-            if info.iso and ref.iso:
-                t *= info.iso / ref.iso
-            if info.f_number and ref.f_number:
-                t *= (ref.f_number / info.f_number) ** 2
-        out.append(t)
-    return out
-
-
 def _frame_info(path: Path, raw_path: Path | None) -> ExposureInfo:
     from .io import read_exposure_info
 
@@ -502,7 +486,7 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
     for p in groups.rendered:
         sizes.setdefault(_image_size(p), []).append(p)
     infos = {p: _frame_info(p, raw_of.get(p)) for p in groups.rendered}
-    eff = dict(zip(groups.rendered, _effective_times([infos[p] for p in groups.rendered])))
+    eff = dict(zip(groups.rendered, effective_exposure_times([infos[p] for p in groups.rendered])))
     if given_times is not None:
         eff = dict(given_times)
 

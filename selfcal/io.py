@@ -153,6 +153,26 @@ class ExposureInfo:
         return self.exposure_time * scale
 
 
+def effective_exposure_times(infos) -> list:
+    """Exposure times scaled to the first timed frame's ISO and aperture.
+
+    Pixel values scale with t · ISO / N², so a frame shot at another ISO or f-number is
+    given the time that would have exposed it equally at the first frame's settings; the
+    result stays in seconds.  ``None`` where a frame has no time.
+    """
+    ref = next((i for i in infos if i.exposure_time is not None), None)
+    out = []
+    for info in infos:
+        t = info.exposure_time
+        if t is not None and ref is not None:
+            if info.iso and ref.iso:
+                t *= info.iso / ref.iso
+            if info.f_number and ref.f_number:
+                t *= (ref.f_number / info.f_number) ** 2
+        out.append(t)
+    return out
+
+
 def _rational(value) -> float | None:
     try:
         if isinstance(value, tuple):  # (num, den) as some writers give

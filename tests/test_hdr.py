@@ -467,9 +467,9 @@ def test_linearize_images_and_linear_tiff(stack, tmp_path):
 # ------------------------------------------------------------------ command line
 
 def run_cli(argv, capsys):
-    from selfcal_cli import hdr_commands
+    from selfcal_cli import main as cli_main
 
-    code = hdr_commands.main([str(a) for a in argv])
+    code = cli_main.main([str(a) for a in argv])
     captured = capsys.readouterr()
     return code, captured.out + captured.err
 
@@ -557,10 +557,10 @@ def test_cli_linearize(fixture_model, tmp_path, capsys):
 
 
 def test_cli_merge_times_and_help(tmp_path, capsys):
-    from selfcal_cli import hdr_commands
+    from selfcal_cli import main as cli_main
 
     with pytest.raises(SystemExit) as info:
-        hdr_commands.main(["merge", "--help"])
+        cli_main.main(["merge", "--help"])
     assert info.value.code == 0
     out = capsys.readouterr().out
     for option in ("--model", "--align", "--deghost", "--weighting", "--preview", "--force",

@@ -54,19 +54,9 @@ def resolve_exposure_times(frames, exposure_times, sources):
         return out, "given"
     if not all(_is_path(f) for f in frames):
         return [None] * n, "unknown"
-    from ..io import read_exposure_info
+    from ..io import effective_exposure_times, read_exposure_info
 
-    infos = [read_exposure_info(f) for f in frames]
-    ref = next((i for i in infos if i.exposure_time is not None), None)
-    out = []
-    for info in infos:
-        t = info.exposure_time
-        if t is not None and ref is not None:
-            if info.iso and ref.iso:
-                t *= info.iso / ref.iso
-            if info.f_number and ref.f_number:
-                t *= (ref.f_number / info.f_number) ** 2
-        out.append(t)
+    out = effective_exposure_times([read_exposure_info(f) for f in frames])
     return out, "exif"
 
 
