@@ -27,6 +27,7 @@ from .errors import (
 from .modelfile import load_model
 from .response.calibrate import calibrate_response
 from .response.model import ResponseModel
+from .pipeline import PipelineModel, fit_pipeline
 from .choose import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
 from .raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
 from .hdr import merge_hdr  # noqa: F401  (HDR radiance maps, selfcal.hdr)
@@ -42,6 +43,8 @@ __all__ = [
     "calibrate_response",
     "load_model",
     "ResponseModel",
+    "fit_pipeline",
+    "PipelineModel",
     "errors",
     "CalibrationError",
     "InputError",

@@ -52,8 +52,9 @@ def load_model(path):
 
     Returns
     -------
-    ResponseModel
-        For ``kind == "response"`` (more kinds are added by the RAW path).
+    ResponseModel or PipelineModel
+        ``kind == "response"``: the JPEG-only path's model; ``kind == "pipeline"``: the
+        RAW path's camera pipeline (:class:`selfcal.pipeline.PipelineModel`).
 
     Raises
     ------
@@ -66,4 +67,8 @@ def load_model(path):
         from .response.model import ResponseModel
 
         return ResponseModel.from_dict(doc, path=path)
+    if kind == "pipeline":
+        from .pipeline.model import PipelineModel
+
+        return PipelineModel.from_dict(doc, path=path)
     raise ModelFileError(f"unknown model kind {kind!r}", path)

@@ -1,0 +1,198 @@
+"""RBF inverse colour mapping h⁻¹ (Lin, Kim, Süsstrunk & Brown, ICCV 2011, §6).
+
+Lin et al. (paper 002) model the camera as ``i_c = f_c(h(T E))`` (Eq. 9) and undo the
+colour (gamut) mapping ``h`` by scattered-data interpolation with radial basis functions
+(Eq. 10)::
+
+    h⁻¹(e) = Σ_i w_i ||e - e_i||  +  affine(e)
+
+from control pairs ``e_i -> T E_i`` (linearised rendered colour -> colour-corrected raw;
+"typically 1500 samples").  A raw is then ``E = T⁻¹ h⁻¹(f⁻¹(i))`` (Eq. 11).  The NUS
+camera models store exactly this form (control points, weights and 4×3 affine rows).
+
+The fit uses :class:`scipy.interpolate.RBFInterpolator` (``kernel="linear"``,
+``degree=1``); its smoothing (a ridge on the kernel matrix; exact interpolation at 0) is
+chosen by leave-one-out validation (Rippa's closed form, :func:`rbf_leave_one_out`), since
+JPEG noise makes exact interpolation of 1,500 nearby points oscillate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import CalibrationError, InputError
+
+#: Number of control points (Lin et al. §6: "typically 1500 samples are used").
+N_CONTROL_POINTS = 1500
+#: Smoothing values tried by the held-out selection.
+SMOOTHING_GRID = (0.0, 1e-5, 3e-5, 1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0, 3.0,
+                  10.0)
+
+
+class RBFColourMapping:
+    """A fitted RBF colour mapping ``e -> Σ w_i ||e - c_i|| + affine(e)`` (Lin et al. Eq. 10).
+
+    Attributes
+    ----------
+    centres : numpy.ndarray
+        ``(N, 3)`` control points ``e_i``.
+    values : numpy.ndarray
+        ``(N, 3)`` their targets (``T E_i``).
+    smoothing : float
+        The RBFInterpolator smoothing.
+    validation : dict
+        Leave-one-out RMSE per smoothing value tried (empty when not selected).
+    """
+
+    def __init__(self, centres, values, smoothing: float = 0.0, validation=None):
+        from scipy.interpolate import RBFInterpolator
+
+        self.centres = np.ascontiguousarray(centres, dtype=np.float64)
+        self.values = np.ascontiguousarray(values, dtype=np.float64)
+        self.smoothing = float(smoothing)
+        self.validation = dict(validation or {})
+        if self.centres.ndim != 2 or self.centres.shape[1] != 3 or \
+                self.values.shape != self.centres.shape:
+            raise InputError("RBF control points and values must be two (N, 3) arrays")
+        try:
+            self._rbf = RBFInterpolator(self.centres, self.values, kernel="linear", degree=1,
+                                        smoothing=self.smoothing)
+        except (np.linalg.LinAlgError, ValueError) as exc:
+            raise CalibrationError(f"the RBF colour mapping cannot be fitted ({exc}); the "
+                                   "control points may be degenerate (e.g. all grey)") from None
+
+    def __call__(self, e, chunk: int = 50_000) -> np.ndarray:
+        """Evaluate at ``(..., 3)`` points (float64), in chunks to bound memory."""
+        e = np.asarray(e, dtype=np.float64)
+        flat = e.reshape(-1, 3)
+        out = np.empty_like(flat)
+        for s in range(0, flat.shape[0], chunk):
+            out[s:s + chunk] = self._rbf(flat[s:s + chunk])
+        return out.reshape(e.shape)
+
+    def to_dict(self) -> dict:
+        return {"kernel": "linear", "degree": 1, "smoothing": self.smoothing,
+                "centres": self.centres.tolist(), "values": self.values.tolist(),
+                "validation": {str(k): float(v) for k, v in self.validation.items()}}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "RBFColourMapping":
+        return cls(d["centres"], d["values"], float(d["smoothing"]),
+                   {float(k): v for k, v in d.get("validation", {}).items()})
+
+
+def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
+                      error_transform=None) -> dict:
+    """Leave-one-out RMSE of the linear-kernel RBF (degree-1 affine part) per smoothing.
+
+    Rippa's closed form (Rippa, *An algorithm for selecting a good value for the parameter
+    c in radial basis function interpolation*, Adv. Comput. Math. 1999): for the system
+    ``(K + s I) a + P b = y``, ``Pᵀ a = 0`` (``K_ij = -||c_i - c_j||`` as in
+    :class:`scipy.interpolate.RBFInterpolator`), the error at ``c_i`` of the interpolant
+    fitted without sample ``i`` is ``a_i / (A⁻¹)_ii``.  With ``Q`` an orthonormal basis of
+    the null space of ``Pᵀ`` and ``QᵀKQ = V Λ Vᵀ`` (one eigendecomposition) every
+    smoothing value costs only ``O(n²)``: ``a = U (Λ + s)⁻¹ Uᵀ y`` and
+    ``(A⁻¹)_ii = Σ_j U_ij² / (λ_j + s)`` with ``U = Q V``.
+
+    Parameters
+    ----------
+    centres, values : numpy.ndarray
+        ``(n, 3)`` control points and targets.
+    smoothing_grid : sequence of float
+    error_transform : callable, optional
+        Applied to the ``(n, 3)`` held-out residuals before the RMSE (a linear map, e.g.
+        ``M⁻¹`` for raw units).
+
+    Returns
+    -------
+    dict
+        smoothing -> held-out RMSE.
+    """
+    import scipy.linalg as sl
+    from scipy.spatial.distance import cdist
+
+    c = np.asarray(centres, dtype=np.float64)
+    y = np.asarray(values, dtype=np.float64)
+    n = c.shape[0]
+    k = -cdist(c, c)
+    p = np.hstack([np.ones((n, 1)), c])
+    q_full, _ = np.linalg.qr(p, mode="complete")
+    q = q_full[:, 4:]
+    lam, v = sl.eigh(q.T @ k @ q, driver="evd")
+    u = q @ v
+    uy = u.T @ y
+    u2 = u * u
+    tf = (lambda r: r) if error_transform is None else error_transform
+    out = {}
+    for s in smoothing_grid:
+        d = lam + float(s)
+        if np.any(d <= 0):
+            continue
+        a = u @ (uy / d[:, None])
+        diag = u2 @ (1.0 / d)
+        out[float(s)] = float(np.sqrt(np.mean(tf(a / diag[:, None]) ** 2)))
+    return out
+
+
+def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
+                               smoothing="auto", smoothing_grid=SMOOTHING_GRID,
+                               error_transform=None, seed: int = 0) -> RBFColourMapping:
+    """Fit the inverse colour mapping ``h⁻¹: e -> T E`` of Lin et al. ICCV 2011, Eq. 10-11.
+
+    ``h⁻¹(e) = Σ_i w_i ||e - e_i|| + affine(e)`` through the control pairs
+    ``e_i -> T E_i`` (scipy's RBFInterpolator, ``kernel="linear"``, ``degree=1``).
+
+    Parameters
+    ----------
+    e : array_like
+        ``(n, 3)`` linearised rendered colours ``f⁻¹(i)``.
+    target : array_like
+        ``(n, 3)`` colour-corrected raws ``T E`` (here ``M ρ``).
+    n_centres : int
+        Control points used (a seeded random subset when ``n`` is larger; 1500 as in §6).
+    smoothing : float or "auto"
+        RBFInterpolator smoothing; ``"auto"`` picks the value of ``smoothing_grid`` with
+        the lowest leave-one-out error (:func:`rbf_leave_one_out`, closed form).
+    error_transform : callable, optional
+        A linear map applied to held-out residuals (e.g. ``M⁻¹``, for raw units).
+    seed : int
+        Seeds the subset of control points.
+
+    Returns
+    -------
+    RBFColourMapping
+        With the held-out scores in ``validation``.
+
+    Raises
+    ------
+    CalibrationError
+        Too few samples (fewer than 10), or a degenerate set of control points.
+    """
+    e = np.asarray(e, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    if e.ndim != 2 or e.shape[1] != 3 or target.shape != e.shape:
+        raise InputError(f"RBF data must be two (n, 3) arrays, got {e.shape}, {target.shape}")
+    ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(target), axis=1)
+    e, target = e[ok], target[ok]
+    # duplicate control points make the interpolation matrix singular: keep one of each
+    _, first = np.unique(np.round(e, 9), axis=0, return_index=True)
+    first = np.sort(first)
+    e, target = e[first], target[first]
+    if e.shape[0] < 10:
+        raise CalibrationError(f"the RBF colour mapping needs at least 10 distinct samples, "
+                               f"got {e.shape[0]}")
+    if e.shape[0] > n_centres:
+        pick = np.sort(np.random.default_rng(seed).choice(e.shape[0], n_centres,
+                                                          replace=False))
+        e, target = e[pick], target[pick]
+    if smoothing != "auto":
+        return RBFColourMapping(e, target, float(smoothing))
+    try:
+        scores = rbf_leave_one_out(e, target, smoothing_grid, error_transform)
+    except np.linalg.LinAlgError:
+        scores = {}
+    if not scores:
+        raise CalibrationError("the RBF colour mapping cannot be fitted: the control points "
+                               "are degenerate (e.g. on a plane)")
+    best = min(scores, key=scores.get)
+    return RBFColourMapping(e, target, best, validation=scores)

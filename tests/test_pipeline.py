@@ -1,0 +1,396 @@
+"""Tests of the RAW path model (selfcal.pipeline): rank-based matrix, tone curves, lattice
+LUT, RBF h⁻¹, PipelineModel, model files, the NUS model reader, the baselines."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import selfcal
+from selfcal import synth
+from selfcal.errors import CalibrationError, InputError, ModelFileError, OutputExistsError
+from selfcal.pipeline import (
+    PipelineModel,
+    fit_pipeline,
+    lattice_regression_lut,
+    monotone_tone_curves,
+    rank_based_matrix,
+    rbf_inverse_colour_mapping,
+)
+from selfcal.pipeline.baselines import independent_polynomial_model, least_squares_rbf_model
+from selfcal.pipeline.matrix import fibonacci_sphere, rank_based_row
+from selfcal.pipeline.nus import read_nus_model
+
+ROOT = Path(__file__).resolve().parents[1]
+NUS = ROOT.parent / "shared" / "data" / "nus_model_nikon_d7000"
+
+
+def _rmse(a, b) -> float:
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def pair():
+    """A synthetic RAW+JPEG pair (smooth gamut mapping) and a held-out pixel split."""
+    p = synth.simulate_raw_jpeg_pair(seed=0)
+    raw = p["raw"].reshape(-1, 3).astype(np.float64)
+    jpg = p["rendered"].reshape(-1, 3)
+    rng = np.random.default_rng(123)
+    train = rng.choice(raw.shape[0], 1500, replace=False)
+    test = np.setdiff1d(np.arange(raw.shape[0]), train)
+    truth = p["pipeline"].render(p["raw"]).reshape(-1, 3)
+    return {"pair": p, "raw": raw, "jpg": jpg, "codes": p["codes"].reshape(-1, 3),
+            "train": train, "test": test, "truth": truth}
+
+
+@pytest.fixture(scope="module")
+def model(pair):
+    return fit_pipeline(pair["raw"][pair["train"]], pair["jpg"][pair["train"]] / 255.0,
+                        seed=0, n_sets=10)
+
+
+# ---- end to end on the simulator -------------------------------------------------------
+
+def test_forward_and_backward_errors_on_held_out_pixels(pair, model):
+    test = pair["test"]
+    fwd = _rmse(model.render(pair["raw"][test]), pair["truth"][test]) * 255
+    assert fwd < 4.0   # the JPEG it was trained on is itself ~3 codes from the truth
+    ok = ~((pair["jpg"][test] == 0) | (pair["jpg"][test] == 255)).any(axis=1)
+    back_jpg = _rmse(model.to_raw(pair["jpg"][test][ok]), pair["raw"][test][ok])
+    back_codes = _rmse(model.to_raw(pair["codes"][test][ok]), pair["raw"][test][ok])
+    assert back_jpg < 0.012
+    assert back_codes < 0.008
+    # better than the linear part alone (M and the per-channel curves)
+    e = model.inverse_tone_curves(pair["codes"][test][ok] / 255.0)
+    plain = _rmse(np.clip(e @ model.matrix_inverse.T, 0, 1), pair["raw"][test][ok])
+    assert back_codes < plain
+
+
+def test_images_keep_their_shape_and_dtype(pair, model):
+    p = pair["pair"]
+    out = model.render(p["raw"])
+    assert out.shape == p["raw"].shape and out.dtype == np.float32
+    assert 0.0 <= out.min() and out.max() <= 1.0
+    back = model.to_raw(p["rendered"])
+    assert back.shape == p["rendered"].shape and back.dtype == np.float32
+    # uint8 path (pre-interpolated code table) equals the float path
+    back_f = model.to_raw(p["rendered"].astype(np.float32) / 255.0)
+    assert np.max(np.abs(back - back_f)) < 1e-4
+
+
+def test_render_to_raw_round_trip_for_in_gamut_colours(pair, model):
+    raw = pair["raw"]
+    p = pair["pair"]["pipeline"]
+    mapped = raw @ p.matrix.T
+    lum = mapped.mean(axis=1, keepdims=True)
+    inside = (np.all((mapped > 0.02) & (mapped < 0.9), axis=1)
+              & (np.abs(mapped - lum).max(axis=1) < 0.3 * lum[:, 0]))
+    sel = raw[inside][::7]
+    assert sel.shape[0] > 500
+    back = model.to_raw(model.render(sel))
+    assert _rmse(back, sel) < 0.006
+
+
+def test_baked_table_matches_direct_evaluation(pair, model):
+    codes = pair["codes"][pair["test"]][::11]
+    truth = pair["raw"][pair["test"]][::11]
+    for variant in ("lut", "rbf"):
+        baked = model.to_raw(codes, variant=variant)
+        exact = model.to_raw(codes, variant=variant, exact=True)
+        assert _rmse(baked, exact) < 0.0015
+        assert _rmse(baked, truth) < 1.03 * _rmse(exact, truth)
+
+
+def test_diagnostics_report_both_backward_variants(model):
+    d = model.diagnostics
+    assert d["backward"] in ("lut", "rbf") and d["backward"] == model.backward
+    assert set(d["backward_validation_rmse"]) == {"lut", "rbf"}
+    assert d["backward"] == min(d["backward_validation_rmse"],
+                                key=d["backward_validation_rmse"].get)
+    assert d["forward_train_rmse"] <= d["forward_train_rmse_without_lut"] + 1e-9
+    assert len(d["matrix_search"]["set_train_rmse"]) == 10
+    assert d["samples"]["used"] == 1500
+
+
+# ---- the parts -------------------------------------------------------------------------
+
+def test_fast_search_reaches_the_literal_count():
+    p = synth.simulate_raw_jpeg_pair(seed=2)
+    raw = p["raw"].reshape(-1, 3).astype(np.float64)
+    jpg = p["rendered"].reshape(-1, 3) / 255.0
+    idx = np.random.default_rng(5).choice(raw.shape[0], 120, replace=False)
+    for k in range(3):
+        fast = rank_based_row(raw[idx], jpg[idx], k, method="fast")
+        literal = rank_based_row(raw[idx], jpg[idx], k, method="literal")
+        assert fast["best"] >= literal["best"]
+        assert fast["satisfied"] >= literal["satisfied"]
+        assert fast["evaluated"] * 10 < literal["evaluated"]
+        assert np.degrees(np.arccos(min(1.0, fast["row"] @ literal["row"]))) < 3.0
+
+
+def test_rank_based_matrix_recovers_the_rows_without_gamut_mapping():
+    rng = np.random.default_rng(0)
+    raw = rng.uniform(0, 1, (200, 3)) ** 2
+    m_true = synth.random_color_matrix(seed=4)
+    pipe = synth.default_pipeline(gamut="none", seed=4)
+    rendered = np.round(pipe.render(raw) * 255) / 255
+    inside = np.all((raw @ m_true.T > 0) & (raw @ m_true.T < 1), axis=1)
+    m = rank_based_matrix(raw[inside], rendered[inside])
+    unit = m_true / np.linalg.norm(m_true, axis=1, keepdims=True)
+    angles = np.degrees(np.arccos(np.clip(np.sum(m * unit, axis=1), -1, 1)))
+    assert np.all(angles < 1.5), angles
+    assert np.allclose(np.linalg.norm(m, axis=1), 1.0)
+
+
+def test_fibonacci_sphere_is_unit_and_covers_the_sphere():
+    u = fibonacci_sphere(100_000)
+    assert np.allclose(np.linalg.norm(u, axis=1), 1.0)
+    probe = fibonacci_sphere(997) @ np.array([[0.6, 0.0, 0.8]]).T  # arbitrary rotation-free
+    assert probe.shape == (997, 1)
+    # largest gap: every random direction has a lattice point within 1.15° (paper: 1.15°)
+    rng = np.random.default_rng(0)
+    v = rng.standard_normal((300, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    nearest = np.degrees(np.arccos(np.clip((v @ u.T).max(axis=1), -1, 1)))
+    assert nearest.max() < 1.15
+
+
+def test_tone_curves_are_monotone(model):
+    for curves in (model.tone_curves, model.inverse_tone_curves):
+        for k in range(3):
+            x, y = curves.table(k, 20_001)
+            assert np.all(np.diff(y) >= -1e-6)
+    # a noisy, locally decreasing target still gives a monotone curve
+    rng = np.random.default_rng(1)
+    x = rng.uniform(0, 1, (500, 3))
+    y = x ** 0.5 + 0.05 * np.sin(20 * x) + 0.02 * rng.standard_normal((500, 3))
+    fit = monotone_tone_curves(x, y)
+    for k in range(3):
+        grid = np.linspace(0, 1, 5001)
+        assert np.all(np.diff(fit.channel(grid, k)) >= -1e-6)
+        assert _rmse(fit.channel(x[:, k], k), x[:, k] ** 0.5) < 0.05
+
+
+def test_lattice_lut_reproduces_a_known_smooth_map():
+    rng = np.random.default_rng(2)
+
+    def target(x):
+        return x + 0.04 * np.sin(2.5 * x[:, [1, 2, 0]]) * x[:, [2, 0, 1]]
+
+    x = rng.uniform(0, 1, (3000, 3))
+    lut = lattice_regression_lut(x, target(x), smoothness="auto")
+    assert lut.nodes.shape == (5, 5, 5, 3)
+    xt = rng.uniform(0, 1, (2000, 3))
+    err = _rmse(xt + lut.residual(xt), target(xt))
+    assert err < 0.002
+    assert err < 0.2 * _rmse(xt, target(xt))
+    assert lut.validation and lut.smoothness in lut.validation
+
+
+def test_rbf_inverts_a_known_gamut_compression():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 1, (1500, 3))
+    e = synth.gamut_compress(x, knee=0.5)
+    h_inv = rbf_inverse_colour_mapping(e, x, seed=0)
+    assert h_inv.centres.shape[0] <= 1500
+    xt = rng.uniform(0.05, 0.95, (1000, 3))
+    et = synth.gamut_compress(xt, knee=0.5)
+    moved = np.abs(et - xt).max(axis=1) > 0.01
+    assert moved.mean() > 0.2
+    assert _rmse(h_inv(et), xt) < 0.3 * _rmse(et, xt)
+    assert _rmse(h_inv(et), xt) < 0.02
+    # the closed-form leave-one-out choice picked one of the grid values
+    assert h_inv.smoothing in h_inv.validation
+
+
+def test_rbf_matches_scipy_for_a_fixed_smoothing():
+    from scipy.interpolate import RBFInterpolator
+
+    rng = np.random.default_rng(4)
+    c = rng.uniform(0, 1, (200, 3))
+    v = np.sin(3 * c)
+    ours = rbf_inverse_colour_mapping(c, v, smoothing=1e-3)
+    ref = RBFInterpolator(c, v, kernel="linear", degree=1, smoothing=1e-3)
+    q = rng.uniform(0, 1, (50, 3))
+    assert np.allclose(ours(q), ref(q))
+
+
+# ---- files, determinism, errors ---------------------------------------------------------
+
+def test_save_and_load_give_identical_outputs(tmp_path, pair, model):
+    path = tmp_path / "camera.json"
+    model.save(path)
+    with pytest.raises(OutputExistsError):
+        model.save(path)
+    model.save(path, force=True)
+    loaded = selfcal.load_model(path)
+    assert isinstance(loaded, PipelineModel)
+    assert loaded.backward == model.backward
+    assert np.array_equal(loaded.matrix, model.matrix)
+    sample_raw = pair["raw"][::97]
+    sample_jpg = pair["jpg"][::97]
+    assert np.array_equal(loaded.render(sample_raw), model.render(sample_raw))
+    for variant in ("lut", "rbf"):
+        assert np.array_equal(loaded.to_raw(sample_jpg, variant=variant),
+                              model.to_raw(sample_jpg, variant=variant))
+        assert np.array_equal(loaded.to_raw(sample_jpg / 255.0, variant=variant),
+                              model.to_raw(sample_jpg / 255.0, variant=variant))
+    assert loaded.diagnostics["backward_validation_rmse"] == pytest.approx(
+        model.diagnostics["backward_validation_rmse"])
+
+
+def test_a_damaged_model_file_is_rejected(tmp_path, model):
+    import json
+
+    path = tmp_path / "camera.json"
+    model.save(path)
+    doc = json.loads(path.read_text())
+    doc["matrix"] = [[1, 2], [3, 4]]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="bad.json"):
+        selfcal.load_model(bad)
+    del doc["tone_curves"]
+    bad.write_text(json.dumps(doc))
+    with pytest.raises(ModelFileError, match="tone_curves"):
+        selfcal.load_model(bad)
+
+
+def test_same_seed_same_model_other_seed_other_sets(pair):
+    raw, jpg = pair["raw"], pair["jpg"] / 255.0
+    a = fit_pipeline(raw, jpg, n_train=400, seed=7, n_sets=3)
+    b = fit_pipeline(raw, jpg, n_train=400, seed=7, n_sets=3)
+    c = fit_pipeline(raw, jpg, n_train=400, seed=8, n_sets=3)
+    assert np.array_equal(a.matrix, b.matrix)
+    q = pair["jpg"][::131]
+    assert np.array_equal(a.to_raw(q), b.to_raw(q))
+    assert np.array_equal(a.render(raw[::131]), b.render(raw[::131]))
+    assert not np.array_equal(a.matrix, c.matrix)
+
+
+def test_bad_input_is_refused_with_clear_messages(pair):
+    raw, jpg = pair["raw"][:500], pair["jpg"][:500] / 255.0
+    bad = raw.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(InputError, match="NaN"):
+        fit_pipeline(bad, jpg)
+    with pytest.raises(InputError, match=r"shape \(n, 3\)"):
+        fit_pipeline(raw[:, :2], jpg)
+    with pytest.raises(InputError, match="rows"):
+        fit_pipeline(raw, jpg[:400])
+    with pytest.raises(InputError, match="divide"):
+        fit_pipeline(raw, jpg * 255.0)
+    with pytest.raises(CalibrationError, match="too few"):
+        fit_pipeline(raw[:20], jpg[:20])
+    grey = np.repeat(np.linspace(0.01, 0.9, 200)[:, None], 3, axis=1)
+    with pytest.raises(CalibrationError, match="colour variety"):
+        fit_pipeline(grey, grey ** 0.45)
+    with pytest.raises(InputError, match="backward"):
+        fit_pipeline(raw, jpg, backward="spline")
+
+
+def test_model_methods_refuse_bad_arrays(model):
+    with pytest.raises(InputError, match="3 channels"):
+        model.render(np.zeros((4, 4)))
+    with pytest.raises(InputError, match="NaN"):
+        model.to_raw(np.full((2, 3), np.nan))
+    with pytest.raises(InputError, match="variant"):
+        model.to_raw(np.zeros((2, 3)), variant="spline")
+    with pytest.raises(InputError, match="ambiguous"):
+        model.to_raw(np.zeros((2, 3), dtype=np.int64))
+
+
+def test_backward_lut_only_skips_the_rbf(pair):
+    m = fit_pipeline(pair["raw"], pair["jpg"] / 255.0, n_train=300, n_sets=2,
+                     backward="lut")
+    assert m.backward == "lut" and m.rbf is None
+    with pytest.raises(InputError, match="RBF"):
+        m.to_raw(pair["jpg"][:5], variant="rbf")
+
+
+def test_one_shot_140_samples(pair):
+    m = fit_pipeline(pair["raw"], pair["jpg"] / 255.0, n_train=140, n_sets=5, seed=1)
+    test = pair["test"]
+    assert _rmse(m.render(pair["raw"][test]), pair["truth"][test]) * 255 < 6.0
+
+
+# ---- baselines --------------------------------------------------------------------------
+
+def test_baselines_fit_and_invert(pair):
+    tr = pair["train"]
+    raw, jpg = pair["raw"][tr], pair["jpg"][tr] / 255.0
+    test = pair["test"][::5]
+    for fit in (independent_polynomial_model, least_squares_rbf_model):
+        b = fit(raw, jpg)
+        assert _rmse(b.render(pair["raw"][test]), pair["truth"][test]) * 255 < 8
+        ok = ~((pair["jpg"][test] == 0) | (pair["jpg"][test] == 255)).any(axis=1)
+        assert _rmse(b.to_raw(pair["jpg"][test][ok]), pair["raw"][test][ok]) < 0.02
+
+
+# ---- the NUS model reader ---------------------------------------------------------------
+
+def _write_tiny_nus(folder: Path):
+    """A 5-point NUS-format model: zero RBF weights, identity affine part, gamma 2 curve."""
+    folder.mkdir()
+    base = np.array([[1.5, -0.4, -0.1], [-0.2, 1.4, -0.2], [0.0, -0.5, 1.5]])
+    gains = {3: np.array([1.3, 1.0, 2.2]), 14: np.array([1.8, 1.0, 2.0])}
+    lines = [f"{len(gains)}"] + [" ".join(f"{v:.6f}" for v in r) for r in base]
+    for code, g in gains.items():
+        lines.append(str(code))
+        lines += [" ".join(f"{v:.6f}" for v in r) for r in base * g]
+        lines.append(" ".join(f"{v:.6f}" for v in g))
+    centres = np.array([[0.1, 0.2, 0.3], [0.5, 0.5, 0.5], [0.9, 0.1, 0.2], [0.2, 0.8, 0.4],
+                        [0.3, 0.3, 0.9]])
+    coefs = np.vstack([np.zeros((5, 3)), np.zeros((1, 3)), np.eye(3)])
+    table = np.repeat((np.arange(256) / 255.0)[:, None] ** 2, 3, axis=1)
+    for d in ("raw2jpg", "jpg2raw"):
+        (folder / f"{d}_transform.txt").write_text("\n".join(lines) + "\n")
+        (folder / f"{d}_ctrlPoints.txt").write_text(
+            "5\n" + "\n".join(" ".join(f"{v:.6f}" for v in r) for r in centres) + "\n")
+        (folder / f"{d}_coefs.txt").write_text(
+            "9\n" + "\n".join(" ".join(f"{v:.6f}" for v in r) for r in coefs) + "\n")
+        (folder / f"{d}_respFcns.txt").write_text(
+            "16400.0 0.0 0.0 0.0\n" + "\n".join(" ".join(f"{v:.6f}" for v in r)
+                                                for r in table) + "\n")
+        (folder / f"{d}_validRange.txt").write_text("5 252\n")
+    return base, gains
+
+
+def test_nus_reader_on_a_tiny_model_in_the_file_format(tmp_path):
+    base, gains = _write_tiny_nus(tmp_path / "tiny")
+    cam = read_nus_model(tmp_path / "tiny", wb_code=14)
+    assert np.allclose(cam.transform, base * gains[14], atol=1e-6)
+    assert cam.valid_range == (5, 252)
+    rng = np.random.default_rng(0)
+    raw = rng.uniform(0, 0.4, (100, 3))
+    expected = np.sqrt(np.clip(raw @ (base * gains[14]).T, 0, 1))
+    assert np.allclose(cam.render(raw), expected, atol=2e-4)
+    assert np.allclose(cam(raw), cam.render(raw))
+    codes = np.round(cam.render(raw) * 255).astype(np.uint8)
+    inside = np.all(raw @ (base * gains[14]).T > 0.05, axis=1)
+    assert _rmse(cam.to_raw(codes)[inside], raw[inside]) < 0.01
+    assert read_nus_model(tmp_path / "tiny", direction="jpg2raw").direction == "jpg2raw"
+    with pytest.raises(InputError, match="white-balance setting 7"):
+        read_nus_model(tmp_path / "tiny", wb_code=7)
+    with pytest.raises(InputError, match="no such"):
+        read_nus_model(tmp_path / "missing")
+    (tmp_path / "tiny" / "raw2jpg_coefs.txt").write_text("3\n1 2 3\n")
+    with pytest.raises(InputError, match="coefs"):
+        read_nus_model(tmp_path / "tiny")
+
+
+@pytest.mark.skipif(not NUS.exists(), reason="../shared/data/nus_model_nikon_d7000 absent")
+def test_nus_d7000_model_reads_and_inverts():
+    cam = read_nus_model(NUS, wb_code=14)
+    assert cam.inverse_response.shape == (256, 3)
+    assert set(cam.white_balances) == {3, 4, 9, 10, 11, 14}
+    rng = np.random.default_rng(0)
+    wb = rng.uniform(0.03, 0.3, (300, 3))           # white-balanced raws
+    raw = wb / cam.gains
+    codes = np.round(cam.render(raw) * 255).astype(np.uint8)
+    ok = ~((codes <= 5) | (codes >= 252)).any(axis=1)
+    assert ok.mean() > 0.8
+    # the published backward model undoes the published forward model
+    assert _rmse(cam.to_raw(codes)[ok], raw[ok]) < 0.005
