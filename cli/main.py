@@ -237,6 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .hdr_commands import register as register_hdr_commands
 
     register_hdr_commands(sub)
+    from .pipeline_commands import register as register_pipeline_commands
+
+    register_pipeline_commands(sub)
     return parser
 
 
