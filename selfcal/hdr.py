@@ -253,6 +253,13 @@ class _Frames:
         self.items = list(images)
         if not self.items:
             raise InputError("no frames given")
+        self.raw_files = [_is_raw_file(f) for f in self.items]
+        if any(self.raw_files):
+            if not all(self.raw_files):
+                raise InputError("raw files and rendered images cannot be merged together: "
+                                 "merge the raws alone (linear), or the JPEGs alone")
+            # raw files are linear camera RGB: merged directly, no response needed
+            linear = True
         self.linear = linear
         self.sources = [str(f) if _is_path(f) else f"array #{k}"
                         for k, f in enumerate(self.items)]
@@ -268,7 +275,10 @@ class _Frames:
         shape = dtype = None
         for k, item in enumerate(self.items):
             src = self.sources[k]
-            if _is_path(item):
+            if self.raw_files[k]:
+                hw = _raw_size(item)
+                dt = None
+            elif _is_path(item):
                 hw = read_image_size(item)
                 dt = None
             else:
@@ -301,6 +311,15 @@ class _Frames:
 
     def load(self, k, *, reduce: int = 1) -> np.ndarray:
         item = self.items[k]
+        if self.raw_files[k]:
+            from .raw import read_raw_linear
+
+            arr = read_raw_linear(item).rgb
+            if arr.shape[:2] != self.shape:
+                raise InputError(f"raw decoded to {arr.shape[1]}x{arr.shape[0]}, not the "
+                                 f"{self.shape[1]}x{self.shape[0]} its header gave",
+                                 self.sources[k])
+            return arr
         if _is_path(item):
             from .io import read_image
 
@@ -309,6 +328,24 @@ class _Frames:
                 raise InputError("frame size changed while reading", self.sources[k])
             return arr
         return np.asarray(item)
+
+
+def _raw_size(path) -> tuple:
+    """(height, width) LibRaw will output for a raw file, from its header."""
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            return (int(raw.sizes.height), int(raw.sizes.width))
+    except Exception as exc:  # LibRaw raises several types
+        raise InputError(f"not a raw file LibRaw can read ({exc})", path) from None
+
+
+def _is_raw_file(item) -> bool:
+    from .raw import RAW_SUFFIXES
+
+    return _is_path(item) and Path(item).suffix.lower().lstrip(".") in {
+        x.lstrip(".") for x in RAW_SUFFIXES}
 
 
 def _max_code(arr) -> int | None:
@@ -532,7 +569,11 @@ def _given_exposures(frames: _Frames, exposure_times):
 
         source = "exif"
         for k, p in enumerate(frames.paths):
-            if p is not None:
+            if p is not None and frames.raw_files[k]:
+                from .raw import read_raw_exposure_info
+
+                given[k] = read_raw_exposure_info(p).relative_exposure
+            elif p is not None:
                 given[k] = read_exposure_info(p).relative_exposure
     return given, source
 
@@ -1185,6 +1226,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="hat",
     if linear and model is not None:
         raise InputError("linear=True: the frames are linear already; do not pass a model")
     frames = _Frames(images, linear)
+    linear = frames.linear  # raw files are linear
     n = len(frames)
     warnings: list[str] = []
     diagnostics: dict = {"weighting": weighting if isinstance(weighting, str)

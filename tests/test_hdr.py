@@ -570,3 +570,23 @@ def test_cli_merge_times_and_help(tmp_path, capsys):
     code, text = run_cli(["merge", *frames, "--times", "1/250", "-o", tmp_path / "a.exr"],
                          capsys)
     assert code == 3 and "--times" in text
+
+
+def test_merge_raw_files_directly(tmp_path):
+    """Raw files are merged as linear camera RGB: radiance = raw / t, no response needed."""
+    import shutil
+
+    dng = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "raw" / \
+        "colorchart_canon550d.dng"
+    if not dng.exists():
+        pytest.skip(f"real raw not available ({dng})")
+    frames = [tmp_path / "a.dng", tmp_path / "b.dng"]
+    for f in frames:
+        shutil.copy(dng, f)
+    result = selfcal.merge_hdr(frames, exposure_times=[0.02, 0.02])
+    raw = selfcal.read_raw_linear(dng).rgb
+    usable = (raw > 0.01).all(axis=2) & (raw < 0.9).all(axis=2)
+    ratio = result.radiance[usable] / (raw[usable] / 0.02)
+    assert np.median(np.abs(ratio - 1)) < 1e-3
+    with pytest.raises(selfcal.InputError, match="raw files and rendered"):
+        selfcal.merge_hdr([frames[0], FIXTURES / "stack" / "frame_00.jpg"])
