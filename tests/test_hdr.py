@@ -590,3 +590,19 @@ def test_merge_raw_files_directly(tmp_path):
     assert np.median(np.abs(ratio - 1)) < 1e-3
     with pytest.raises(selfcal.InputError, match="raw files and rendered"):
         selfcal.merge_hdr([frames[0], FIXTURES / "stack" / "frame_00.jpg"])
+
+
+def test_merge_with_pipeline_model_gives_camera_raw_radiance():
+    """With a RAW-path model the merge is in the camera's raw space (through to_raw)."""
+    pipe = synth.default_pipeline(gamut="smooth", seed=11)
+    pair = synth.simulate_raw_jpeg_pair(synth.make_scene(192, 288, saturation=0.4, seed=11),
+                                        pipe, seed=11)
+    model = selfcal.calibrate_pipeline([pair["raw"]], [pair["rendered"]], seed=0)
+    times = [1 / 250, 1 / 60, 1 / 15]
+    stack = synth.simulate_stack(synth.make_scene(192, 288, saturation=0.4, seed=12), pipe,
+                                 times, jitter=0.0, jpeg_quality=90, seed=12)
+    result = selfcal.merge_hdr(stack.images, times, model=model)
+    truth = stack.radiance * stack.exposure_scale   # raw signal per second
+    measured = ~result.unmeasured & (truth > 1e-3).all(axis=2)
+    rel = np.abs(result.radiance[measured] / truth[measured] - 1)
+    assert np.median(rel) < 0.1
