@@ -134,15 +134,16 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
        (steps 2-3) has the lowest training error is kept ("best luck", §3.2).
     2. Tone curves ``f`` (§3.3, Eq. 9): monotone smooth 7th-order polynomials by QP.
     3. Forward gamut correction (§3.4): 5×5×5 lattice regression on ``g(f(M ρ))``.
-    4. Backward (§3.5): ``f⁻¹`` by the same QP (λ by cross-validation), then both (a) the backward 5×5×5 lattice
-       LUT on ``g(M⁻¹ f⁻¹(P))`` and (b) the RBF ``h⁻¹`` of Lin et al. Eq. 10-11
-       (``E = M⁻¹ h⁻¹(f⁻¹(P))``, up to 1,500 control points).  With ``backward="auto"``
-       the variant with the lower held-out error is used; both errors are in
-       :attr:`PipelineModel.diagnostics` (``backward_validation_rmse``).
+    4. Backward (§3.5): ``f⁻¹`` by the same QP (λ by cross-validation), then both (a) the
+       backward 5×5×5 lattice LUT on ``g(M⁻¹ f⁻¹(P))`` and (b) the RBF ``h⁻¹`` of Lin et
+       al. Eq. 10-11 (``E = M⁻¹ h⁻¹(f⁻¹(P))``, up to 1,500 control points).  With
+       ``backward="auto"`` the variant with the lower held-out error is used; both errors
+       are in :attr:`PipelineModel.diagnostics` (``backward_validation_rmse``).
 
     Held-out errors are leave-one-out errors in closed form (both the lattice regression
-    and the RBF are linear smoothers): they choose the regulariser weights of the two LUTs
-    and the RBF smoothing, and compare the backward variants -- every sample serves for
+    and the RBF are linear smoothers; the inverse curves' λ uses 5-fold cross-validation):
+    they choose the regulariser weights of the two LUTs and the RBF smoothing, and compare
+    the backward variants -- every sample serves for
     fitting and for validation, which matters in the 140-sample one-shot setting.
     Rendered samples clipped at 0 or 255 are left out of the backward fits (they do not
     determine the raw); raw samples need no such care (the camera rendered the clipped raw

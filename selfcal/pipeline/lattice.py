@@ -93,7 +93,10 @@ def trilinear_weights(u: np.ndarray, size: int) -> sp.csr_matrix:
 
 
 def lattice_laplacian(size: int) -> sp.csr_matrix:
-    """Graph Laplacian of the ``size³`` lattice with 6-neighbour edges (``Σ_edges (b_i - b_j)²``)."""
+    """Graph Laplacian ``L`` of the ``size³`` lattice, 6-neighbour edges.
+
+    ``bᵀ L b = Σ_edges (b_i - b_j)²``.
+    """
     idx = np.arange(size ** 3).reshape(size, size, size)
     edges = []
     for axis in range(3):

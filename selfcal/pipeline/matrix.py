@@ -12,7 +12,8 @@ Two searches are implemented:
 
 ``method="literal"``
     As published: 100,000 quasi-uniform directions on the unit sphere (a Fibonacci
-    lattice; its largest gap is about 0.7°, finer than the paper's 1.15°), the satisfied
+    lattice: every direction lies within about 0.45° of one, finer than the paper's
+    1.15°), the satisfied
     constraints counted for all of them by one (chunked) matrix product, the best count
     kept, the median of tied directions taken.
 
@@ -23,7 +24,7 @@ Two searches are implemented:
     bound it) satisfies at most ``#{j : u·d̂_j > -sin r}`` constraints at any of its points
     (upper bound) and exactly ``#{j : u·d̂_j > 0}`` at its centre.  Cells whose upper bound
     is below the best count seen are pruned, the others split into four, down to a radius
-    of 0.02° (the literal probes are ~0.7° apart); a cell that no constraint boundary
+    of 0.02° (the literal probes are ~0.6° apart); a cell that no constraint boundary
     crosses (``|u·d̂_j| >= sin r`` for all ``j``) has a constant count and is not split, and
     constraints decided alike for every live cell are counted once and dropped.  Pruning
     never discards a region that could beat the best count, so the search is exact up to

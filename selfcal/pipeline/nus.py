@@ -79,6 +79,17 @@ def _read_transforms(path: Path):
     return base, wb
 
 
+def _read_response(path: Path) -> np.ndarray:
+    """A ``*_respFcns.txt`` table: one header row, then 256 increasing rows of 3 values."""
+    try:
+        table = np.loadtxt(path, skiprows=1)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read the response table ({exc})", path) from None
+    if table.shape != (256, 3) or np.any(np.diff(table, axis=0) <= 0):
+        raise InputError("the response table must be 256 increasing rows of 3 values", path)
+    return table
+
+
 class RBFMap:
     """``e -> Σ_i w_i ||e - c_i|| + [1, e] A`` (Lin et al. ICCV 2011 Eq. 10; NUS file form)."""
 
@@ -162,15 +173,12 @@ class NUSCameraModel:
                 self._maps[d] = RBFMap(centres, coefs[:-4], coefs[-4:])
         if direction not in self._maps:
             raise InputError(f"{direction}_ctrlPoints.txt is missing", folder)
-        resp = folder / f"{direction}_respFcns.txt"
-        try:
-            table = np.loadtxt(resp, skiprows=1)
-        except (OSError, ValueError) as exc:
-            raise InputError(f"cannot read the response table ({exc})", resp) from None
-        if table.shape != (256, 3) or np.any(np.diff(table, axis=0) <= 0):
-            raise InputError("the response table must be 256 increasing rows of 3 values",
-                             resp)
-        self.inverse_response = table
+        self._responses = {}
+        for d in _DIRECTIONS:
+            resp = folder / f"{d}_respFcns.txt"
+            if d == direction or resp.exists():
+                self._responses[d] = _read_response(resp)
+        self.inverse_response = self._responses[direction]
         vr = folder / f"{direction}_validRange.txt"
         self.valid_range = (tuple(int(v) for v in np.loadtxt(vr).ravel()[:2])
                             if vr.exists() else None)
@@ -178,19 +186,23 @@ class NUSCameraModel:
 
     # ---- tone curves -------------------------------------------------------------
     def tone(self, x) -> np.ndarray:
-        """Forward tone curve ``f``: linear -> rendered in ``[0, 1]`` (inverse of the table)."""
+        """Forward tone curve ``f``: linear -> rendered in ``[0, 1]`` (the inverse of the
+        raw2jpg ``f⁻¹`` table, piecewise linear)."""
+        table = self._responses.get("raw2jpg", self.inverse_response)
         x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
         out = np.empty_like(x)
         for c in range(3):
-            out[..., c] = np.interp(x[..., c], self.inverse_response[:, c], self._codes)
+            out[..., c] = np.interp(x[..., c], table[:, c], self._codes)
         return out / 255.0
 
     def linearise(self, p) -> np.ndarray:
-        """``f⁻¹``: rendered in ``[0, 1]`` -> linear (the table, linearly interpolated)."""
+        """``f⁻¹``: rendered in ``[0, 1]`` -> linear (the jpg2raw table, linearly
+        interpolated)."""
+        table = self._responses.get("jpg2raw", self.inverse_response)
         p = np.clip(np.asarray(p, dtype=np.float64), 0.0, 1.0) * 255.0
         out = np.empty_like(p)
         for c in range(3):
-            out[..., c] = np.interp(p[..., c], self._codes, self.inverse_response[:, c])
+            out[..., c] = np.interp(p[..., c], self._codes, table[:, c])
         return out
 
     # ---- the two directions -----------------------------------------------------------

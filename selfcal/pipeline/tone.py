@@ -44,7 +44,8 @@ def bernstein_basis(t, degree: int = DEGREE) -> np.ndarray:
 
 
 def _derivative_matrix(degree: int, order: int) -> np.ndarray:
-    """``D`` with ``Σ_j (D c)_j B_{j, n-order}`` = the ``order``-th derivative of ``Σ c_i B_{i,n}``."""
+    """``D`` such that ``Σ_j (D c)_j B_{j, n-order}`` is the ``order``-th derivative of
+    ``Σ_i c_i B_{i, n}``."""
     d = np.eye(degree + 1)
     n = degree
     for _ in range(order):
