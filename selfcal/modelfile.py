@@ -10,11 +10,30 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from .errors import ModelFileError
 from .io import write_bytes_atomic
 
 FORMAT = "selfcal-model"
 VERSION = 1
+
+
+def jsonable(obj):
+    """Plain JSON types: numpy scalars and arrays converted, non-finite floats -> None."""
+    if isinstance(obj, dict):
+        return {str(k): jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return jsonable(obj.tolist())
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if np.isfinite(obj) else None
+    return obj
 
 
 def save_model_dict(path, content: dict, *, force: bool = False) -> Path:

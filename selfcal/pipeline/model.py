@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, ModelFileError, SelfcalError
+from ..modelfile import jsonable
 from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
 from .rbf import RBFColourMapping
@@ -242,7 +243,7 @@ class PipelineModel:
             "rbf": None if self.rbf is None else self.rbf.to_dict(),
             "backward": self.backward,
             "bake_size": self.bake_size,
-            "diagnostics": _jsonable(self.diagnostics),
+            "diagnostics": jsonable(self.diagnostics),
         }
 
     @classmethod
@@ -285,20 +286,3 @@ class PipelineModel:
         d = self.diagnostics
         return (f"PipelineModel(backward={self.backward!r}, forward RMSE "
                 f"{d.get('forward_train_rmse', float('nan')):.3g}/255)")
-
-
-def _jsonable(obj):
-    """Plain JSON types (numpy scalars and arrays converted, non-finite floats -> None)."""
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if np.isfinite(obj) else None
-    return obj

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, ModelFileError
+from ..modelfile import jsonable
 
 MODEL_KIND = "response"
 
@@ -126,7 +127,7 @@ class ResponseModel:
             "exposures": [float(v) for v in self.exposures],
             "exposure_times": [None if t is None else float(t) for t in self.exposure_times],
             "sources": list(self.sources),
-            "diagnostics": _jsonable(self.diagnostics),
+            "diagnostics": jsonable(self.diagnostics),
         }
 
     @classmethod
@@ -163,21 +164,3 @@ class ResponseModel:
         from ..modelfile import save_model_dict
 
         save_model_dict(path, self.to_dict(), force=force)
-
-
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    if isinstance(obj, (np.floating,)):
-        return float(obj)
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
