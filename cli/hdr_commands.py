@@ -8,14 +8,10 @@ is :func:`selfcal.merge_hdr`, :func:`selfcal.hdr.linearize_images` and
 from __future__ import annotations
 
 import argparse
-import sys
-import warnings
 from pathlib import Path
 
 from .main import (
     EPILOG,
-    EXIT_CALIBRATION,
-    EXIT_INPUT,
     EXIT_OK,
     EXIT_OUTPUT,
     _parse_time,
@@ -46,16 +42,6 @@ def _check_outputs(outputs, inputs, force: bool) -> None:
             raise selfcal.OutputExistsError(f"{out}: is a directory")
         if out.exists() and not force:
             raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
-
-
-def _quiet_opencv() -> None:
-    """OpenCV's own log lines (e.g. libtiff on EXIF tags in IFD0) are not our messages."""
-    try:
-        import cv2
-
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-    except (ImportError, AttributeError):
-        pass
 
 
 def _load_model(path):
@@ -93,7 +79,6 @@ def cmd_merge(args) -> int:
     if args.linear and model is not None:
         raise selfcal.InputError("--linear and --model contradict each other (linear images "
                                  "need no response model)")
-    _quiet_opencv()
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost,
                        reference=args.reference, linear=args.linear,
@@ -164,7 +149,6 @@ def cmd_linearize(args) -> int:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
     model = _load_model(args.model)
-    _quiet_opencv()
     bar = _progress_bar("linearize")
     written = []
     for (src, linear), o in zip(linearize_images(images, model, progress=bar), outputs):

@@ -24,9 +24,18 @@ JPEG_SUFFIXES = {".jpg", ".jpeg"}
 
 
 def _cv2():
+    """OpenCV, with OpenEXR enabled and its own log lines silenced.
+
+    The library never prints: OpenCV would otherwise log libtiff warnings (e.g. for
+    exposure tags in a TIFF's IFD0) to stderr; errors still come back as failed reads.
+    """
     os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
     import cv2
 
+    try:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    except AttributeError:  # builds without the logging module
+        pass
     return cv2
 
 

@@ -30,10 +30,9 @@ REJECTION_REASONS = ("clipped", "saturated", "not_flat")
 
 
 def _cv2():
-    os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
-    import cv2
+    from .io import _cv2 as get
 
-    return cv2
+    return get()
 
 
 @dataclass
