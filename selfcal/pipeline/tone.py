@@ -156,17 +156,23 @@ SMOOTHNESS_GRID = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 _FOLDS = 5
 
 
-def _cross_validated(x, y, w, degree, domain) -> MonotonePolynomial:
-    """Per channel, the λ of SMOOTHNESS_GRID with the lowest 5-fold cross-validated error
-    (fixed, seeded folds), then the fit on all samples; scores in ``.validation``."""
-    n = x.shape[0]
-    fold = np.random.default_rng(0).permutation(n) % _FOLDS
+def _fit_domain(x, y, domain) -> np.ndarray:
+    """Per channel (lo, hi) of the polynomial's input: the samples' range (from ≤ 0)
+    unless given."""
     if domain is None:
         with np.errstate(invalid="ignore"):
             lo = np.minimum(0.0, np.nanmin(np.where(np.isnan(y), np.nan, x), axis=0))
             hi = np.nanmax(np.where(np.isnan(y), np.nan, x), axis=0)
         domain = np.stack([lo, hi], axis=1)
-    domain = np.asarray(domain, dtype=np.float64)
+    return np.asarray(domain, dtype=np.float64)
+
+
+def _cross_validated(x, y, w, degree, domain) -> MonotonePolynomial:
+    """Per channel, the λ of SMOOTHNESS_GRID with the lowest 5-fold cross-validated error
+    (fixed, seeded folds), then the fit on all samples; scores in ``.validation``."""
+    n = x.shape[0]
+    fold = np.random.default_rng(0).permutation(n) % _FOLDS
+    domain = _fit_domain(x, y, domain)
     chosen = np.empty(3)
     scores = [dict() for _ in range(3)]
     for lam in SMOOTHNESS_GRID:
@@ -301,12 +307,7 @@ def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = 
         if smoothness != "auto":
             raise InputError(f"smoothness must be a number or 'auto', got {smoothness!r}")
         return _cross_validated(x, y, w, degree, domain)
-    if domain is None:
-        with np.errstate(invalid="ignore"):
-            lo = np.minimum(0.0, np.nanmin(np.where(np.isnan(y), np.nan, x), axis=0))
-            hi = np.nanmax(np.where(np.isnan(y), np.nan, x), axis=0)
-        domain = np.stack([lo, hi], axis=1)
-    domain = np.asarray(domain, dtype=np.float64)
+    domain = _fit_domain(x, y, domain)
     coefs = np.empty((3, degree + 1))
     r = _smoothness_gram(degree)
     qp = _qp(degree)
