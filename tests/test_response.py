@@ -60,6 +60,52 @@ def test_per_channel_curves_differ_as_truth_does(film_stack):
     assert np.argsort(est[128]).tolist() == np.argsort(truth[128]).tolist()
 
 
+@pytest.fixture(scope="module")
+def knee_stack():
+    """A response whose inverse rises steeply over the last codes (a DoRF-like knee)."""
+    x = np.linspace(0, 1, 1024)
+    y = np.where(x <= 0.9, 0.97 * (x / 0.9) ** (1 / 2.2), 0.97 + 0.3 * (x - 0.9))
+    pipe = synth.default_pipeline(gamut="smooth", seed=2,
+                                  curves=synth.ToneCurve.from_table(x, y, name="knee"))
+    scene = synth.make_scene(192, 288, saturation=0.5, seed=2)
+    return synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=2)
+
+
+def test_white_thresholds_locate_the_top_code(knee_stack):
+    from selfcal.response.solver import _white_thresholds
+    from selfcal.samples import collect_samples, frame_masks
+
+    samples = collect_samples(knee_stack.images)
+    masks = frame_masks(samples)
+    valid = ~(masks["clipped"] | masks["saturated"])
+    order = np.argsort(knee_stack.exposure_times)
+    rows = _white_thresholds(samples.values, valid, order, 3, 255, 2 / 255)
+    assert len(rows) >= 20
+    truth = knee_stack.inverse_response()
+    codes = np.arange(256)
+    top = np.interp(254.5, codes, truth[:, 0])
+    # f⁻¹(θ)·(t_b/t_a) is where the channel reaches 255: f⁻¹(254.5), per row
+    ratio = np.array([np.interp(th * 255, codes, truth[:, c])
+                      * knee_stack.true_exposures[b] / knee_stack.true_exposures[a] / top
+                      for c, a, b, th, _ in rows])
+    assert abs(np.median(ratio) - 1) < 0.02
+    assert np.all(np.abs(ratio - 1) < 0.06)
+
+
+def test_steep_top_scale_comes_from_the_clipping_threshold(knee_stack, monkeypatch):
+    import selfcal.response.calibrate as cal
+
+    with_rows = rmse_vs_truth(selfcal.calibrate_response(knee_stack.images, TIMES),
+                              knee_stack)
+    solve = cal.solve_exposure_equations
+    monkeypatch.setattr(cal, "solve_exposure_equations",
+                        lambda *a, **k: solve(*a, white_threshold=False, **k))
+    without = rmse_vs_truth(selfcal.calibrate_response(knee_stack.images, TIMES),
+                            knee_stack)
+    assert with_rows < 0.004
+    assert with_rows < 0.6 * without
+
+
 def test_two_known_times_fix_ambiguity(srgb_stack):
     times = [TIMES[0], None, None, None, None, TIMES[-1]]
     model = selfcal.calibrate_response(srgb_stack.images, times)

@@ -22,7 +22,11 @@ or when its HSV saturation exceeds β in either frame; what remains is fitted wi
 loss by iteratively reweighted least squares (misalignment, motion, noise, JPEG).
 
 Normalisation: every basis function and the mean vanish at I = 1, so f⁻¹(1) = 1 holds by
-construction and the additive gauge of Eq. 8 is fixed; the remaining *exponential*
+construction and the additive gauge of Eq. 8 is fixed.  With known exposures the pair rows
+fix f⁻¹ only up to that normalisation, and the last codes below the maximum are never
+observed unclipped, so the *scale* of f⁻¹ would be an extrapolation; censored rows that
+locate where each channel starts to clip at the top code (:func:`_white_thresholds`) tie it
+to the data instead, up to the last half code.  The remaining *exponential*
 ambiguity (f⁻¹ → (f⁻¹)^γ with all exposure ratios raised to γ, §5) is fixed by any two
 known exposure times.  With fewer than two, it is resolved by a ridge prior pulling the
 coefficients towards the basis mean (the most typical response of the curve database) and
@@ -104,6 +108,61 @@ def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
     return pairs, stuck
 
 
+def _white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
+                      min_each=5):
+    """Where each channel starts to clip at the top code, as Eq.-8 rows (censored data).
+
+    The normalisation f⁻¹(max code) = 1 is an extrapolation over the last codes, which are
+    never observed unclipped.  What the stack does show is *where* a channel reaches the
+    top code: in a pair (a, b), b brighter, a sample is at the top code in b exactly when
+    g(I_a) + K_b − K_a ≥ g(τ), τ the top code less half a code.  The code θ of frame a at
+    which the share of top-code samples in b crosses one half (isotonic regression of the
+    indicator on I_a) therefore satisfies Eq. 8 with I = θ, I′ = τ, which ties the scale
+    of f⁻¹ to observed data up to the last half code.
+
+    Returns
+    -------
+    list of (channel, a, b, theta, theta_sigma)
+        ``theta`` and ``theta_sigma`` normalised like ``values``.
+    """
+    from scipy.optimize import isotonic_regression
+
+    top = (max_code - 0.5) / max_code
+    code = 1.0 / max_code
+    rows = []
+    F = len(order)
+    for gap in range(1, min(max_rank_gap, F - 1) + 1):
+        for r in range(F - gap):
+            a, b = order[r], order[r + gap]
+            for c in range(values.shape[2]):
+                x = values[a, :, c]
+                use = valid[a] & (x > margin)
+                if use.sum() < 2 * min_each:
+                    continue
+                x = x[use]
+                y = (values[b, use, c] >= top).astype(float)
+                if y.sum() < min_each or (1 - y).sum() < min_each:
+                    continue
+                srt = np.argsort(x, kind="stable")
+                xs, p = x[srt], isotonic_regression(y[srt]).x
+                above = np.flatnonzero(p >= 0.5)
+                if above.size == 0 or above[0] == 0:
+                    continue
+                k = above[0]
+                # interpolate the crossing between the last point below and the first above
+                x0, x1, p0, p1 = xs[k - 1], xs[k], p[k - 1], p[k]
+                theta = x0 + (0.5 - p0) / max(p1 - p0, 1e-12) * (x1 - x0)
+                lo = xs[np.searchsorted(p, 0.1, side="left")]
+                hi = xs[min(np.searchsorted(p, 0.9, side="left"), xs.size - 1)]
+                width = max(hi - lo, code)
+                near = int(np.sum(np.abs(xs - theta) <= max(width, 2 * code)))
+                if near < 2:
+                    continue
+                rows.append((c, int(a), int(b), float(theta),
+                             max(width / np.sqrt(near), 0.25 * code)))
+    return rows
+
+
 def _initial_log_exposures(values, valid, basis, log_times):
     """Exposure guesses from the mean response where times are unknown (median ratios)."""
     F = values.shape[0]
@@ -145,7 +204,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                              max_rank_gap: int = 3, huber_k: float = 1.345,
                              max_iterations: int = 8, ridge: float = 1e-4,
                              white_sigma: float = 0.03, prior_weight: float = 100.0,
-                             monotone: bool = True,
+                             monotone: bool = True, white_threshold: bool = True,
                              masks: dict | None = None) -> SolveResult:
     """Solve Eq. 8 of Lin et al. (ICCV 2011) for three channels' coefficients and exposures.
 
@@ -184,6 +243,9 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         selfcal.synth, see bench/bench_response_synthetic.py) between 30 and 1000.
     monotone : bool
         Constrain f⁻¹ to be non-decreasing (a QP when the plain fit is not).
+    white_threshold : bool
+        Add the censored rows of :func:`_white_thresholds` (where each channel starts to
+        clip at the top code), which tie the scale of f⁻¹ to the data.
 
     Returns
     -------
@@ -269,6 +331,35 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                           shape=(3 * m, ncols))
     A = (A_coef + A_exp).tocsr()
     b = np.concatenate(rhs)
+    thresholds = (_white_thresholds(values, valid, order, max_rank_gap, samples.max_code,
+                                    clip_margin / 255.0) if white_threshold else [])
+    if thresholds:
+        tc = np.array([t[0] for t in thresholds])
+        ta = np.array([t[1] for t in thresholds])
+        tb = np.array([t[2] for t in thresholds])
+        theta = np.array([t[3] for t in thresholds])
+        # Each threshold row is a statistic over many sample locations, while the pair
+        # rows of one location (3 channels × up to F−1 partners) are correlated yet
+        # weighted as independent; the threshold rows get the same factor (in variance)
+        # so that the two kinds of rows keep their relative evidential weight (see
+        # ``prior_weight``, which is scaled up for the same reason).
+        theta_sigma = (np.array([t[4] for t in thresholds])
+                       / np.sqrt(3.0 * max(F - 1, 1)))
+        tau = np.full(theta.size, (samples.max_code - 0.5) / samples.max_code)
+        g0t, Ht = basis.design(theta, N)
+        g0u, Hu = basis.design(tau, N)
+        nt = theta.size
+        trows = np.arange(nt)
+        A_thr = sp.csr_matrix(
+            (np.concatenate([(Hu - Ht).ravel(), -np.ones(nt), np.ones(nt)]),
+             (np.concatenate([np.repeat(trows, N), trows, trows]),
+              np.concatenate([(tc[:, None] * N + np.arange(N)[None, :]).ravel(),
+                              3 * N + tb, 3 * N + ta]))),
+            shape=(nt, ncols))
+        A = sp.vstack([A, A_thr]).tocsr()
+        b = np.concatenate([b, -(g0u - g0t)])
+    else:
+        nt = 0
 
     grid = basis.intensity
     g0_grid = basis.mean
@@ -312,20 +403,24 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     noise_scale = 1.0
     K = init.copy()
     K[fixed] = log_times[fixed]
-    robust = np.ones(3 * m)
+    robust = np.ones(3 * m + nt)
     monotone_constrained = False
     for it in range(max_iterations):
         # noise weights: var of g(I) from code noise through the slope of the current g
-        var = np.empty(3 * m)
+        var = np.empty(3 * m + nt)
         for c in range(3):
             g_c = g0_grid + H_grid @ coeffs[c]
             slope_a = _gradient_on(grid, g_c, Ia[:, c])
             slope_b = _gradient_on(grid, g_c, Ib[:, c])
             var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2)
+            if nt:
+                sel = tc == c
+                var[3 * m:][sel] = (theta_sigma[sel]
+                                    * _gradient_on(grid, g_c, theta[sel])) ** 2
         # Residuals in code units (errors-in-variables): scaling g and K together by γ
         # scales var by γ², so the data term cannot shrink the exponential ambiguity
         # towards γ → 0; the floor is relative for the same reason.
-        var = np.maximum(var, 0.05 * np.median(var))
+        var[:3 * m] = np.maximum(var[:3 * m], 0.05 * np.median(var[:3 * m]))
         # the data term is a likelihood only with the noise at its measured level
         w = robust / (var * noise_scale ** 2)
         if alternate:
@@ -378,7 +473,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     w = robust / var
     residual_rms = float(np.sqrt(np.average(resid ** 2, weights=w)))
     per_pair = {}
-    r3 = resid.reshape(3, m)
+    r3 = resid[:3 * m].reshape(3, m)
     for k, (a, bb, _) in enumerate(pairs):
         sel = pair_id == k
         per_pair[(int(a), int(bb))] = float(np.sqrt(np.mean(r3[:, sel] ** 2)))
