@@ -116,7 +116,8 @@ def cmd_calibrate(args) -> int:
         images, exposure_times=times, progress=_progress_bar("calibrate"),
         exposure_source="unknown" if args.unknown_exposures else "auto",
         refine_exposures=args.refine_exposures, n_components=args.components,
-        saturation_threshold=args.saturation_threshold, basis=args.basis)
+        saturation_threshold=args.saturation_threshold, basis=args.basis,
+        **({"align": args.align} if args.align else {}))
     for line in result.summary_lines():
         _say(line)
     written = []
@@ -220,6 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ignore EXIF; solve the exposures jointly with the curves")
     p.add_argument("--refine-exposures", action="store_true",
                    help="treat the given times as a prior and re-estimate them")
+    p.add_argument("--align", choices=("mtb", "homography"),
+                   help="align handheld frames before calibrating the response: "
+                        "translation (median threshold bitmaps) or homography (ECC)")
     p.add_argument("--saturation-threshold", type=float,
                    default=DEFAULT_SATURATION_THRESHOLD, metavar="B",
                    help="reject samples with HSV saturation above B (default %(default)s)")

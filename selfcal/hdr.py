@@ -1020,6 +1020,80 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
     return transforms
 
 
+def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
+                      clip_margin: float = DEFAULT_CLIP_MARGIN, warnings: list | None = None,
+                      progress=None, max_side: int = 2048, **options):
+    """Align a handheld stack to its reference frame, then calibrate its response.
+
+    Misaligned frames give wrong correspondences, and the solve of Lin et al. (ICCV 2011,
+    Eq. 8) then reads them as contradicted exposure times; so the frames are aligned first
+    (:func:`estimate_alignment`; with unknown times, after a provisional calibration that
+    supplies the exposures the homography needs) and the response is calibrated on the
+    aligned frames, downscaled to ``max_side`` (:func:`_aligned_working_frames`: the
+    calibration uses block means only).
+
+    Parameters
+    ----------
+    images : sequence
+        Frames (arrays or paths).
+    exposure_times : sequence of float or None, optional
+        As for :func:`selfcal.calibrate_response`.
+    method : {"mtb", "homography"}
+        Alignment (see :func:`estimate_alignment`).
+    reference : int, optional
+        Reference frame; default the middle exposure.
+    options
+        Passed on to :func:`selfcal.calibrate_response`.
+
+    Returns
+    -------
+    model : ResponseModel
+        Its ``sources`` are the original frames'; ``diagnostics["calibrated_on"]`` says
+        what it was calibrated on, ``diagnostics["alignment"]`` holds the transforms.
+    transforms : list of numpy.ndarray
+        Per frame, the 3×3 map from reference to frame pixel coordinates.
+    reference : int
+    """
+    from .response.calibrate import calibrate_response, resolve_exposure_times
+
+    frames = images if isinstance(images, _Frames) else _Frames(images, False)
+    n = len(frames)
+    warnings = [] if warnings is None else warnings
+    given, _ = _given_exposures(frames, exposure_times)
+    provisional = None
+    if any(g is None for g in given):
+        provisional = calibrate_response(frames.items, exposure_times, progress=progress,
+                                         **options)
+        given = list(_resolve_exposures(frames, exposure_times, provisional, True, [])[0])
+    ref = _default_reference(given) if reference is None else int(reference)
+    if not 0 <= ref < n:
+        raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
+    transforms = estimate_alignment(frames, given, provisional, method=method, reference=ref,
+                                    clip_margin=clip_margin, warnings=warnings,
+                                    progress=progress)
+    small = _aligned_working_frames(frames, transforms, max_side=max_side)
+    # the solve gets the frames' own times (seconds, None where unknown), as unaligned
+    times, time_source = resolve_exposure_times(frames.items, exposure_times,
+                                                list(frames.sources))
+    model = calibrate_response(small, times, progress=progress, **options)
+    model.diagnostics["exposure_source"] = time_source
+    model.sources = list(frames.sources)
+    diag = model.diagnostics
+    diag["warnings"] = [_name_arrays(w, frames.sources) for w in diag.get("warnings", [])]
+    diag["frames_used"] = [_name_arrays(f, frames.sources)
+                           for f in diag.get("frames_used", [])]
+    diag["per_pair_rms_log"] = {_name_arrays(k, frames.sources): v
+                                for k, v in diag.get("per_pair_rms_log", {}).items()}
+    for c in diag.get("contradicting_times", []) or []:
+        c["frame"] = _name_arrays(str(c.get("frame")), frames.sources)
+    model.diagnostics["calibrated_on"] = (f"frames aligned ({method}), long side "
+                                          f"{max(small[0].shape[:2])} px")
+    model.diagnostics["alignment"] = {
+        "method": method, "reference": frames.sources[ref],
+        "transforms": [np.round(t, 6).tolist() for t in transforms]}
+    return model, transforms, ref
+
+
 class _GammaModel:
     """Stand-in inverse response f⁻¹(z) = z^2.2 when no model is at hand."""
 
@@ -1242,27 +1316,10 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="hat",
 
         options = dict(calibrate_options or {})
         if align:
-            # handheld frames: align first (a gamma-2.2 stand-in response is enough for
-            # that), then calibrate on the aligned frames -- misaligned frames give wrong
-            # correspondences and seemingly contradicted exposure times
-            given, _ = _given_exposures(frames, exposure_times)
-            provisional = None
-            if any(g is None for g in given):
-                provisional = calibrate_response(frames.items, exposure_times,
-                                                 progress=progress, **options)
-                given = list(_resolve_exposures(frames, exposure_times, provisional, True,
-                                                [])[0])
-            ref0 = _default_reference(given) if reference is None else int(reference)
-            if not 0 <= ref0 < n:
-                raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
-            transforms = estimate_alignment(frames, given, provisional, method=align,
-                                            reference=ref0, clip_margin=clip_margin,
-                                            warnings=warnings, progress=progress)
-            small = _aligned_working_frames(frames, transforms)
-            model = calibrate_response(small, given, progress=progress, **options)
-            model.sources = list(frames.sources)
-            diagnostics["calibrated_on"] = "aligned frames, long side " \
-                f"{max(small[0].shape[:2])} px"
+            model, transforms, ref0 = calibrate_aligned(
+                frames, exposure_times, method=align, reference=reference,
+                clip_margin=clip_margin, warnings=warnings, progress=progress, **options)
+            diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
         else:
             model = calibrate_response(frames.items, exposure_times, progress=progress,
                                        **options)

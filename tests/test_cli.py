@@ -36,7 +36,7 @@ def test_calibrate_help_lists_options(capsys):
     assert info.value.code == 0
     out = capsys.readouterr().out
     for option in ("--times", "--unknown-exposures", "--refine-exposures",
-                   "--saturation-threshold", "--basis", "--plot", "--force"):
+                   "--saturation-threshold", "--basis", "--plot", "--force", "--align"):
         assert option in out
 
 
@@ -177,3 +177,29 @@ def test_to_raw_needs_a_pipeline_model(tmp_path, capsys):
     code, text = run(["to-raw", "--model", model, frames[0], "-o", tmp_path / "out"], capsys)
     assert code == EXIT_INPUT
     assert "response.json" in text and "pipeline" in text
+
+
+def test_calibrate_align_handheld_files(capsys, tmp_path):
+    import cv2
+
+    import selfcal
+    from selfcal import synth
+
+    scene = synth.make_scene(128, 176, dynamic_range_stops=10, saturation=0.3, seed=6)
+    times = [1 / 60, 1 / 15, 1 / 4]
+    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=6), times, jitter=0.0,
+                                 jpeg_quality=None, seed=6)
+    paths = []
+    for k, (im, (dx, dy)) in enumerate(zip(stack.images, [(4, -3), (0, 0), (-5, 2)])):
+        path = tmp_path / f"f{k}.png"
+        cv2.imwrite(str(path), im[16 + dy:112 + dy, 16 + dx:160 + dx, ::-1])
+        paths.append(str(path))
+    out = tmp_path / "m.json"
+    code = main(["calibrate", *paths, "-o", str(out), "--align", "mtb",
+                 "--times", "1/60", "1/15", "1/4"])
+    assert code == 0
+    text = capsys.readouterr()
+    assert "contradict" not in text.out + text.err
+    model = selfcal.load_model(out)
+    moves = [t[0][2] for t in model.diagnostics["alignment"]["transforms"]]
+    assert moves == pytest.approx([-4, 0, 5])

@@ -606,3 +606,27 @@ def test_merge_with_pipeline_model_gives_camera_raw_radiance():
     measured = ~result.unmeasured & (truth > 1e-3).all(axis=2)
     rel = np.abs(result.radiance[measured] / truth[measured] - 1)
     assert np.median(rel) < 0.1
+
+
+def test_calibrate_response_aligns_handheld_frames_first():
+    shifts = [(5, -3), (0, 0), (0, 0), (-4, 6)]
+    st, frames = _shifted_stack(shifts)
+    times = list(st.true_exposures)
+    unaligned = selfcal.calibrate_response(frames, times)
+    aligned = selfcal.calibrate_response(frames, times, align="mtb")
+    assert "aligned" in aligned.diagnostics["calibrated_on"]
+    moves = [t[0][2] for t in aligned.diagnostics["alignment"]["transforms"]]
+    np.testing.assert_allclose(moves, [-dx for dx, _ in shifts])
+    # misregistered correspondences inflate the fit residual; aligned ones do not
+    assert (aligned.diagnostics["residual_rms_log"]
+            < 0.5 * unaligned.diagnostics["residual_rms_log"])
+    assert any("contradict" in w for w in unaligned.diagnostics["warnings"])
+    assert not any("contradict" in w for w in aligned.diagnostics["warnings"])
+    truth = st.inverse_response()
+
+    def err(m):
+        return np.sqrt(np.mean((m.inverse_response()[1:255] - truth[1:255]) ** 2))
+
+    assert err(aligned) < 0.008 < err(unaligned)
+    with pytest.raises(selfcal.InputError, match="unknown alignment"):
+        selfcal.calibrate_response(frames, times, align="sift")

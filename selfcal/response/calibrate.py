@@ -79,7 +79,7 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
                        n_components: int = 5, saturation_threshold: float =
                        DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
                        basis=None, max_samples: int = 4000, seed: int = 0,
-                       progress=None):
+                       align=False, progress=None):
     """Estimate each channel's camera response from an exposure stack.
 
     Implements Lin et al., ICCV 2011, §5: log-domain PCA model (Eq. 7) fitted to the
@@ -109,6 +109,10 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         Number of sample locations (block means) drawn from the stack.
     seed : int
         Seed of every random choice (the same input gives the same model).
+    align : {False, "mtb", "homography"}
+        Handheld stacks: align the frames to the middle exposure first
+        (:func:`selfcal.hdr.calibrate_aligned`); misaligned frames give wrong
+        correspondences, which read as contradicted exposure times.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
 
@@ -126,6 +130,26 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         valid samples).
     """
     from .model import ResponseModel
+
+    if align:
+        from ..hdr import calibrate_aligned
+
+        if align is True:
+            align = "mtb"
+        if align not in ("mtb", "homography"):
+            raise InputError(f"unknown alignment {align!r} (mtb or homography)")
+        frames = list(images)
+        if len(frames) < 2:
+            raise CalibrationError("one frame only: a response needs at least two frames "
+                                   "at different exposures")
+        warnings: list[str] = []
+        model, _, _ = calibrate_aligned(
+            frames, exposure_times, method=align, clip_margin=clip_margin,
+            warnings=warnings, progress=progress, refine_exposures=refine_exposures,
+            n_components=n_components, saturation_threshold=saturation_threshold,
+            basis=basis, max_samples=max_samples, seed=seed)
+        model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
+        return model
 
     frames = list(images)
     if len(frames) < 2:
