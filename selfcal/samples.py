@@ -306,12 +306,19 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
 
 
 def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
-                saturation_threshold: float = 0.5) -> dict:
+                saturation_threshold: float = 0.5, propagate: bool = True) -> dict:
     """Per-frame outlier masks of Lin et al. (ICCV 2011, §5), with their reasons.
 
     A sample is *clipped* in a frame when any channel of its block touches 0 or the
     maximum code (within ``clip_margin`` codes, on the 8-bit scale), and *saturated* when
     the HSV saturation of its block mean exceeds ``saturation_threshold`` (β).
+
+    With ``propagate``, clipping also follows exposure: a scene point clipped white in a
+    frame is clipped in every brighter frame, and one clipped black in every darker frame
+    (frames ordered by their mean code, which rises with exposure).  JPEG ringing and
+    quantisation leave saturated highlights at codes a few below the maximum in some
+    frames; those would otherwise pass as valid and pair with codes they have no relation
+    to.
 
     Returns
     -------
@@ -319,6 +326,12 @@ def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
         ``"clipped"`` and ``"saturated"`` masks (True = rejected for that reason).
     """
     margin = clip_margin / 255.0
-    clipped = (samples.block_max >= 1.0 - margin) | (samples.block_min <= margin)
+    white = samples.block_max >= 1.0 - margin
+    black = samples.block_min <= margin
+    if propagate and samples.values.shape[0] > 1:
+        order = np.argsort(samples.values.mean(axis=(1, 2)), kind="stable")
+        white[order] = np.logical_or.accumulate(white[order], axis=0)
+        black[order[::-1]] = np.logical_or.accumulate(black[order[::-1]], axis=0)
+    clipped = white | black
     saturated = hsv_saturation(samples.values) > saturation_threshold
     return {"clipped": clipped, "saturated": saturated & ~clipped}

@@ -92,6 +92,32 @@ def test_white_thresholds_locate_the_top_code(knee_stack):
     assert np.all(np.abs(ratio - 1) < 0.06)
 
 
+def test_clipping_propagates_along_exposure():
+    """White clipping in a frame holds in every brighter one, black in every darker one."""
+    from selfcal.samples import collect_samples, frame_masks
+
+    ramp = np.linspace(40, 200, 64)
+    frames = []
+    for gain in (1.0, 1.1, 1.2):
+        im = np.tile(ramp * gain, (48, 1))[..., None].repeat(3, axis=2)
+        im[:8] = 255 if gain == 1.0 else 250      # a highlight that JPEG left below 255
+        im[-8:] = 0 if gain == 1.2 else 4          # a shadow crushed in the brightest frame
+        frames.append(np.clip(np.round(im), 0, 255).astype(np.uint8))
+    samples = collect_samples(frames, block=4)
+    rows = samples.locations[:, 0] * 4
+    top, bottom = rows < 8, rows >= 40
+    assert top.any() and bottom.any()
+    masks = frame_masks(samples)
+    assert masks["clipped"][:, top].all() and masks["clipped"][:, bottom].all()
+    plain = frame_masks(samples, propagate=False)
+    assert not plain["clipped"][1:, top].any() and not plain["clipped"][:2, bottom].any()
+
+
+def test_delta_of_eq12_is_small_on_a_clean_stack(film_stack):
+    model = selfcal.calibrate_response(film_stack.images, list(film_stack.exposure_times))
+    assert max(model.diagnostics["delta_eq12"]) < 0.05
+
+
 def test_steep_top_scale_comes_from_the_clipping_threshold(knee_stack, monkeypatch):
     import selfcal.response.calibrate as cal
 
