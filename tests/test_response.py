@@ -317,3 +317,19 @@ def test_exif_times_are_used_and_missing_exif_warned(tmp_path, srgb_stack):
     assert any(str(stripped) in w and "no exposure time" in w
                for w in model.diagnostics["warnings"])
     assert model.exposures[4] == pytest.approx(srgb_stack.true_exposures[4], rel=0.08)
+
+
+def test_isolated_long_exposure_is_not_called_contradicted():
+    """A frame far beyond the bracket shares no unclipped samples: say so, do not guess."""
+    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=4)
+    scene = synth.make_scene(160, 240, dynamic_range_stops=14, saturation=0.3, seed=4)
+    times = TIMES + [TIMES[-1] * 1000]
+    stack = synth.simulate_stack(scene, pipe, times, jitter=0.0, jpeg_quality=90, seed=4)
+    model = selfcal.calibrate_response(stack.images, times)
+    warnings = model.diagnostics["warnings"]
+    assert any("array #6" in w and "shares only" in w for w in warnings), warnings
+    assert not any("array #6" in w and "contradict" in w for w in warnings), warnings
+    # ignored, not fitted: the curve is the one of the bracket without it
+    bracket = selfcal.calibrate_response(stack.images[:6], TIMES)
+    assert rmse_vs_truth(model, stack) <= 1.02 * rmse_vs_truth(bracket, stack)
+    assert rmse_vs_truth(model, stack) < 0.02

@@ -20,6 +20,9 @@ from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
 CONTRADICTION_FACTOR = 1.25
 #: Smallest ratio between the longest and shortest exposure that can determine a curve.
 MIN_EXPOSURE_RATIO = 1.5
+#: A frame sharing fewer unclipped samples than this with every other frame is ignored:
+#: it is too far from the rest of the bracket to add equations or have its time checked.
+MIN_SHARED_SAMPLES = 20
 
 
 def _is_path(x) -> bool:
@@ -206,10 +209,21 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
             warnings.append(f"{sources[k]}: clipped almost everywhere "
                             f"({100 * (1 - unclipped_fraction[k]):.1f}% of samples); ignored")
             keep.remove(k)
+    # A frame that shares (almost) no unclipped samples with any other frame -- e.g. one
+    # long exposure far beyond the rest of the bracket -- adds no usable equations: its few
+    # pair rows sit at the clipping limits, and its exposure could be neither estimated nor
+    # checked against the pixels.
+    usable = ~(masks["clipped"] | masks["saturated"])
+    for k in list(keep):
+        shared = max((int((usable[k] & usable[j]).sum()) for j in keep if j != k), default=0)
+        if shared < MIN_SHARED_SAMPLES and len(keep) > 2:
+            warnings.append(f"{sources[k]}: shares only {shared} unclipped samples with any "
+                            "other frame (too far from the rest of the bracket); ignored")
+            keep.remove(k)
     if len(keep) < 2:
         raise CalibrationError(
-            "fewer than two usable frames remain (the others are duplicates or clipped "
-            "everywhere): " + "; ".join(warnings))
+            "fewer than two usable frames remain (the others are duplicates, clipped "
+            "everywhere or share no unclipped samples): " + "; ".join(warnings))
 
     sub = _subset(samples, keep)
     sub_masks = {k: v[keep] for k, v in masks.items()}
