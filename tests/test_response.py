@@ -319,7 +319,7 @@ def test_exif_times_are_used_and_missing_exif_warned(tmp_path, srgb_stack):
     assert model.exposures[4] == pytest.approx(srgb_stack.true_exposures[4], rel=0.08)
 
 
-def test_isolated_long_exposure_is_not_called_contradicted():
+def test_isolated_long_exposure_is_not_called_contradicted(tmp_path):
     """A frame far beyond the bracket shares no unclipped samples: say so, do not guess."""
     pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=4)
     scene = synth.make_scene(160, 240, dynamic_range_stops=14, saturation=0.3, seed=4)
@@ -333,3 +333,8 @@ def test_isolated_long_exposure_is_not_called_contradicted():
     bracket = selfcal.calibrate_response(stack.images[:6], TIMES)
     assert rmse_vs_truth(model, stack) <= 1.02 * rmse_vs_truth(bracket, stack)
     assert rmse_vs_truth(model, stack) < 0.02
+    # the ignored frame has no exposure estimate, and the model still saves and loads
+    assert np.isnan(model.exposures[6]) and np.all(np.isfinite(model.exposures[:6]))
+    loaded = selfcal.load_model(model.save(tmp_path / "m.json"))
+    assert np.isnan(loaded.exposures[6])
+    np.testing.assert_allclose(loaded.exposures[:6], model.exposures[:6])

@@ -124,7 +124,7 @@ class ResponseModel:
             "intensity": self.intensity.tolist(),
             "inverse_response": self.inverse.T.tolist(),
             "coefficients": self.coefficients.tolist(),
-            "exposures": [float(v) for v in self.exposures],
+            "exposures": jsonable(np.asarray(self.exposures, dtype=float)),  # NaN: ignored
             "exposure_times": [None if t is None else float(t) for t in self.exposure_times],
             "sources": list(self.sources),
             "diagnostics": jsonable(self.diagnostics),
@@ -159,8 +159,11 @@ class ResponseModel:
             raise bad(f"max_code must be 255 or 65535, not {max_code}")
         return model
 
-    def save(self, path, *, force: bool = False) -> None:
-        """Write the model as versioned JSON, atomically (refuses to overwrite unless force)."""
+    def save(self, path, *, force: bool = False):
+        """Write the model as versioned JSON, atomically (refuses to overwrite unless force).
+
+        Returns the path written.
+        """
         from ..modelfile import save_model_dict
 
-        save_model_dict(path, self.to_dict(), force=force)
+        return save_model_dict(path, self.to_dict(), force=force)
