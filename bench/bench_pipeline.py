@@ -25,6 +25,7 @@ reference (it was fitted on many more samples of the real camera).
 
     python bench/bench_pipeline.py                 # accuracy, stability (5 repeats), speed
     python bench/bench_pipeline.py --repeats 50    # the paper's 50-repeat stability protocol
+    python bench/bench_pipeline.py --only stability --repeats 50   # that table alone (~45 min)
 """
 
 from __future__ import annotations
@@ -296,7 +297,10 @@ def main(argv=None):
                     help="random training sets for the stability table (paper: 50)")
     ap.add_argument("--no-literal", action="store_true",
                     help="skip the (slow) literal 100,000-direction search timing")
+    ap.add_argument("--only", choices=("accuracy", "stability", "speed"), action="append",
+                    help="run only these parts (repeatable; default: all three)")
     args = ap.parse_args(argv)
+    parts = set(args.only or ("accuracy", "stability", "speed"))
 
     from selfcal.pipeline.nus import read_nus_model
 
@@ -306,9 +310,12 @@ def main(argv=None):
     datasets = synthetic_datasets() + nus_datasets(cam)
     print(f"## selfcal pipeline benchmark ({cam!r}; rendering the real raws took "
           f"{sum(d.get('render_seconds', 0) for d in datasets if d['group'] == 'b'):.0f} s)")
-    accuracy_tables(datasets, cam)
-    stability_table(datasets, args.repeats)
-    speed_table(next(d for d in datasets if d["group"] == "b"), not args.no_literal)
+    if "accuracy" in parts:
+        accuracy_tables(datasets, cam)
+    if "stability" in parts:
+        stability_table(datasets, args.repeats)
+    if "speed" in parts:
+        speed_table(next(d for d in datasets if d["group"] == "b"), not args.no_literal)
     print(f"\n(total {time.perf_counter() - t0:.0f} s)")
 
 

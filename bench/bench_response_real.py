@@ -15,8 +15,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import (Timer, log_linearisation_error, opencv_inverse_response,  # noqa: E402
                     real_stacks, table)

@@ -236,6 +236,8 @@ def test_save_and_load_give_identical_outputs(tmp_path, pair, model):
                               model.to_raw(sample_jpg, variant=variant))
         assert np.array_equal(loaded.to_raw(sample_jpg / 255.0, variant=variant),
                               model.to_raw(sample_jpg / 255.0, variant=variant))
+    assert set(loaded.clipped_corrections) == set(model.clipped_corrections)
+    assert ((sample_jpg == 0) | (sample_jpg == 255)).any(axis=1).sum() >= 10
     assert loaded.diagnostics["backward_validation_rmse"] == pytest.approx(
         model.diagnostics["backward_validation_rmse"])
 
@@ -416,3 +418,78 @@ def test_closed_form_leave_one_out_matches_refitting():
     lut = lattice_regression_lut(x, t, smoothness="auto", smoothness_grid=(0.05,))
     assert set(lut.validation) == {0.05}
     assert lut.validation[0.05] > _rmse(x + lut.residual(x), t)   # held out > in sample
+
+
+# ---- clipped pixels: E[raw | clipped code] from clipped training samples ----------------
+
+def test_clipped_pixels_get_the_conditional_expectation(model, pair):
+    """A clipped code does not determine the raw: the correction learned from the clipped
+    training samples must bring clipped pixels closer than the backward model alone (which
+    returns the smallest raw the code allows), and leave the other pixels alone."""
+    import copy
+
+    def without_correction(m):
+        plain = copy.copy(m)
+        plain.clipped_corrections = {}
+        plain._code_tables = {}
+        return plain
+
+    # an over-exposed synthetic pair (4 % of pixels clipped, 2 % of raws saturated)
+    p = synth.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
+    raw = p["raw"].reshape(-1, 3).astype(np.float64)
+    codes = p["rendered"].reshape(-1, 3)
+    m = fit_pipeline(raw, codes / 255.0, n_train=800, seed=0, n_sets=3, backward="lut")
+    info = m.diagnostics["clipped_correction"]["lut"]
+    assert info["samples"] >= 20 and info["kept"]
+    clipped = ((codes == 0) | (codes == 255)).any(axis=1)
+    corrected = m.to_raw(codes)
+    before = without_correction(m).to_raw(codes)
+    # clipped pixels: at least a quarter lower error (about 45 % lower on this pair)
+    assert _rmse(corrected[clipped], raw[clipped]) < 0.75 * _rmse(before[clipped],
+                                                                   raw[clipped])
+    # unclipped pixels: untouched, bit for bit
+    assert np.array_equal(corrected[~clipped], before[~clipped])
+    # the float path applies the same correction
+    assert np.max(np.abs(m.to_raw(codes[clipped] / 255.0) - corrected[clipped])) < 1e-4
+
+    # the fixture model (1,500 samples of the default pair, 17 of them clipped)
+    assert model.diagnostics["clipped_correction"]["rbf"]["samples"] >= 5
+    jpg = pair["jpg"][pair["test"]]
+    clipped = ((jpg == 0) | (jpg == 255)).any(axis=1)
+    plain = without_correction(model)
+    for variant in ("lut", "rbf"):
+        a, b = model.to_raw(jpg, variant=variant), plain.to_raw(jpg, variant=variant)
+        assert np.array_equal(a[~clipped], b[~clipped])
+        assert _rmse(a[clipped], pair["raw"][pair["test"]][clipped]) < _rmse(
+            b[clipped], pair["raw"][pair["test"]][clipped])
+    # held-out scores over all training samples pool the clipped ones' in
+    pooled = model.diagnostics["backward_validation_rmse"]
+    unclipped = model.diagnostics["backward_validation_rmse_unclipped"]
+    assert all(pooled[v] > unclipped[v] for v in pooled)
+
+
+def test_clipped_correction_is_chosen_by_held_out_error():
+    from selfcal.pipeline.clipped import ClippedCorrection, clipped_pixel_correction
+
+    rng = np.random.default_rng(11)
+    # clipped samples on the face P_R = 1: the missing raw grows with P_G
+    p = np.column_stack([np.ones(60), rng.uniform(0, 1, 60), rng.uniform(0, 1, 60)])
+    resid = np.column_stack([0.2 * p[:, 1], np.zeros(60), np.zeros(60)])
+    resid += 0.01 * rng.standard_normal((60, 3))
+    corr, scores = clipped_pixel_correction(p, resid)
+    assert isinstance(corr, ClippedCorrection)
+    assert min(scores.values()) < 0.3 * scores["none"]
+    q = np.column_stack([np.ones(5), np.linspace(0.1, 0.9, 5), np.full(5, 0.5)])
+    assert np.allclose(corr(q)[:, 0], 0.2 * q[:, 1], atol=0.03)
+    # far from every clipped training sample the correction fades out
+    assert np.all(np.abs(corr(np.array([[0.0, 0.5, 0.5]]))) < 0.05) or np.isinf(
+        corr.bandwidth)
+    # residuals without structure (zero-mean noise): no correction, or a negligible one
+    noise = 0.05 * rng.standard_normal((60, 3))
+    weak = clipped_pixel_correction(p, noise)[0]
+    assert weak is None or np.abs(weak(q)).max() < 0.02
+    # too few clipped samples: none
+    assert clipped_pixel_correction(p[:2], resid[:2]) == (None, {})
+    # model-file round trip
+    again = ClippedCorrection.from_dict(corr.to_dict())
+    assert np.array_equal(again(q), corr(q))

@@ -3,8 +3,10 @@
 Gong et al., *Rank-based radiometric calibration* (paper 000): rank-based colour matrix
 (§3.2, Eq. 4-8), monotone tone curves by QP (§3.3, Eq. 9), lattice-regression gamut LUT
 (§3.4), backward model (§3.5); with the RBF inverse colour mapping of Lin, Kim, Süsstrunk
-& Brown, ICCV 2011 (paper 002, §6, Eq. 9-11).  :mod:`selfcal.pipeline.nus` reads the NUS
-in-camera model files (Kim et al. PAMI 2012) as a real camera pipeline.
+& Brown, ICCV 2011 (paper 002, §6, Eq. 9-11); clipped pixels get ``E[raw | code]`` learned
+from clipped training samples (:mod:`selfcal.pipeline.clipped`).
+:mod:`selfcal.pipeline.nus` reads the NUS in-camera model files (Kim et al. PAMI 2012) as
+a real camera pipeline.
 
 Examples
 --------
@@ -17,6 +19,7 @@ Examples
 >>> raw = model.to_raw(pair["rendered"])          # float32 linear raw
 """
 
+from .clipped import ClippedCorrection, clipped_pixel_correction
 from .fit import fit_pipeline
 from .lattice import LatticeLUT, highlight_stretch, lattice_regression_lut
 from .matrix import fibonacci_sphere, rank_based_matrix, row_scales
@@ -39,4 +42,6 @@ __all__ = [
     "rbf_inverse_colour_mapping",
     "RBFColourMapping",
     "read_nus_model",
+    "clipped_pixel_correction",
+    "ClippedCorrection",
 ]

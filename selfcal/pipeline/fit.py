@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from .clipped import CLIP_HI, CLIP_LO, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
 from .model import BAKE_SIZE, BACKWARD_VARIANTS, PipelineModel
@@ -20,8 +21,9 @@ from .tone import SMOOTHNESS, monotone_tone_curves
 #: Fewest samples fit_pipeline accepts.
 MIN_SAMPLES = 30
 #: Rendered values within half a code of 0 or 255 are clipped: they do not determine the
-#: raw (Lin et al. ICCV 2011 §5 reject them) and are left out of the backward fits.
-_CLIP_LO, _CLIP_HI = 0.5 / 255, 254.5 / 255
+#: raw (Lin et al. ICCV 2011 §5 reject them) and are left out of the backward fits; they
+#: train the clipped-pixel correction (:mod:`selfcal.pipeline.clipped`) instead.
+_CLIP_LO, _CLIP_HI = CLIP_LO, CLIP_HI
 
 
 def _check_samples(raw, rendered):
@@ -115,6 +117,43 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     return inv, blut, rbf, held_out
 
 
+def _clipped_corrections(raw, rendered, inv, m_inv, blut, rbf, held_out):
+    """The clipped-pixel correction per backward variant (:mod:`selfcal.pipeline.clipped`).
+
+    The residuals ``ρ_i - ρ_b(P_i)`` of the clipped training samples under each variant
+    (``ρ_b`` the backward model of Gong et al. §3.5 / Lin et al. Eq. 11, clipped to
+    ``[0, 1]`` as :meth:`PipelineModel.to_raw` does) train a kernel-regression estimate of
+    ``E[ρ | P]`` at clipped codes.  Returns the corrections, their leave-one-out scores,
+    and each variant's held-out RMSE over *all* training samples (the unclipped ones'
+    leave-one-out error from ``held_out`` pooled with the clipped ones' -- with the
+    correction, or without one when none is kept).
+    """
+    clipped = ((rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)).any(axis=1)
+    n_c, n_ok = int(clipped.sum()), int((~clipped).sum())
+    corrections, scores, pooled = {}, {}, {}
+    e_c = inv(rendered[clipped])
+    for variant in ("lut",) + (("rbf",) if rbf is not None else ()):
+        if variant == "lut":
+            rho = e_c @ m_inv.T
+            base = rho + blut.residual(rho)
+        else:
+            base = rbf(e_c) @ m_inv.T
+        resid = raw[clipped] - np.clip(base, 0.0, 1.0)
+        corr, sc = clipped_pixel_correction(rendered[clipped], resid)
+        corrections[variant] = corr
+        scores[variant] = sc
+        if variant not in held_out:
+            continue
+        err_ok = held_out[variant]
+        if n_c:
+            err_c = min(sc.values()) if sc else float(np.sqrt(np.mean(resid ** 2)))
+            pooled[variant] = float(np.sqrt((n_ok * err_ok ** 2 + n_c * err_c ** 2)
+                                            / (n_ok + n_c)))
+        else:
+            pooled[variant] = err_ok
+    return corrections, scores, pooled
+
+
 def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
                  n_sets: int = 25, set_size: int = 200, smoothness: float = SMOOTHNESS,
                  backward: str = "auto", progress=None, matrix_method: str = "fast",
@@ -137,8 +176,14 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     4. Backward (§3.5): ``f⁻¹`` by the same QP (λ by cross-validation), then both (a) the
        backward 5×5×5 lattice LUT on ``g(M⁻¹ f⁻¹(P))`` and (b) the RBF ``h⁻¹`` of Lin et
        al. Eq. 10-11 (``E = M⁻¹ h⁻¹(f⁻¹(P))``, up to 1,500 control points).  With
-       ``backward="auto"`` the variant with the lower held-out error is used; both errors
-       are in :attr:`PipelineModel.diagnostics` (``backward_validation_rmse``).
+       ``backward="auto"`` the variant with the lower held-out error over all training
+       samples is used; both errors are in :attr:`PipelineModel.diagnostics`
+       (``backward_validation_rmse``; ``..._unclipped`` for the unclipped samples alone).
+    5. Clipped pixels (a channel at 0 or 255; the code does not determine the raw): the
+       conditional expectation ``E[ρ | P]`` learned from the clipped training samples, as
+       a kernel-regression correction of the backward model chosen by leave-one-out
+       (:func:`~selfcal.pipeline.clipped.clipped_pixel_correction`; none without clipped
+       training samples, or when it does not predict held-out ones better).
 
     Held-out errors are leave-one-out errors in closed form (both the lattice regression
     and the RBF are linear smoothers; the inverse curves' λ uses 5-fold cross-validation):
@@ -146,8 +191,8 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     the backward variants -- every sample serves for
     fitting and for validation, which matters in the 140-sample one-shot setting.
     Rendered samples clipped at 0 or 255 are left out of the backward fits (they do not
-    determine the raw); raw samples need no such care (the camera rendered the clipped raw
-    it recorded).
+    determine the raw) and train only the clipped-pixel correction (step 5); raw samples
+    need no such care (the camera rendered the clipped raw it recorded).
 
     Parameters
     ----------
@@ -279,8 +324,10 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     inv, blut, rbf, held_out = _backward_fit(raw, rendered, m, m_inv, inverse_smoothness,
                                              lut_smoothness, n_centres, rbf_seed,
                                              backward != "lut")
+    corrections, correction_scores, pooled = _clipped_corrections(
+        raw, rendered, inv, m_inv, blut, rbf, held_out)
     if backward == "auto":
-        chosen_variant = min(held_out, key=held_out.get) if held_out else "rbf"
+        chosen_variant = min(pooled, key=pooled.get) if pooled else "rbf"
     else:
         chosen_variant = backward
     if progress is not None:
@@ -294,6 +341,14 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     train_err = {"lut": _rmse(np.clip(rho_hat + blut.residual(rho_hat), 0, 1), raw[ok])}
     if rbf is not None:
         train_err["rbf"] = _rmse(np.clip(rbf(e_t) @ m_inv.T, 0, 1), raw[ok])
+    clipped_info = {
+        v: {"samples": int(clipped.sum()),
+            "kept": corrections.get(v) is not None,
+            "bandwidth": None if corrections.get(v) is None else corrections[v].bandwidth,
+            "prior_weight": (None if corrections.get(v) is None
+                             else corrections[v].prior_weight),
+            "validation_rmse": correction_scores.get(v, {})}
+        for v in corrections}
 
     diagnostics = {
         "method": "rank-based (Gong et al. §3.2-3.5) + RBF h^-1 (Lin et al. ICCV 2011 §6)",
@@ -303,7 +358,9 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
         "forward_train_rmse_without_lut": err_nolut * 255,
         "backward": chosen_variant,
         "backward_selection": backward,
-        "backward_validation_rmse": held_out,
+        "backward_validation_rmse": pooled,
+        "backward_validation_rmse_unclipped": held_out,
+        "clipped_correction": clipped_info,
         "backward_train_rmse": train_err,
         "validation": "leave-one-out in closed form (lattice: hat-matrix diagonal; RBF: "
                       "Rippa 1999)",
@@ -326,7 +383,7 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     model = PipelineModel(matrix=m, tone_curves=curves, forward_lut=flut,
                           inverse_tone_curves=inv, backward_lut=blut, rbf=rbf,
                           backward=chosen_variant, diagnostics=diagnostics,
-                          bake_size=bake_size)
+                          bake_size=bake_size, clipped_corrections=corrections)
     t0 = time.perf_counter()
     model._table(chosen_variant)  # bake now: to_raw is then fast from the first call
     diagnostics["seconds"]["bake"] = time.perf_counter() - t0

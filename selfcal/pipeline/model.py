@@ -10,7 +10,9 @@ Backward, two variants (§3.5 of Gong et al.; Lin et al. ICCV 2011 Eq. 10-11)::
     "rbf":  ρ = M⁻¹ h⁻¹(f⁻¹(P))
 
 ``R_f``, ``R_b`` are 5×5×5 lattice-regression tables of residual corrections (see
-:mod:`selfcal.pipeline.lattice`).  Whole images go backward through a dense table baked
+:mod:`selfcal.pipeline.lattice`).  Pixels with a clipped channel (code 0 or 255: the code
+does not determine the raw) get the conditional expectation learned from the clipped
+training samples, ``ρ + δ(P)`` (:mod:`selfcal.pipeline.clipped`), when the fit kept one.  Whole images go backward through a dense table baked
 over the linearised cube ``e = f⁻¹(P)`` (:mod:`selfcal.pipeline.dense`; 49 nodes per axis,
 spaced as ``u^(1/0.6)`` so they are denser near black): per pixel one exact per-channel
 curve and one trilinear lookup, whichever variant is used.
@@ -22,6 +24,7 @@ import numpy as np
 
 from ..errors import InputError, ModelFileError, SelfcalError
 from ..modelfile import jsonable
+from .clipped import CLIP_HI, CLIP_LO, ClippedCorrection, clipped_mask
 from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
 from .rbf import RBFColourMapping
@@ -83,12 +86,16 @@ class PipelineModel:
         the matrix search, sample counts.
     bake_size : int
         Nodes per axis of the dense backward table.
+    clipped_corrections : dict
+        Per backward variant, the :class:`~selfcal.pipeline.clipped.ClippedCorrection`
+        applied to pixels with a clipped channel (``E[ρ | P]`` from clipped training
+        samples), or None (no correction).
     """
 
     def __init__(self, matrix, tone_curves: MonotonePolynomial, forward_lut: LatticeLUT,
                  inverse_tone_curves: MonotonePolynomial, backward_lut: LatticeLUT,
                  rbf: RBFColourMapping | None, backward: str = "lut", diagnostics=None,
-                 bake_size: int = BAKE_SIZE):
+                 bake_size: int = BAKE_SIZE, clipped_corrections=None):
         m = np.asarray(matrix, dtype=np.float64)
         if m.shape != (3, 3) or not np.all(np.isfinite(m)):
             raise InputError(f"the colour matrix must be a finite 3x3 array, got {m.shape}")
@@ -108,8 +115,17 @@ class PipelineModel:
         self.backward = backward
         self.diagnostics = dict(diagnostics or {})
         self.bake_size = int(bake_size)
+        self.clipped_corrections = {}
+        for v, corr in dict(clipped_corrections or {}).items():
+            if v not in BACKWARD_VARIANTS:
+                raise InputError(f"clipped-pixel correction for an unknown variant {v!r}")
+            if corr is not None and not isinstance(corr, ClippedCorrection):
+                raise InputError("clipped_corrections must map variants to "
+                                 "ClippedCorrection or None")
+            self.clipped_corrections[v] = corr
         self._tables: dict = {}
         self._code_tables: dict = {}
+        self._clipped_tables: dict = {}
 
     # ------------------------------------------------------------------ forward
     def render(self, raw) -> np.ndarray:
@@ -188,7 +204,10 @@ class PipelineModel:
 
         ``e = f⁻¹(P)`` per channel (Gong et al. §3.5), then the chosen variant (see
         :meth:`backward_exact`) through the dense table baked over the linearised cube
-        (trilinear), or directly when ``exact``.
+        (trilinear), or directly when ``exact``.  Pixels with a channel within half a code
+        of 0 or 255 then get the variant's clipped-pixel correction, if the fit kept one
+        (:mod:`selfcal.pipeline.clipped`: ``E[ρ | P]`` learned from clipped samples,
+        tabulated on the faces of the code cube).
 
         Parameters
         ----------
@@ -213,6 +232,7 @@ class PipelineModel:
                 self._code_tables[variant] = CodeTable(self._table(variant), self._coords(e))
             out = self._code_tables[variant](arr)
             np.clip(out, 0.0, 1.0, out=out)
+            self._correct_clipped(out, arr, variant)
             return out
         p = _as_rgb_float(arr, "rendered")
         shape = p.shape
@@ -226,7 +246,73 @@ class PipelineModel:
             else:
                 out[s:s + step] = trilinear_lookup(self._table(variant), self._coords(e))
         np.clip(out, 0.0, 1.0, out=out)
+        self._correct_clipped(out, flat, variant)
         return out.reshape(shape)
+
+    def _clipped_face_table(self, variant: str) -> np.ndarray:
+        """The clipped-pixel correction at every 8-bit code on the faces of the code cube.
+
+        A clipped pixel lies on a face (a channel at 0 or 1); :meth:`to_raw` reads its
+        correction from this table (8-bit input: a gather; float input: bilinear).
+
+        ``(3, 2, 256, 256, 3)``: channel ``k`` at code 0 (index 0) or 255 (index 1), the
+        other two channels (in increasing order) at every code pair.  Built once per
+        variant (:meth:`~selfcal.pipeline.clipped.ClippedCorrection.face`) so that whole
+        images need one gather per clipped pixel.
+        """
+        if variant not in self._clipped_tables:
+            corr = self.clipped_corrections[variant]
+            codes = np.arange(256, dtype=np.float64) / 255.0
+            table = np.empty((3, 2, 256, 256, 3))
+            for k in range(3):
+                for side, value in enumerate((0.0, 1.0)):
+                    table[k, side] = corr.face(k, value, codes)
+            self._clipped_tables[variant] = table
+        return self._clipped_tables[variant]
+
+    def _correct_clipped(self, out: np.ndarray, rendered: np.ndarray, variant: str):
+        """Add the clipped-pixel correction in place (``out`` and ``rendered`` flat or of
+        the same shape; uint8 codes or floats in [0, 1]); clip to [0, 1]."""
+        corr = self.clipped_corrections.get(variant)
+        if corr is None:
+            return
+        o = out.reshape(-1, 3)
+        r = rendered.reshape(-1, 3)
+        step = 1 << 20
+        for s in range(0, r.shape[0], step):
+            rc = r[s:s + step]
+            if rc.dtype == np.uint8:
+                c = (rc - np.uint8(1)) >= 254       # codes 0 and 255 (uint8 wraps 0 to 255)
+                mask = c[:, 0] | c[:, 1] | c[:, 2]
+                if not mask.any():
+                    continue
+                px = rc[mask].astype(np.intp)
+                k = np.argmax(c[mask], axis=1)        # a clipped channel of each pixel
+                side = (px[np.arange(px.shape[0]), k] == 255).astype(np.intp)
+                first = np.where(k == 0, px[:, 1], px[:, 0])
+                second = np.where(k == 2, px[:, 1], px[:, 2])
+                delta = self._clipped_face_table(variant)[k, side, first, second]
+            else:
+                mask = clipped_mask(rc)
+                if not mask.any():
+                    continue
+                # bilinear on the face table (exact at 8-bit codes; the correction is
+                # smooth, h >= 7 codes); a clipped channel counts as exactly 0 or 1
+                p = np.clip(rc[mask].astype(np.float64), 0.0, 1.0)
+                cl = (p <= CLIP_LO) | (p >= CLIP_HI)
+                k = np.argmax(cl, axis=1)
+                side = (p[np.arange(p.shape[0]), k] >= CLIP_HI).astype(np.intp)
+                u = np.where(k == 0, p[:, 1], p[:, 0]) * 255.0
+                v = np.where(k == 2, p[:, 1], p[:, 2]) * 255.0
+                i = np.minimum(u.astype(np.intp), 254)
+                j = np.minimum(v.astype(np.intp), 254)
+                tu, tv = (u - i)[:, None], (v - j)[:, None]
+                t = self._clipped_face_table(variant)
+                delta = ((t[k, side, i, j] * (1 - tv) + t[k, side, i, j + 1] * tv) * (1 - tu)
+                         + (t[k, side, i + 1, j] * (1 - tv) + t[k, side, i + 1, j + 1] * tv)
+                         * tu)
+            oc = o[s:s + step]
+            oc[mask] = np.clip(oc[mask] + delta, 0.0, 1.0)
 
     # ------------------------------------------------------------------ files
     def to_dict(self) -> dict:
@@ -243,6 +329,8 @@ class PipelineModel:
             "rbf": None if self.rbf is None else self.rbf.to_dict(),
             "backward": self.backward,
             "bake_size": self.bake_size,
+            "clipped_corrections": {v: None if c is None else c.to_dict()
+                                    for v, c in self.clipped_corrections.items()},
             "diagnostics": jsonable(self.diagnostics),
         }
 
@@ -262,7 +350,10 @@ class PipelineModel:
                            d["rbf"]),
                        backward=str(d["backward"]),
                        diagnostics=dict(d.get("diagnostics") or {}),
-                       bake_size=int(d.get("bake_size", BAKE_SIZE)))
+                       bake_size=int(d.get("bake_size", BAKE_SIZE)),
+                       clipped_corrections={
+                           v: None if c is None else ClippedCorrection.from_dict(c)
+                           for v, c in (d.get("clipped_corrections") or {}).items()})
         except KeyError as exc:
             raise ModelFileError(f"pipeline model lacks the field {exc.args[0]!r}",
                                  path) from None
