@@ -493,3 +493,48 @@ def test_clipped_correction_is_chosen_by_held_out_error():
     # model-file round trip
     again = ClippedCorrection.from_dict(corr.to_dict())
     assert np.array_equal(again(q), corr(q))
+
+
+def test_top_code_without_clipped_training_samples_stands_for_sensor_white(tmp_path):
+    """No training sample at 255: a 255 is read as the white whose largest raw channel is
+    saturated (ρ_w ∝ M⁻¹ 1), over the last half code only; with samples there, no prior."""
+    import copy
+
+    p = synth.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
+    raw = p["raw"].reshape(-1, 3).astype(np.float64)
+    codes = p["rendered"].reshape(-1, 3)
+    top = (codes == 255).any(axis=1)
+    rng = np.random.default_rng(0)
+    idx = rng.choice(np.flatnonzero(~top & (raw.max(axis=1) < 0.7)), 800, replace=False)
+    m = fit_pipeline(raw[idx], codes[idx] / 255.0, seed=0, n_sets=3, backward="lut")
+    inv = m.inverse_tone_curves
+    assert inv.top is not None
+    white = np.linalg.solve(m.matrix, np.ones(3))
+    white /= white.max()
+    np.testing.assert_allclose(inv.top, (m.matrix @ white)[0], rtol=1e-9)
+    # (up to the backward LUT's residual correction there)
+    at_white = m.to_raw(np.array([[255, 255, 255]], np.uint8))[0]
+    np.testing.assert_allclose(at_white, white, atol=0.06)
+    assert at_white.max() > 0.98
+    # codes below the top are the polynomial's, exactly
+    plain = copy.deepcopy(inv)
+    plain.top = None
+    x = np.linspace(0, 254 / 255, 300)[:, None].repeat(3, 1)
+    assert np.array_equal(inv(x), plain(x))
+    # at the top: the white where the polynomial falls short of it, else the polynomial
+    np.testing.assert_allclose(inv(np.ones((1, 3)))[0],
+                               np.maximum(plain(np.ones((1, 3)))[0], inv.top))
+    assert np.any(inv.top > plain(np.ones((1, 3)))[0])
+    # clipped pixels of the whole image come closer to their raw than without the prior
+    without = copy.copy(m)
+    without.inverse_tone_curves = plain
+    without._tables, without._code_tables = {}, {}
+    assert _rmse(m.to_raw(codes)[top], raw[top]) < _rmse(without.to_raw(codes)[top], raw[top])
+    # saved and loaded with the model
+    loaded = selfcal.load_model(m.save(tmp_path / "m.json"))
+    np.testing.assert_array_equal(loaded.inverse_tone_curves.top, inv.top)
+    # training samples at 255 in every channel: they decide, no prior
+    idx2 = rng.choice(codes.shape[0], 1500, replace=False)
+    assert (codes[idx2] == 255).any(axis=0).all()
+    m2 = fit_pipeline(raw[idx2], codes[idx2] / 255.0, seed=0, n_sets=3, backward="lut")
+    assert m2.inverse_tone_curves.top is None

@@ -96,6 +96,19 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     clipped = (rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)
     inv = monotone_tone_curves(np.where(clipped, np.nan, rendered), target,
                                smoothness=smoothness, domain=np.array([[0.0, 1.0]] * 3))
+    # A top code stands for every raw from the clipping threshold up.  When no training
+    # sample reaches it, the curve's value there is an extrapolation, and cameras clip
+    # JPEG white where the sensor saturates: the white M ρ_w (ρ_w ∝ M⁻¹ 1, its largest raw
+    # channel at saturation, 1) is the prior for the top code, over its last half code.
+    # Where training samples do reach the top code, they speak instead (through the
+    # clipped-pixel correction): JPEG ringing, for one, puts bright unclipped pixels there.
+    r_white = m_inv @ np.ones(3)
+    if np.all(r_white > 0):
+        e_white = np.full(3, 1.0 / r_white.max())
+        beyond = ((e_white > np.nanmax(np.where(clipped, np.nan, target), axis=0))
+                  & ~(rendered >= _CLIP_HI).any(axis=0))
+        if beyond.any():
+            inv.top = np.where(beyond, e_white, 0.0)  # 0: below the curve, polynomial kept
     ok = ~clipped.any(axis=1)
     if ok.sum() < 10:
         raise CalibrationError(f"only {int(ok.sum())} samples are unclipped in every "
@@ -179,7 +192,11 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
        ``backward="auto"`` the variant with the lower held-out error over all training
        samples is used; both errors are in :attr:`PipelineModel.diagnostics`
        (``backward_validation_rmse``; ``..._unclipped`` for the unclipped samples alone).
-    5. Clipped pixels (a channel at 0 or 255; the code does not determine the raw): the
+    5. Clipped pixels (a channel at 0 or 255; the code does not determine the raw): for a
+       channel with no training sample at 255 whose ``f⁻¹`` stays below the white
+       ``M ρ_w`` (``ρ_w ∝ M⁻¹ 1`` with its largest raw channel at saturation), the top
+       code's last half code runs up to that white (:attr:`MonotonePolynomial.top`): the
+       prior that JPEG white is where the sensor saturates.  Otherwise the
        conditional expectation ``E[ρ | P]`` learned from the clipped training samples, as
        a kernel-regression correction of the backward model chosen by leave-one-out
        (:func:`~selfcal.pipeline.clipped.clipped_pixel_correction`; none without clipped

@@ -64,6 +64,10 @@ def _smoothness_gram(degree: int) -> np.ndarray:
     return d2.T @ gram @ d2
 
 
+#: Share of the domain, at its top, that ``MonotonePolynomial.top`` governs: half a code.
+TOP_SPAN = 0.5 / 255
+
+
 @dataclass
 class MonotonePolynomial:
     """Per-channel monotone polynomials ``f_k(x) = Σ_i c_ki B_i((x - lo_k) / (hi_k - lo_k))``.
@@ -78,10 +82,16 @@ class MonotonePolynomial:
         ``(3, degree + 1)`` Bernstein coefficients.
     domain : numpy.ndarray
         ``(3, 2)`` input range ``[lo, hi]`` per channel.
+    top : numpy.ndarray or None
+        ``(3,)`` values at ``hi`` over the last half code (inverse curves: the value a
+        clipped top code stands for, see :func:`selfcal.pipeline.fit.fit_pipeline`).  Where
+        ``top_k`` exceeds the polynomial at ``hi_k - TOP_SPAN (hi_k - lo_k)``, channel k
+        runs linearly from there to ``top_k``; otherwise the polynomial is kept.
     """
 
     coefficients: np.ndarray
     domain: np.ndarray
+    top: np.ndarray | None = None
 
     def __post_init__(self):
         self.coefficients = np.asarray(self.coefficients, dtype=np.float64)
@@ -93,6 +103,10 @@ class MonotonePolynomial:
         if not (np.all(np.isfinite(self.coefficients)) and np.all(np.isfinite(self.domain))
                 and np.all(self.domain[:, 1] > self.domain[:, 0])):
             raise InputError("a monotone polynomial needs finite coefficients and lo < hi")
+        if self.top is not None:
+            self.top = np.asarray(self.top, dtype=np.float64)
+            if self.top.shape != (3,) or not np.all(np.isfinite(self.top)):
+                raise InputError("a monotone polynomial's top values must be 3 finite numbers")
 
     @property
     def degree(self) -> int:
@@ -117,8 +131,17 @@ class MonotonePolynomial:
         """Evaluate channel ``k`` at ``x`` (any shape), float64 (Horner in the power basis;
         exact enough for degree 7 on ``[0, 1]``)."""
         t = self._t(x, k)
+        out = self._horner(t, k)
+        if self.top is not None:
+            t0 = 1.0 - TOP_SPAN
+            p0 = float(self._horner(np.array(t0), k))
+            if self.top[k] > p0:
+                out = np.where(t > t0, p0 + (t - t0) / TOP_SPAN * (self.top[k] - p0), out)
+        return out
+
+    def _horner(self, t, k):
         power = self._power()[k]
-        out = np.full(t.shape, power[-1])
+        out = np.full(np.shape(t), power[-1])
         for j in range(self.degree - 1, -1, -1):
             out *= t
             out += power[j]
@@ -142,13 +165,18 @@ class MonotonePolynomial:
         return x, self.channel(x, k)
 
     def to_dict(self) -> dict:
-        return {"basis": f"bernstein{self.degree}", "coefficients": self.coefficients.tolist(),
-                "domain": self.domain.tolist()}
+        d = {"basis": f"bernstein{self.degree}", "coefficients": self.coefficients.tolist(),
+             "domain": self.domain.tolist()}
+        if self.top is not None:
+            d["top"] = self.top.tolist()
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "MonotonePolynomial":
+        top = d.get("top")
         return cls(coefficients=np.asarray(d["coefficients"], dtype=np.float64),
-                   domain=np.asarray(d["domain"], dtype=np.float64))
+                   domain=np.asarray(d["domain"], dtype=np.float64),
+                   top=None if top is None else np.asarray(top, dtype=np.float64))
 
 
 #: λ values tried by ``smoothness="auto"`` (5-fold cross-validation per channel).
