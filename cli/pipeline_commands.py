@@ -38,41 +38,47 @@ def _outputs(inputs, folder: Path, suffix: str, force: bool):
     return outs
 
 
-def cmd_to_raw(args) -> int:
+def _convert_files(args, inputs, suffix: str, desc: str, convert) -> list:
+    """Load the model, check every output, then ``convert(model, src, out)`` per file."""
     from tqdm import tqdm
 
+    model = _load_pipeline(args.model)
+    outs = _outputs(inputs, Path(args.output), suffix, args.force)
+    for src, out in tqdm(list(zip(inputs, outs)), desc=desc, unit="image", disable=None,
+                         leave=False):
+        convert(model, src, out)
+    return outs
+
+
+def cmd_to_raw(args) -> int:
     from selfcal.hdr_io import write_linear
     from selfcal.io import read_image
 
-    model = _load_pipeline(args.model)
-    folder = Path(args.output)
-    outs = _outputs(args.images, folder, ".tiff", args.force)
-    for src, out in tqdm(list(zip(args.images, outs)), desc="to-raw", unit="image",
-                         disable=None, leave=False):
-        raw = model.to_raw(read_image(src))
-        write_linear(out, raw, float32=args.float, force=args.force, inputs=args.images)
+    def convert(model, src, out):
+        write_linear(out, model.to_raw(read_image(src)), float32=args.float,
+                     force=args.force, inputs=args.images)
+
+    outs = _convert_files(args, args.images, ".tiff", "to-raw", convert)
     _say(f"wrote {len(outs)} linear camera-raw TIFF{'s' if len(outs) != 1 else ''} "
-         f"({'float32' if args.float else '16-bit'}) to {folder}/")
+         f"({'float32' if args.float else '16-bit'}) to {Path(args.output)}/")
     return EXIT_OK
 
 
 def cmd_render(args) -> int:
     import numpy as np
-    from tqdm import tqdm
 
     from selfcal.io import write_image
     from selfcal.raw import read_raw_linear
 
-    model = _load_pipeline(args.model)
-    folder = Path(args.output)
-    outs = _outputs(args.raws, folder, ".jpg", args.force)
-    for src, out in tqdm(list(zip(args.raws, outs)), desc="render", unit="image",
-                         disable=None, leave=False):
+    def convert(model, src, out):
         rendered = model.render(read_raw_linear(src).rgb)
         codes = np.clip(np.round(rendered * 255.0), 0, 255).astype(np.uint8)
         write_image(out, codes, jpeg_quality=args.quality, force=args.force,
                     inputs=args.raws)
-    _say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to {folder}/")
+
+    outs = _convert_files(args, args.raws, ".jpg", "render", convert)
+    _say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to "
+         f"{Path(args.output)}/")
     return EXIT_OK
 
 
