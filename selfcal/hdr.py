@@ -1075,6 +1075,7 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     # the solve gets the frames' own times (seconds, None where unknown), as unaligned
     times, time_source = resolve_exposure_times(frames.items, exposure_times,
                                                 list(frames.sources))
+    options.setdefault("clip_margin", clip_margin)
     model = calibrate_response(small, times, progress=progress, **options)
     model.diagnostics["exposure_source"] = time_source
     model.sources = list(frames.sources)
