@@ -75,6 +75,22 @@ def _gradient_on(basis_grid: np.ndarray, g: np.ndarray, x: np.ndarray) -> np.nda
     return np.interp(x, basis_grid, dg)
 
 
+def _interpolation_matrix(grid: np.ndarray, x: np.ndarray) -> sp.csr_matrix:
+    """Sparse ``W`` with ``W @ table == np.interp(x, grid, table)`` for any table on grid.
+
+    The noise weights re-read the slope of g at the same sample codes in every IRLS
+    iteration; the interpolation weights are fixed, so they are formed once.
+    """
+    x = np.clip(x, grid[0], grid[-1])
+    hi = np.clip(np.searchsorted(grid, x, side="right"), 1, len(grid) - 1)
+    lo = hi - 1
+    frac = (x - grid[lo]) / (grid[hi] - grid[lo])
+    rows = np.arange(x.size)
+    return sp.csr_matrix((np.concatenate([1 - frac, frac]),
+                          (np.concatenate([rows, rows]), np.concatenate([lo, hi]))),
+                         shape=(x.size, len(grid)))
+
+
 def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
                  values: np.ndarray, log_exposures: np.ndarray,
                  stuck_ratio: float = 1.5, stuck_codes: float = 1.0 / 255):
@@ -195,6 +211,65 @@ def _initial_log_exposures(values, valid, basis, log_times):
             "some frames share no usable (unclipped, unsaturated) samples with any other "
             "frame, so their exposures cannot be estimated")
     return est
+
+
+class _NormalEquations:
+    """Weighted normal equations of the Eq. 8 system, assembled from its structure.
+
+    Pair rows of channel c read ``dH_c[i] · c_c − K[pb_i] + K[pa_i] = rhs_c[i]``: a dense
+    block of N coefficients and two ±1 exposure entries.  Forming ``AᵀWA`` through a
+    general sparse product costs most of a calibration of a large stack; by blocks it is a
+    few BLAS products and bincounts.  Threshold rows (few) go through the sparse matrix.
+    """
+
+    def __init__(self, dH, rhs, pa, pb, F, N, A_thr=None, b_thr=None):
+        self.dH, self.rhs, self.pa, self.pb = dH, rhs, pa, pb
+        self.F, self.N = F, N
+        self.m = pa.size
+        self.A_thr, self.b_thr = A_thr, b_thr
+        m = self.m
+        # incidence of the exposure columns: -1 at pb, +1 at pa
+        self.S = sp.csr_matrix((np.concatenate([-np.ones(m), np.ones(m)]),
+                                (np.concatenate([np.arange(m)] * 2),
+                                 np.concatenate([pb, pa]))), shape=(m, F))
+
+    def __call__(self, w):
+        N, F, m = self.N, self.F, self.m
+        ncols = 3 * N + F
+        Q = np.zeros((ncols, ncols))
+        q = np.zeros(ncols)
+        wsum = np.zeros(m)
+        for c in range(3):
+            wc = w[c * m:(c + 1) * m]
+            WD = self.dH[c] * wc[:, None]
+            blk = slice(c * N, (c + 1) * N)
+            Q[blk, blk] = self.dH[c].T @ WD
+            cross = np.asarray(self.S.T @ WD)           # (F, N)
+            Q[3 * N:, blk] = cross
+            Q[blk, 3 * N:] = cross.T
+            wy = wc * self.rhs[c]
+            q[blk] = self.dH[c].T @ wy
+            q[3 * N:] += self.S.T @ wy
+            wsum += wc
+        # exposure block: a weighted graph Laplacian of the frame pairs
+        lap = np.bincount(self.pa * F + self.pb, weights=wsum, minlength=F * F).reshape(F, F)
+        Q[3 * N:, 3 * N:] = (np.diag(lap.sum(axis=0) + lap.sum(axis=1)) - lap - lap.T)
+        if self.A_thr is not None and self.A_thr.shape[0]:
+            wt = w[3 * m:]
+            At = self.A_thr
+            Q += np.asarray((At.T @ (sp.diags(wt) @ At)).todense())
+            q += np.asarray(At.T @ (wt * self.b_thr)).ravel()
+        return Q, q
+
+    def residual(self, x):
+        """A x − b, pair rows (channel by channel) then threshold rows."""
+        N = self.N
+        K = x[3 * N:]
+        dK = K[self.pa] - K[self.pb]
+        parts = [self.dH[c] @ x[c * N:(c + 1) * N] + dK - self.rhs[c] for c in range(3)]
+        if self.A_thr is not None and self.A_thr.shape[0]:
+            parts.append(self.A_thr @ x - self.b_thr)
+        return np.concatenate(parts)
 
 
 def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
@@ -318,19 +393,6 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         rhs.append(-(g0b - g0a))
     n_free_k = F
     ncols = 3 * N + n_free_k
-    rows = np.arange(3 * m)
-    # sparse system: coefficient block (dense N per row) and exposure block (-1, +1)
-    coef_cols = (np.repeat(np.arange(3), m)[:, None] * N + np.arange(N)[None, :])
-    data_coef = np.concatenate(dH, axis=0)
-    A_coef = sp.csr_matrix((data_coef.ravel(), (np.repeat(rows, N), coef_cols.ravel())),
-                           shape=(3 * m, ncols))
-    kb = np.tile(pb, 3)
-    ka = np.tile(pa, 3)
-    A_exp = sp.csr_matrix((np.concatenate([-np.ones(3 * m), np.ones(3 * m)]),
-                           (np.concatenate([rows, rows]), 3 * N + np.concatenate([kb, ka]))),
-                          shape=(3 * m, ncols))
-    A = (A_coef + A_exp).tocsr()
-    b = np.concatenate(rhs)
     thresholds = (_white_thresholds(values, valid, order, max_rank_gap, samples.max_code,
                                     clip_margin / 255.0) if white_threshold else [])
     if thresholds:
@@ -356,10 +418,10 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
               np.concatenate([(tc[:, None] * N + np.arange(N)[None, :]).ravel(),
                               3 * N + tb, 3 * N + ta]))),
             shape=(nt, ncols))
-        A = sp.vstack([A, A_thr]).tocsr()
-        b = np.concatenate([b, -(g0u - g0t)])
+        normal = _NormalEquations(dH, rhs, pa, pb, F, N, A_thr, -(g0u - g0t))
     else:
         nt = 0
+        normal = _NormalEquations(dH, rhs, pa, pb, F, N)
 
     grid = basis.intensity
     g0_grid = basis.mean
@@ -405,13 +467,16 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     K[fixed] = log_times[fixed]
     robust = np.ones(3 * m + nt)
     monotone_constrained = False
+    interp_a = [_interpolation_matrix(grid, Ia[:, c]) for c in range(3)]
+    interp_b = [_interpolation_matrix(grid, Ib[:, c]) for c in range(3)]
     for it in range(max_iterations):
         # noise weights: var of g(I) from code noise through the slope of the current g
         var = np.empty(3 * m + nt)
         for c in range(3):
             g_c = g0_grid + H_grid @ coeffs[c]
-            slope_a = _gradient_on(grid, g_c, Ia[:, c])
-            slope_b = _gradient_on(grid, g_c, Ib[:, c])
+            dg = np.gradient(g_c, grid)
+            slope_a = interp_a[c] @ dg
+            slope_b = interp_b[c] @ dg
             var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2)
             if nt:
                 sel = tc == c
@@ -428,21 +493,22 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
             # with the curves held.  A joint step could rescale g and K together along
             # the exponential ambiguity, which the (slope-weighted) data barely oppose;
             # alternating leaves the scale where the times (or the mean curve) put it.
-            x, constrained = _weighted_solve(A, b, w, np.ones(F, bool), K, known, False,
+            Qq = normal(w)
+            x, constrained = _weighted_solve(Qq, np.ones(F, bool), K, known, False,
                                              exposure_prior_sigma, ridge, N,
                                              g0_grid[mono_idx], H_grid[mono_idx], D,
                                              white_terms, white_sigma, prior_precision)
-            x[3 * N:] = _exposure_step(A, b, w, x, N, fixed, K, log_times, known,
+            x[3 * N:] = _exposure_step(Qq, x, N, fixed, K, log_times, known,
                                        refine_exposures, exposure_prior_sigma)
         else:
-            x, constrained = _weighted_solve(A, b, w, fixed, log_times, known,
+            x, constrained = _weighted_solve(normal(w), fixed, log_times, known,
                                              refine_exposures, exposure_prior_sigma, ridge,
                                              N, g0_grid[mono_idx], H_grid[mono_idx], D,
                                              white_terms, white_sigma, prior_precision)
         monotone_constrained |= constrained
         new_coeffs = x[:3 * N].reshape(3, N)
         K = x[3 * N:]
-        resid = A @ x - b
+        resid = normal.residual(x)
         u = resid / np.sqrt(var)
         scale = 1.4826 * np.median(np.abs(u)) + 1e-12
         new_robust = np.minimum(1.0, huber_k * scale / np.maximum(np.abs(u), 1e-12))
@@ -464,12 +530,12 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         gamma, alpha = theilslopes(K[known], L)[:2]
         if gamma > 0:
             K = (K - alpha) / gamma
-            x, _ = _weighted_solve(A, b, w, np.ones(F, bool), K, known, False,
+            x, _ = _weighted_solve(normal(w), np.ones(F, bool), K, known, False,
                                    exposure_prior_sigma, ridge, N, g0_grid[mono_idx],
                                    H_grid[mono_idx], D, white_terms, white_sigma,
                                    prior_precision)
             coeffs = x[:3 * N].reshape(3, N)
-    resid = A @ np.concatenate([coeffs.ravel(), K]) - b
+    resid = normal.residual(np.concatenate([coeffs.ravel(), K]))
     w = robust / var
     residual_rms = float(np.sqrt(np.average(resid ** 2, weights=w)))
     per_pair = {}
@@ -486,13 +552,11 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                        ambiguity_prior=ambiguity_prior)
 
 
-def _exposure_step(A, b, w, x, N, fixed, K, log_times, known, refine, prior_sigma):
+def _exposure_step(normal_eq, x, N, fixed, K, log_times, known, refine, prior_sigma):
     """Log exposures minimising the weighted Eq. 8 residuals with the curves held."""
-    AK = A[:, 3 * N:]
-    y = b - A[:, :3 * N] @ x[:3 * N]
-    AKw = sp.diags(w) @ AK
-    Q = np.asarray((AK.T @ AKw).todense())
-    q = np.asarray(AKw.T @ y).ravel()
+    Qfull, qfull = normal_eq
+    Q = Qfull[3 * N:, 3 * N:].copy()
+    q = qfull[3 * N:] - Qfull[3 * N:, :3 * N] @ x[:3 * N]
     if refine:
         kk = np.flatnonzero(known)
         Q[kk, kk] += 1.0 / prior_sigma ** 2
@@ -505,13 +569,14 @@ def _exposure_step(A, b, w, x, N, fixed, K, log_times, known, refine, prior_sigm
     return out
 
 
-def _weighted_solve(A, b, w, fixed, log_times, known, refine, prior_sigma, ridge, N,
+def _weighted_solve(normal_eq, fixed, log_times, known, refine, prior_sigma, ridge, N,
                     g0_mono, H_mono, D, white_terms=(), white_sigma=0.01,
                     prior_precision=None):
-    """Minimise Σ w r² + priors, with exposures in ``fixed`` held; QP if not monotone."""
-    Aw = sp.diags(w) @ A
-    Q = np.asarray((A.T @ Aw).todense())
-    q = np.asarray(Aw.T @ b).ravel()
+    """Minimise Σ w r² + priors, with exposures in ``fixed`` held; QP if not monotone.
+
+    ``normal_eq`` is ``(AᵀWA, AᵀWb)`` of the Eq. 8 system (see :class:`_NormalEquations`).
+    """
+    Q, q = normal_eq[0].copy(), normal_eq[1].copy()
     scale = np.trace(Q[:3 * N, :3 * N]) / (3 * N) if N else 1.0
     if prior_precision is not None:
         # Gaussian prior c_n ~ N(0, λ_n) from the curve database's PCA variances: it
