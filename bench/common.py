@@ -87,6 +87,51 @@ def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
     return float(np.sqrt(total / max(count, 1)))
 
 
+def per_code_floor(images_rgb, times, lo: int = 25, hi: int = 235) -> np.ndarray:
+    """The per-channel table that minimises :func:`log_linearisation_error` itself.
+
+    Least squares over the metric's own pixel pairs, one free value of log f⁻¹ per code
+    and channel (what any per-channel curve can at best reach on these images): a floor
+    for the acceptance-2 metric, not a calibration.  Returns f⁻¹ as (256, 3).
+    """
+    order = np.argsort(times)
+    counts = np.zeros((3, 256 * 256))
+    sums = np.zeros((3, 256 * 256))
+    for a, b in zip(order[:-1], order[1:]):
+        if times[b] == times[a]:
+            continue
+        ia, ib = images_rgb[a], images_rgb[b]
+        ok = ((ia >= lo) & (ia <= hi)).all(axis=2) & ((ib >= lo) & (ib <= hi)).all(axis=2)
+        d = np.log(times[b] / times[a])
+        for c in range(3):
+            cell = ia[..., c][ok].astype(np.int64) * 256 + ib[..., c][ok]
+            n = np.bincount(cell, minlength=256 * 256)
+            counts[c] += n
+            sums[c] += n * d
+    log_lut = np.zeros((256, 3))
+    for c in range(3):
+        nz = np.flatnonzero(counts[c])
+        i, j, w = nz // 256, nz % 256, counts[c][nz]
+        # normal equations of sum w (G[j] - G[i] - d)^2: a weighted graph Laplacian
+        L = np.zeros((256, 256))
+        np.add.at(L, (i, i), w)
+        np.add.at(L, (j, j), w)
+        np.add.at(L, (i, j), -w)
+        np.add.at(L, (j, i), -w)
+        r = np.zeros(256)
+        np.add.at(r, j, sums[c][nz])
+        np.add.at(r, i, -sums[c][nz])
+        used = np.flatnonzero(np.diag(L) > 0)
+        # the additive gauge: pin the first used code (the metric is scale-free)
+        Lu, ru = L[np.ix_(used, used)], r[used]
+        Lu[0, :] = 0
+        Lu[0, 0] = 1
+        ru[0] = 0
+        g = np.linalg.solve(Lu + 1e-9 * np.eye(used.size), ru)
+        log_lut[:, c] = np.interp(np.arange(256), used, g)
+    return np.exp(log_lut - log_lut.max(axis=0))
+
+
 class Timer:
     def __enter__(self):
         self.t0 = time.perf_counter()

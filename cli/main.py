@@ -180,6 +180,7 @@ def cmd_demo(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     from selfcal import __version__
     from selfcal.response.solver import DEFAULT_SATURATION_THRESHOLD
+    from selfcal.response.calibrate import DEFAULT_N_COMPONENTS
 
     parser = argparse.ArgumentParser(
         prog="selfcal",
@@ -227,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--saturation-threshold", type=float,
                    default=DEFAULT_SATURATION_THRESHOLD, metavar="B",
                    help="reject samples with HSV saturation above B (default %(default)s)")
-    p.add_argument("--components", type=int, default=5, metavar="N",
+    p.add_argument("--components", type=int, default=DEFAULT_N_COMPONENTS, metavar="N",
                    help="PCA basis functions per channel (default %(default)s)")
     p.add_argument("--basis", metavar="FILE",
                    help="response basis: invemor.txt (Grossberg-Nayar) or a selfcal .npz")

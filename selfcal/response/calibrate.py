@@ -23,6 +23,15 @@ MIN_EXPOSURE_RATIO = 1.5
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
+#: Basis functions per channel (N of Eq. 7), as Lin et al.  More components fit DoRF
+#: curves better (bench/bench_response_synthetic.py, 201 curves: median RMSE 0.0043 with
+#: N = 5, 0.0037 with N = 11) but let the last, never-observed codes bend: the sRGB
+#: curve of tests/test_response.py goes from 0.0091 to 0.0125, and sRGB-like curves are
+#: what most cameras write.  On the real stacks N = 11 lowers the acceptance-2 metric by
+#: at most 2.5 % (memorial 0.1760 -> 0.1716; bench/BENCHMARKS.md).
+DEFAULT_N_COMPONENTS = 5
+#: Sample locations drawn from a stack (block means; stratified, see collect_samples).
+DEFAULT_MAX_SAMPLES = 4000
 
 
 def _is_path(x) -> bool:
@@ -79,9 +88,9 @@ def _delta_eq12(values, valid, inverse_fn, log_exposures, pairs):
 
 
 def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = False,
-                       n_components: int = 5, saturation_threshold: float =
+                       n_components: int = DEFAULT_N_COMPONENTS, saturation_threshold: float =
                        DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
-                       basis=None, max_samples: int = 4000, seed: int = 0,
+                       basis=None, max_samples: int = DEFAULT_MAX_SAMPLES, seed: int = 0,
                        align=False, progress=None):
     """Estimate each channel's camera response from an exposure stack.
 
@@ -100,7 +109,8 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     refine_exposures : bool
         Treat the given times as a prior and re-estimate them (shutters are inaccurate).
     n_components : int
-        Number of PCA basis functions (Eq. 7).
+        Number of PCA basis functions per channel (N of Eq. 7); see
+        :data:`DEFAULT_N_COMPONENTS`.
     saturation_threshold : float
         β: samples whose HSV saturation exceeds it in either frame of a pair are rejected.
         Default 0.5 (see :data:`selfcal.response.solver.DEFAULT_SATURATION_THRESHOLD`).
