@@ -113,6 +113,37 @@ def test_clipping_propagates_along_exposure():
     assert not plain["clipped"][1:, top].any() and not plain["clipped"][:2, bottom].any()
 
 
+def test_normal_equations_by_blocks_match_the_sparse_system():
+    """The block assembly of AᵀWA, AᵀWb equals the general sparse product."""
+    import scipy.sparse as sp
+
+    from selfcal.response.solver import _NormalEquations
+
+    rng = np.random.default_rng(4)
+    F, N, m, nt = 5, 4, 300, 7
+    pa = rng.integers(0, F, m)
+    pb = (pa + rng.integers(1, F, m)) % F
+    dH = [rng.normal(size=(m, N)) for _ in range(3)]
+    rhs = [rng.normal(size=m) for _ in range(3)]
+    A_thr = sp.csr_matrix(rng.normal(size=(nt, 3 * N + F)) * (rng.random((nt, 3 * N + F)) < 0.4))
+    b_thr = rng.normal(size=nt)
+    w = rng.uniform(0.1, 2.0, 3 * m + nt)
+    # the same rows, written out: dH_c · c_c − K[pb] + K[pa] = rhs_c
+    S = np.zeros((m, F))
+    S[np.arange(m), pb] -= 1
+    S[np.arange(m), pa] += 1
+    blocks = [np.hstack([np.zeros((m, c * N)), dH[c], np.zeros((m, (2 - c) * N)), S])
+              for c in range(3)]
+    A = np.vstack(blocks + [A_thr.toarray()])
+    b = np.concatenate(rhs + [b_thr])
+    normal = _NormalEquations(dH, rhs, pa, pb, F, N, A_thr, b_thr)
+    Q, q = normal(w)
+    np.testing.assert_allclose(Q, A.T @ (w[:, None] * A), rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(q, A.T @ (w * b), rtol=1e-10, atol=1e-9)
+    x = rng.normal(size=3 * N + F)
+    np.testing.assert_allclose(normal.residual(x), A @ x - b, rtol=1e-10, atol=1e-10)
+
+
 def test_delta_of_eq12_is_small_on_a_clean_stack(film_stack):
     model = selfcal.calibrate_response(film_stack.images, list(film_stack.exposure_times))
     assert max(model.diagnostics["delta_eq12"]) < 0.05
