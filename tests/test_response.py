@@ -41,7 +41,9 @@ def srgb_model(srgb_stack):
 
 
 def test_known_times_recover_truth(srgb_model, srgb_stack):
-    assert rmse_vs_truth(srgb_model, srgb_stack) < 0.01
+    # 0.0091 when the clipping-threshold rows took their interpolated θ as exact: this
+    # scene's flat patches leave gaps of tens of codes around the crossing (now 0.0049)
+    assert rmse_vs_truth(srgb_model, srgb_stack) < 0.0065
     # exposures were fixed at the given times
     np.testing.assert_allclose(srgb_model.exposures, TIMES)
     assert srgb_model.diagnostics["verdict"] == "ok"
@@ -87,9 +89,17 @@ def test_white_thresholds_locate_the_top_code(knee_stack):
     # f⁻¹(θ)·(t_b/t_a) is where the channel reaches 255: f⁻¹(254.5), per row
     ratio = np.array([np.interp(th * 255, codes, truth[:, c])
                       * knee_stack.true_exposures[b] / knee_stack.true_exposures[a] / top
-                      for c, a, b, th, _ in rows])
+                      for c, a, b, th, *_ in rows])
     assert abs(np.median(ratio) - 1) < 0.02
     assert np.all(np.abs(ratio - 1) < 0.06)
+    # the true crossing lies in the gap the samples leave around θ (within noise)
+    inside = []
+    for c, a, b, th, _, lo, hi in rows:
+        k = knee_stack.true_exposures[b] / knee_stack.true_exposures[a]
+        crossing = np.interp(top / k, truth[:, c], codes) / 255
+        assert lo <= th <= hi
+        inside.append(lo - 2 / 255 <= crossing <= hi + 2 / 255)
+    assert np.mean(inside) >= 0.9, np.mean(inside)
 
 
 def test_clipping_propagates_along_exposure():

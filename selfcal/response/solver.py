@@ -136,10 +136,16 @@ def _white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
     indicator on I_a) therefore satisfies Eq. 8 with I = θ, I′ = τ, which ties the scale
     of f⁻¹ to observed data up to the last half code.
 
+    The samples bracket the crossing between the last code of frame a below it and the
+    first above (``gap_lo``, ``gap_hi``).  In a scene of flat patches that gap can be wide
+    and θ, its interpolated midpoint, a guess; the solver therefore uses the rows as
+    censored data: no pull while the curve's own crossing lies in the gap, a pull to the
+    nearer end when it does not.
+
     Returns
     -------
-    list of (channel, a, b, theta, theta_sigma)
-        ``theta`` and ``theta_sigma`` normalised like ``values``.
+    list of (channel, a, b, theta, theta_sigma, gap_lo, gap_hi)
+        Codes normalised like ``values``.
     """
     from scipy.optimize import isotonic_regression
 
@@ -175,7 +181,7 @@ def _white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
                 if near < 2:
                     continue
                 rows.append((c, int(a), int(b), float(theta),
-                             max(width / np.sqrt(near), 0.25 * code)))
+                             max(width / np.sqrt(near), 0.25 * code), float(x0), float(x1)))
     return rows
 
 
@@ -408,17 +414,24 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         theta_sigma = (np.array([t[4] for t in thresholds])
                        / np.sqrt(3.0 * max(F - 1, 1)))
         tau = np.full(theta.size, (samples.max_code - 0.5) / samples.max_code)
-        g0t, Ht = basis.design(theta, N)
+        gap_lo = np.array([t[5] for t in thresholds])
+        gap_hi = np.array([t[6] for t in thresholds])
         g0u, Hu = basis.design(tau, N)
         nt = theta.size
         trows = np.arange(nt)
-        A_thr = sp.csr_matrix(
-            (np.concatenate([(Hu - Ht).ravel(), -np.ones(nt), np.ones(nt)]),
-             (np.concatenate([np.repeat(trows, N), trows, trows]),
-              np.concatenate([(tc[:, None] * N + np.arange(N)[None, :]).ravel(),
-                              3 * N + tb, 3 * N + ta]))),
-            shape=(nt, ncols))
-        normal = _NormalEquations(dH, rhs, pa, pb, F, N, A_thr, -(g0u - g0t))
+
+        def threshold_rows(th):
+            """Rows g(θ) − g(τ) + K_b − K_a = 0 of every threshold, at the codes ``th``."""
+            g0t, Ht = basis.design(th, N)
+            A_thr = sp.csr_matrix(
+                (np.concatenate([(Hu - Ht).ravel(), -np.ones(nt), np.ones(nt)]),
+                 (np.concatenate([np.repeat(trows, N), trows, trows]),
+                  np.concatenate([(tc[:, None] * N + np.arange(N)[None, :]).ravel(),
+                                  3 * N + tb, 3 * N + ta]))),
+                shape=(nt, ncols))
+            return A_thr, -(g0u - g0t)
+
+        normal = _NormalEquations(dH, rhs, pa, pb, F, N, *threshold_rows(theta))
     else:
         nt = 0
         normal = _NormalEquations(dH, rhs, pa, pb, F, N)
@@ -469,7 +482,24 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     monotone_constrained = False
     interp_a = [_interpolation_matrix(grid, Ia[:, c]) for c in range(3)]
     interp_b = [_interpolation_matrix(grid, Ib[:, c]) for c in range(3)]
+    active = np.ones(nt)
     for it in range(max_iterations):
+        if nt:
+            # Censored data: frame b reads the top code where g(I_a) + K_b − K_a ≥ g(τ),
+            # and the samples locate that crossing only between the last code of frame a
+            # seen unclipped in b and the first seen clipped (a scene of flat patches can
+            # leave a wide gap).  A crossing of the current curve inside the gap agrees
+            # with the data: no row.  Outside, the row pulls it to the nearer end.
+            for c in range(3):
+                sel = np.flatnonzero(tc == c)
+                if not sel.size:
+                    continue
+                g_c = np.maximum.accumulate(g0_grid + H_grid @ coeffs[c])
+                target = np.interp(tau[sel], grid, g_c) - (K[tb[sel]] - K[ta[sel]])
+                crossing = np.interp(target, g_c, grid)
+                theta[sel] = np.clip(crossing, gap_lo[sel], gap_hi[sel])
+                active[sel] = (crossing < gap_lo[sel]) | (crossing > gap_hi[sel])
+            normal.A_thr, normal.b_thr = threshold_rows(theta)
         # noise weights: var of g(I) from code noise through the slope of the current g
         var = np.empty(3 * m + nt)
         for c in range(3):
@@ -488,6 +518,8 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         var[:3 * m] = np.maximum(var[:3 * m], 0.05 * np.median(var[:3 * m]))
         # the data term is a likelihood only with the noise at its measured level
         w = robust / (var * noise_scale ** 2)
+        if nt:
+            w[3 * m:] *= active
         if alternate:
             # Block coordinate descent: curves with the exposures held, then exposures
             # with the curves held.  A joint step could rescale g and K together along
