@@ -70,25 +70,17 @@ class SolveResult:
     ambiguity_prior: bool = False
 
 
-def _gradient_on(basis_grid: np.ndarray, g: np.ndarray, x: np.ndarray) -> np.ndarray:
-    dg = np.gradient(g, basis_grid)
-    return np.interp(x, basis_grid, dg)
-
-
-def _interpolation_matrix(grid: np.ndarray, x: np.ndarray) -> sp.csr_matrix:
+def _interpolation_matrix(grid: np.ndarray, x: np.ndarray):
     """Sparse ``W`` with ``W @ table == np.interp(x, grid, table)`` for any table on grid.
 
     The noise weights re-read the slope of g at the same sample codes in every IRLS
-    iteration; the interpolation weights are fixed, so they are formed once.
+    iteration; the interpolation weights are fixed, so they are formed once (the design
+    matrix of the degree-1 B-spline on the grid).
     """
-    x = np.clip(x, grid[0], grid[-1])
-    hi = np.clip(np.searchsorted(grid, x, side="right"), 1, len(grid) - 1)
-    lo = hi - 1
-    frac = (x - grid[lo]) / (grid[hi] - grid[lo])
-    rows = np.arange(x.size)
-    return sp.csr_matrix((np.concatenate([1 - frac, frac]),
-                          (np.concatenate([rows, rows]), np.concatenate([lo, hi]))),
-                         shape=(x.size, len(grid)))
+    from scipy.interpolate import BSpline
+
+    knots = np.concatenate([grid[:1], grid, grid[-1:]])
+    return BSpline.design_matrix(np.clip(x, grid[0], grid[-1]), knots, 1)
 
 
 def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
@@ -484,6 +476,8 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     interp_b = [_interpolation_matrix(grid, Ib[:, c]) for c in range(3)]
     active = np.ones(nt)
     for it in range(max_iterations):
+        g_grid = g0_grid[None, :] + coeffs @ H_grid.T          # (3, K)
+        dg_grid = np.gradient(g_grid, grid, axis=1)
         if nt:
             # Censored data: frame b reads the top code where g(I_a) + K_b − K_a ≥ g(τ),
             # and the samples locate that crossing only between the last code of frame a
@@ -494,7 +488,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                 sel = np.flatnonzero(tc == c)
                 if not sel.size:
                     continue
-                g_c = np.maximum.accumulate(g0_grid + H_grid @ coeffs[c])
+                g_c = np.maximum.accumulate(g_grid[c])
                 target = np.interp(tau[sel], grid, g_c) - (K[tb[sel]] - K[ta[sel]])
                 crossing = np.interp(target, g_c, grid)
                 theta[sel] = np.clip(crossing, gap_lo[sel], gap_hi[sel])
@@ -503,15 +497,13 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         # noise weights: var of g(I) from code noise through the slope of the current g
         var = np.empty(3 * m + nt)
         for c in range(3):
-            g_c = g0_grid + H_grid @ coeffs[c]
-            dg = np.gradient(g_c, grid)
-            slope_a = interp_a[c] @ dg
-            slope_b = interp_b[c] @ dg
+            slope_a = interp_a[c] @ dg_grid[c]
+            slope_b = interp_b[c] @ dg_grid[c]
             var[c * m:(c + 1) * m] = (CODE_NOISE ** 2) * (slope_a ** 2 + slope_b ** 2)
             if nt:
                 sel = tc == c
                 var[3 * m:][sel] = (theta_sigma[sel]
-                                    * _gradient_on(grid, g_c, theta[sel])) ** 2
+                                    * np.interp(theta[sel], grid, dg_grid[c])) ** 2
         # Residuals in code units (errors-in-variables): scaling g and K together by γ
         # scales var by γ², so the data term cannot shrink the exponential ambiguity
         # towards γ → 0; the floor is relative for the same reason.
