@@ -81,7 +81,7 @@ class RBFColourMapping:
 
 
 def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
-                      error_transform=None) -> dict:
+                      error_transform=None, refine: bool = False) -> dict:
     """Leave-one-out RMSE of the linear-kernel RBF (degree-1 affine part) per smoothing.
 
     Rippa's closed form (Rippa, *An algorithm for selecting a good value for the parameter
@@ -102,6 +102,9 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     error_transform : callable, optional
         Applied to the ``(n, 3)`` held-out residuals before the RMSE (a linear map, e.g.
         ``M⁻¹`` for raw units).
+    refine : bool
+        Then also try half a decade either side of the best value (the kernel system
+        ``QᵀKQ`` is formed once for all values).
 
     Returns
     -------
@@ -123,15 +126,23 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     tf = (lambda r: r) if error_transform is None else error_transform
     out = {}
     eye = np.eye(b.shape[0])
-    for s in smoothing_grid:
+
+    def score(s):
         try:
             low = sl.cholesky(b + float(s) * eye, lower=True)
         except np.linalg.LinAlgError:
-            continue
+            return
         x = sl.solve_triangular(low, qt, lower=True)
         diag = np.einsum("ij,ij->j", x, x)
         a = x.T @ (x @ y)
         out[float(s)] = float(np.sqrt(np.mean(tf(a / diag[:, None]) ** 2)))
+
+    for s in smoothing_grid:
+        score(s)
+    if refine and out:
+        best = min(out, key=out.get)
+        for s in (best / np.sqrt(10), best * np.sqrt(10)):
+            score(s)
     return out
 
 
@@ -190,11 +201,7 @@ def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
     if smoothing != "auto":
         return RBFColourMapping(e, target, float(smoothing))
     try:
-        scores = rbf_leave_one_out(e, target, smoothing_grid, error_transform)
-        if scores:  # refine around the best decade by half decades
-            best = min(scores, key=scores.get)
-            scores.update(rbf_leave_one_out(e, target, (best / np.sqrt(10), best * np.sqrt(10)),
-                                            error_transform))
+        scores = rbf_leave_one_out(e, target, smoothing_grid, error_transform, refine=True)
     except np.linalg.LinAlgError:
         scores = {}
     if not scores:
