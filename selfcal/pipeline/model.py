@@ -12,10 +12,12 @@ Backward, two variants (§3.5 of Gong et al.; Lin et al. ICCV 2011 Eq. 10-11)::
 ``R_f``, ``R_b`` are 5×5×5 lattice-regression tables of residual corrections (see
 :mod:`selfcal.pipeline.lattice`).  Pixels with a clipped channel (code 0 or 255: the code
 does not determine the raw) get the conditional expectation learned from the clipped
-training samples, ``ρ + δ(P)`` (:mod:`selfcal.pipeline.clipped`), when the fit kept one.  Whole images go backward through a dense table baked
-over the linearised cube ``e = f⁻¹(P)`` (:mod:`selfcal.pipeline.dense`; 49 nodes per axis,
-spaced as ``u^(1/0.6)`` so they are denser near black): per pixel one exact per-channel
-curve and one trilinear lookup, whichever variant is used.
+training samples, ``ρ + δ(P)`` (:mod:`selfcal.pipeline.clipped`), when the fit kept one.
+
+Whole images go backward through a dense table baked over the linearised cube
+``e = f⁻¹(P)`` (:mod:`selfcal.pipeline.dense`; 49 nodes per axis, spaced as ``u^(1/0.6)``
+so they are denser near black): per pixel one exact per-channel curve and one trilinear
+lookup, whichever variant is used.
 """
 
 from __future__ import annotations
