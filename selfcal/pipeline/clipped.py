@@ -51,9 +51,9 @@ def clipped_mask(rendered) -> np.ndarray:
 def _kernel(a: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
     if np.isinf(h):
         return np.ones((a.shape[0], b.shape[0]))
-    d2 = (np.sum(a * a, axis=1)[:, None] + np.sum(b * b, axis=1)[None, :]
-          - 2.0 * a @ b.T)
-    return np.exp(-0.5 * np.maximum(d2, 0.0) / (h * h))
+    from scipy.spatial.distance import cdist
+
+    return np.exp(-0.5 * cdist(a, b, "sqeuclidean") / (h * h))
 
 
 class ClippedCorrection:

@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from .clipped import CLIP_HI, CLIP_LO, clipped_pixel_correction
+from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
 from .model import BAKE_SIZE, BACKWARD_VARIANTS, PipelineModel
@@ -141,7 +141,7 @@ def _clipped_corrections(raw, rendered, inv, m_inv, blut, rbf, held_out):
     leave-one-out error from ``held_out`` pooled with the clipped ones' -- with the
     correction, or without one when none is kept).
     """
-    clipped = ((rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)).any(axis=1)
+    clipped = clipped_mask(rendered)
     n_c, n_ok = int(clipped.sum()), int((~clipped).sum())
     corrections, scores, pooled = {}, {}, {}
     e_c = inv(rendered[clipped])
