@@ -62,16 +62,10 @@ def best_scale_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean((s * estimate - truth) ** 2)))
 
 
-def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
-                            lo: int = 25, hi: int = 235) -> float:
-    """Scale-free linearisation error over adjacent exposure pairs (issue 3, acceptance 2).
-
-    RMS over adjacent pairs (sorted by time) and pixels with all channels in [lo, hi] in
-    both frames of log f⁻¹(I′) − log f⁻¹(I) − log(t′/t).
-    """
+def _pair_log_residuals(images_rgb, times, inverse_lut, lo, hi):
+    """Yield (r, ia, ib, ok) per adjacent pair: the residuals r (n, 3) of the pixels ok."""
     order = np.argsort(times)
     log_lut = np.log(np.maximum(inverse_lut, 1e-12))
-    total, count = 0.0, 0
     for a, b in zip(order[:-1], order[1:]):
         if times[b] == times[a]:
             continue
@@ -81,10 +75,44 @@ def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
             continue
         la = np.stack([log_lut[ia[..., c][ok], c] for c in range(3)], axis=1)
         lb = np.stack([log_lut[ib[..., c][ok], c] for c in range(3)], axis=1)
-        r = lb - la - np.log(times[b] / times[a])
+        yield lb - la - np.log(times[b] / times[a]), ia, ib, ok
+
+
+def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
+                            lo: int = 25, hi: int = 235) -> float:
+    """Scale-free linearisation error over adjacent exposure pairs (issue 3, acceptance 2).
+
+    RMS over adjacent pairs (sorted by time) and pixels with all channels in [lo, hi] in
+    both frames of log f⁻¹(I′) − log f⁻¹(I) − log(t′/t).
+    """
+    total, count = 0.0, 0
+    for r, *_ in _pair_log_residuals(images_rgb, times, inverse_lut, lo, hi):
         total += float(np.sum(r ** 2))
         count += r.size
     return float(np.sqrt(total / max(count, 1)))
+
+
+def log_linearisation_error_by_saturation(images_rgb, times, inverse_lut: np.ndarray,
+                                          edges=(0.0, 0.3, 0.5, 1.0), lo: int = 25,
+                                          hi: int = 235):
+    """:func:`log_linearisation_error` split by HSV saturation (the larger of the pair's).
+
+    Returns (rms, share): per band [edges[k], edges[k+1]) (the last band includes 1), the
+    RMS and the fraction of the metric's pixel pairs in it.  Lin et al. (ICCV 2011, §5)
+    reject highly saturated pixels because the camera's colour processing moves them off
+    the per-channel curves; this split shows which population a curve fits.
+    """
+    from selfcal.samples import hsv_saturation
+
+    nb = len(edges) - 1
+    total, count = np.zeros(nb), np.zeros(nb)
+    for r, ia, ib, ok in _pair_log_residuals(images_rgb, times, inverse_lut, lo, hi):
+        sat = np.maximum(hsv_saturation(ia[ok] / 255.0), hsv_saturation(ib[ok] / 255.0))
+        band = np.clip(np.searchsorted(edges, sat, side="right") - 1, 0, nb - 1)
+        total += np.bincount(band, weights=np.sum(r ** 2, axis=1), minlength=nb)
+        count += 3 * np.bincount(band, minlength=nb)
+    rms = np.sqrt(total / np.maximum(count, 1))
+    return np.where(count > 0, rms, np.nan), count / max(count.sum(), 1)
 
 
 def per_code_floor(images_rgb, times, lo: int = 25, hi: int = 235) -> np.ndarray:
