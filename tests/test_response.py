@@ -123,6 +123,23 @@ def test_clipping_propagates_along_exposure():
     assert not plain["clipped"][1:, top].any() and not plain["clipped"][:2, bottom].any()
 
 
+def test_flat_neutral_blocks_are_chosen_before_flat_coloured_ones():
+    """The flatness ranking counts spread across channels: neutral patches go first."""
+    from selfcal.samples import collect_samples
+
+    # left half a flat neutral grey, right half a flat orange of the same mean level
+    frames = []
+    for gain in (1.0, 1.2):
+        im = np.empty((32, 64, 3))
+        im[:, :32] = 120.0 * gain
+        im[:, 32:] = np.array([180.0, 120.0, 60.0]) * gain
+        frames.append(np.clip(np.round(im), 0, 255).astype(np.uint8))
+    samples = collect_samples(frames, block=2, per_bin=4)
+    cols = samples.locations[:, 1] * 2
+    assert samples.n_samples > 0
+    # one intensity bin, both patches in it: only the neutral patch is taken
+    assert np.all(cols < 32), cols
+
 def test_normal_equations_by_blocks_match_the_sparse_system():
     """The block assembly of AᵀWA, AᵀWb equals the general sparse product."""
     import scipy.sparse as sp
