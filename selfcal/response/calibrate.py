@@ -145,6 +145,10 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     """
     from .model import ResponseModel
 
+    frames = list(images)
+    if len(frames) < 2:
+        raise CalibrationError(
+            "one frame only: a response needs at least two frames at different exposures")
     if align:
         from ..hdr import calibrate_aligned
 
@@ -152,10 +156,6 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
             align = "mtb"
         if align not in ("mtb", "homography"):
             raise InputError(f"unknown alignment {align!r} (mtb or homography)")
-        frames = list(images)
-        if len(frames) < 2:
-            raise CalibrationError("one frame only: a response needs at least two frames "
-                                   "at different exposures")
         warnings: list[str] = []
         model, _, _ = calibrate_aligned(
             frames, exposure_times, method=align, clip_margin=clip_margin,
@@ -165,10 +165,6 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
         return model
 
-    frames = list(images)
-    if len(frames) < 2:
-        raise CalibrationError(
-            "one frame only: a response needs at least two frames at different exposures")
     sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
     times, time_source = resolve_exposure_times(frames, exposure_times, sources)
     warnings: list[str] = []
