@@ -422,11 +422,10 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                                   3 * N + tb, 3 * N + ta]))),
                 shape=(nt, ncols))
             return A_thr, -(g0u - g0t)
-
-        normal = _NormalEquations(dH, rhs, pa, pb, F, N, *threshold_rows(theta))
     else:
         nt = 0
-        normal = _NormalEquations(dH, rhs, pa, pb, F, N)
+    # the threshold rows (if any) are set at the start of every IRLS iteration
+    normal = _NormalEquations(dH, rhs, pa, pb, F, N)
 
     grid = basis.intensity
     g0_grid = basis.mean
