@@ -20,10 +20,6 @@ from .tone import SMOOTHNESS, monotone_tone_curves
 
 #: Fewest samples fit_pipeline accepts.
 MIN_SAMPLES = 30
-#: Rendered values within half a code of 0 or 255 are clipped: they do not determine the
-#: raw (Lin et al. ICCV 2011 §5 reject them) and are left out of the backward fits; they
-#: train the clipped-pixel correction (:mod:`selfcal.pipeline.clipped`) instead.
-_CLIP_LO, _CLIP_HI = CLIP_LO, CLIP_HI
 
 
 def _check_samples(raw, rendered):
@@ -93,7 +89,9 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     leave-one-out (held-out) raw RMSE of both variants.
     """
     target = raw @ m.T
-    clipped = (rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)
+    # rendered values within half a code of 0 or 255 do not determine the raw (Lin et al.
+    # ICCV 2011 §5): out of the backward fits, they train the clipped-pixel correction
+    clipped = (rendered <= CLIP_LO) | (rendered >= CLIP_HI)
     inv = monotone_tone_curves(np.where(clipped, np.nan, rendered), target,
                                smoothness=smoothness, domain=np.array([[0.0, 1.0]] * 3))
     # A top code stands for every raw from the clipping threshold up.  When no training
@@ -106,7 +104,7 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     if np.all(r_white > 0):
         e_white = np.full(3, 1.0 / r_white.max())
         beyond = ((e_white > np.nanmax(np.where(clipped, np.nan, target), axis=0))
-                  & ~(rendered >= _CLIP_HI).any(axis=0))
+                  & ~(rendered >= CLIP_HI).any(axis=0))
         if beyond.any():
             inv.top = np.where(beyond, e_white, 0.0)  # 0: below the curve, polynomial kept
     ok = ~clipped.any(axis=1)
@@ -351,7 +349,7 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
         progress("backward", 1, 1, f"variant {chosen_variant}")
     t_backward = time.perf_counter() - t0
 
-    clipped = ((rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)).any(axis=1)
+    clipped = clipped_mask(rendered)
     ok = ~clipped
     e_t = inv(rendered[ok])
     rho_hat = e_t @ m_inv.T
