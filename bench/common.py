@@ -62,20 +62,26 @@ def best_scale_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean((s * estimate - truth) ** 2)))
 
 
-def _pair_log_residuals(images_rgb, times, inverse_lut, lo, hi):
-    """Yield (r, ia, ib, ok) per adjacent pair: the residuals r (n, 3) of the pixels ok."""
+def _adjacent_pairs(images_rgb, times, lo, hi):
+    """Yield (ia, ib, ok, log(t′/t)) per adjacent exposure pair (sorted by time): ok marks
+    the pixels with all channels in [lo, hi] in both frames (the metric's pixels)."""
     order = np.argsort(times)
-    log_lut = np.log(np.maximum(inverse_lut, 1e-12))
     for a, b in zip(order[:-1], order[1:]):
         if times[b] == times[a]:
             continue
         ia, ib = images_rgb[a], images_rgb[b]
         ok = ((ia >= lo) & (ia <= hi)).all(axis=2) & ((ib >= lo) & (ib <= hi)).all(axis=2)
-        if not ok.any():
-            continue
+        if ok.any():
+            yield ia, ib, ok, np.log(times[b] / times[a])
+
+
+def _pair_log_residuals(images_rgb, times, inverse_lut, lo, hi):
+    """Yield (r, ia, ib, ok) per adjacent pair: the residuals r (n, 3) of the pixels ok."""
+    log_lut = np.log(np.maximum(inverse_lut, 1e-12))
+    for ia, ib, ok, d in _adjacent_pairs(images_rgb, times, lo, hi):
         la = np.stack([log_lut[ia[..., c][ok], c] for c in range(3)], axis=1)
         lb = np.stack([log_lut[ib[..., c][ok], c] for c in range(3)], axis=1)
-        yield lb - la - np.log(times[b] / times[a]), ia, ib, ok
+        yield lb - la - d, ia, ib, ok
 
 
 def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
@@ -122,15 +128,9 @@ def per_code_floor(images_rgb, times, lo: int = 25, hi: int = 235) -> np.ndarray
     and channel (what any per-channel curve can at best reach on these images): a floor
     for the acceptance-2 metric, not a calibration.  Returns f⁻¹ as (256, 3).
     """
-    order = np.argsort(times)
     counts = np.zeros((3, 256 * 256))
     sums = np.zeros((3, 256 * 256))
-    for a, b in zip(order[:-1], order[1:]):
-        if times[b] == times[a]:
-            continue
-        ia, ib = images_rgb[a], images_rgb[b]
-        ok = ((ia >= lo) & (ia <= hi)).all(axis=2) & ((ib >= lo) & (ib <= hi)).all(axis=2)
-        d = np.log(times[b] / times[a])
+    for ia, ib, ok, d in _adjacent_pairs(images_rgb, times, lo, hi):
         for c in range(3):
             cell = ia[..., c][ok].astype(np.int64) * 256 + ib[..., c][ok]
             n = np.bincount(cell, minlength=256 * 256)
