@@ -451,7 +451,9 @@ def test_fixture_files_exist_and_match_truth():
     pipeline = CameraPipeline.from_dict(truth["pipeline"])
     inv = pipeline.inverse_response(truth["inverse_response"]["codes"])
     for c, name in enumerate("RGB"):
-        np.testing.assert_array_equal(inv[:, c], truth["inverse_response"][name])
+        # to rounding: numpy builds differ in the last bit of pow/log (SIMD kernels)
+        np.testing.assert_allclose(inv[:, c], truth["inverse_response"][name],
+                                   rtol=1e-12, atol=0)
 
 
 def test_fixture_pair_is_the_raw_rendered_by_the_true_pipeline():
