@@ -19,22 +19,17 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import CalibrationError
+from ..samples import hsv_saturation
+from .clipped import clipped_mask
 from .rbf import N_CONTROL_POINTS, rbf_inverse_colour_mapping
 from .tone import SMOOTHNESS, MonotonePolynomial, monotone_tone_curves
 
-_CLIP_LO, _CLIP_HI = 0.5 / 255, 254.5 / 255
 _UNIT = np.array([[0.0, 1.0]] * 3)
-
-
-def _hsv_saturation(p: np.ndarray) -> np.ndarray:
-    mx = p.max(axis=1)
-    return np.where(mx > 0, (mx - p.min(axis=1)) / np.maximum(mx, 1e-12), 0.0)
 
 
 def _alternating_fit(raw, rendered, iterations, smoothness):
     """ALS for ``ρ ≈ B g(P)``: returns ``B`` and ``g`` (MonotonePolynomial, g_k(1) = 1)."""
-    clipped = (rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)
-    ok = ~clipped.any(axis=1)
+    ok = ~clipped_mask(rendered)
     if ok.sum() < 20:
         raise CalibrationError(f"only {int(ok.sum())} unclipped samples for the baseline fit")
     p, rho = rendered[ok], raw[ok]
@@ -148,13 +143,13 @@ def least_squares_rbf_model(raw_samples, rendered_samples, *, beta: float = 0.4,
     """
     raw = np.asarray(raw_samples, dtype=np.float64)
     rendered = np.asarray(rendered_samples, dtype=np.float64)
-    desat = _hsv_saturation(rendered) <= beta
+    saturation = hsv_saturation(rendered)
+    desat = saturation <= beta
     if desat.sum() < 30:  # too few grey-ish samples: fall back to the least saturated
-        desat = _hsv_saturation(rendered) <= np.sort(_hsv_saturation(rendered))[
-            min(len(rendered) - 1, 29)]
+        desat = saturation <= np.sort(saturation)[min(len(rendered) - 1, 29)]
     b, g = _alternating_fit(raw[desat], rendered[desat], iterations, smoothness)
     t = np.linalg.inv(b)
-    ok = ~((rendered <= _CLIP_LO) | (rendered >= _CLIP_HI)).any(axis=1)
+    ok = ~clipped_mask(rendered)
     e = g(rendered[ok])
     te = raw[ok] @ t.T
     h_inv = rbf_inverse_colour_mapping(e, te, n_centres=n_centres, seed=seed,
