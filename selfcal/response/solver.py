@@ -347,8 +347,9 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         warnings.append(
             "fewer than two exposure times are known: the exponential ambiguity of the "
             "response (Lin et al. §5) was resolved by a prior towards the basis mean "
-            "response; exposures are relative" + (" to the frame with a known time"
-                                                  if known.sum() == 1 else ""))
+            "response, a guess that can leave f⁻¹ raised to a wrong power; exposures are "
+            "relative" + (" to the frame with a known time" if known.sum() == 1 else "")
+            + "; two known exposure times fix it")
 
     init = _initial_log_exposures(values, valid, basis, log_times)
     gauge = None
