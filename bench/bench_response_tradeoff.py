@@ -110,44 +110,47 @@ def curves_for(images, times):
     return out
 
 
-def one_synthetic(args):
+def _dorf_stack(args, *, exact: bool):
+    """A DoRF curve's stack as in acceptance 1, or through an exactly per-channel camera."""
     index, irradiance, brightness, size = args
     from selfcal import synth
 
     curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=index)
+    if exact:
+        pipe = synth.CameraPipeline(matrix=np.eye(3), curves=curve, gamut="none")
+    else:
+        pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=index)
     scene = synth.make_scene(*size, seed=index)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90,
-                                 seed=index)
+    return synth.simulate_stack(scene, pipe, TIMES, jitter=0.0 if exact else 0.03,
+                                jpeg_quality=90, seed=index)
+
+
+def one_synthetic(args):
+    stack = _dorf_stack(args, exact=False)
     truth = stack.inverse_response()[1:255]
     rmse = {}
+    selfcal_keys = dict(SELFCAL_VARIANTS)
     for key, lut in curves_for(stack.images, TIMES).items():
         est = lut[1:255]
-        if key in dict(SELFCAL_VARIANTS):
+        if key in selfcal_keys:
             rmse[key] = float(np.sqrt(np.mean((est - truth) ** 2)))
         else:
             rmse[key] = best_scale_rmse(est, truth)
-    return index, rmse
+    return args[0], rmse
 
 
 def one_exact(args):
     """The metric and the truth on a camera that follows the per-channel model exactly."""
-    index, irradiance, brightness, size = args
-    from selfcal import synth
-
-    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
-    pipe = synth.CameraPipeline(matrix=np.eye(3), curves=curve, gamut="none")
-    scene = synth.make_scene(*size, seed=index)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=90, seed=index)
     import selfcal
 
+    stack = _dorf_stack(args, exact=True)
     truth = stack.inverse_response()
     luts = {"truth": truth,
             "selfcal": selfcal.calibrate_response(stack.images, TIMES).inverse_response(),
             "floor": per_code_floor(stack.images, TIMES)}
     for method in ("robertson", "debevec"):
         luts[method] = opencv_inverse_response(stack.images, TIMES, method)
-    return index, {k: (log_linearisation_error(stack.images, TIMES, lut),
+    return args[0], {k: (log_linearisation_error(stack.images, TIMES, lut),
                        best_scale_rmse(lut[1:255], truth[1:255])) for k, lut in luts.items()}
 
 
