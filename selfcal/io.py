@@ -39,6 +39,11 @@ def _cv2():
     return cv2
 
 
+def _is_path(x) -> bool:
+    """True for what names a file (``str`` or ``os.PathLike``), False for an array."""
+    return isinstance(x, (str, os.PathLike))
+
+
 # --------------------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------------------
