@@ -24,7 +24,7 @@ from .errors import (
     SelfcalWarning,
 )
 
-from .modelfile import load_model
+from .models import load_model
 from .response.calibrate import calibrate_response
 from .response.model import ResponseModel
 from .pipeline import PipelineModel, fit_pipeline

@@ -1,8 +1,10 @@
-"""Versioned JSON model files.
+"""Versioned JSON model files: the envelope and the JSON helpers both model kinds use.
 
 Every model file is a JSON object ``{"format": "selfcal-model", "version": 1, "kind": ...}``
 plus the fields of its kind.  Loading validates the envelope and the content, and raises
-:class:`selfcal.errors.ModelFileError` naming the file on anything wrong.
+:class:`selfcal.errors.ModelFileError` naming the file on anything wrong.  This module
+sits below both paths' models (which use it to write their files); :func:`selfcal.load_model`,
+which dispatches to them, is in :mod:`selfcal.models` above them.
 """
 
 from __future__ import annotations
@@ -64,30 +66,3 @@ def read_model_dict(path) -> dict:
             f"model file version {version!r} is not supported (this selfcal reads "
             f"version {VERSION}); upgrade selfcal", path)
     return doc
-
-
-def load_model(path):
-    """Load a model file written by selfcal.
-
-    Returns
-    -------
-    ResponseModel or PipelineModel
-        ``kind == "response"``: the JPEG-only path's model; ``kind == "pipeline"``: the
-        RAW path's camera pipeline (:class:`selfcal.pipeline.PipelineModel`).
-
-    Raises
-    ------
-    ModelFileError
-        Missing file, bad JSON, wrong format or version, or invalid content.
-    """
-    doc = read_model_dict(path)
-    kind = doc.get("kind")
-    if kind == "response":
-        from .response.model import ResponseModel
-
-        return ResponseModel.from_dict(doc, path=path)
-    if kind == "pipeline":
-        from .pipeline.model import PipelineModel
-
-        return PipelineModel.from_dict(doc, path=path)
-    raise ModelFileError(f"unknown model kind {kind!r}", path)

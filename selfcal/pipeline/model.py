@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, ModelFileError, SelfcalError
-from ..modelfile import jsonable
+from ..modelfile import jsonable, save_model_dict
 from .clipped import CLIP_HI, CLIP_LO, ClippedCorrection, clipped_mask
 from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
@@ -371,8 +371,6 @@ class PipelineModel:
         Refuses to overwrite an existing file unless ``force``
         (:class:`selfcal.errors.OutputExistsError`).
         """
-        from ..modelfile import save_model_dict
-
         return save_model_dict(path, self.to_dict(), force=force)
 
     def __repr__(self) -> str:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, ModelFileError
-from ..modelfile import jsonable
+from ..modelfile import jsonable, save_model_dict
 
 MODEL_KIND = "response"
 
@@ -164,6 +164,4 @@ class ResponseModel:
 
         Returns the path written.
         """
-        from ..modelfile import save_model_dict
-
         return save_model_dict(path, self.to_dict(), force=force)
