@@ -16,8 +16,20 @@ selfcal fits the lattice to the *residual* ``y - base(x)`` of a known base map (
 identity of what came before, e.g. ``f(Mρ)`` in the forward pipeline), so the table only
 has to hold the correction; the graph Laplacian then pulls empty lattice regions toward a
 constant correction (no correction when there is no data) instead of toward a constant
-colour, and the curvature of the base map costs no lattice resolution.  The parameter
-count is unchanged: 125 × 3.
+colour, and the curvature of the base map costs no lattice resolution.
+
+Also ours, not the paper's: beside the 5×5×5 nodes, :func:`lattice_regression_lut` fits an
+unpenalised linear term ``(t - 1/2) A`` with ``t = (x - lo) / (hi - lo)`` and a 3×3 matrix
+``A`` (option ``affine``, on by default and used by :func:`selfcal.pipeline.fit_pipeline`
+for both the forward and the backward LUT).  The reason, as the code states it: the graph
+Laplacian penalises every difference between neighbouring nodes, so it would shrink even a
+purely linear correction towards a constant; with ``A`` outside the penalty the Laplacian
+only shapes the non-linear rest (and empty lattice regions continue the linear
+correction rather than a constant one).  (The history records no measurement behind it; the term
+came with the first version of the RAW path.)  Each LUT therefore has
+125 × 3 + 3 × 3 = 384 parameters, not the 125 × 3 of Gong et al. §3.6 (whose count, 408 in
+all, is 9 for ``M``, 8 × 3 for ``f`` and 125 × 3 for the LUT); the fitted pipeline has two
+LUTs (forward and backward) and, unless ``backward="lut"``, the RBF ``h⁻¹`` besides.
 """
 
 from __future__ import annotations
@@ -115,8 +127,10 @@ def lattice_laplacian(size: int) -> sp.csr_matrix:
 class LatticeLUT:
     """A lattice-regression LUT applied after normalisation and the highlight stretch.
 
-    ``LUT(x) = base(x) + R(g((x - lo) / (hi - lo)))`` where ``R`` interpolates the residual
-    node values trilinearly (Gong et al. §3.4-3.5; the base is supplied by the caller).
+    ``LUT(x) = base(x) + R(g(t)) + (t - 1/2) A`` with ``t = (x - lo) / (hi - lo)``, where
+    ``R`` interpolates the residual node values trilinearly (Gong et al. §3.4-3.5; the base
+    is supplied by the caller) and ``A`` is the unpenalised linear term, ours (zero when
+    fitted with ``affine=False``).
 
     Attributes
     ----------
@@ -130,6 +144,9 @@ class LatticeLUT:
         Relative graph-Laplacian weight it was fitted with.
     validation : dict
         Leave-one-out RMSE per weight tried (``smoothness="auto"``).
+    linear : numpy.ndarray
+        ``(3, 3)`` matrix ``A`` of the linear term (not in the paper; see the module
+        docstring).
     """
 
     nodes: np.ndarray
@@ -235,6 +252,10 @@ def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LAT
         Candidates for ``"auto"``.
     gamma : float
         γ of the highlight stretch :func:`highlight_stretch`.
+    affine : bool
+        Also fit the unpenalised linear term ``(t - 1/2) A`` (3×3 ``A``, ours, not the
+        paper's: see the module docstring), kept in ``LatticeLUT.linear``; False fits the
+        paper's 125 × 3 node values alone.
 
     Returns
     -------
