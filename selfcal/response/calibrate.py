@@ -8,11 +8,12 @@ solved jointly after Kim & Pollefeys, PAMI 2008.
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..io import _is_path
+from ..metrics import delta_eq12
 from ..samples import collect_samples, frame_masks
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
 
@@ -33,10 +34,6 @@ MIN_SHARED_SAMPLES = 20
 DEFAULT_N_COMPONENTS = 5
 #: Sample locations drawn from a stack (block means; stratified, see collect_samples).
 DEFAULT_MAX_SAMPLES = 4000
-
-
-def _is_path(x) -> bool:
-    return isinstance(x, (str, os.PathLike))
 
 
 def resolve_exposure_times(frames, exposure_times, sources):
@@ -70,22 +67,6 @@ def resolve_exposure_times(frames, exposure_times, sources):
 
     out = effective_exposure_times([read_exposure_info(f) for f in frames])
     return out, "exif"
-
-
-def _delta_eq12(values, valid, inverse_fn, log_exposures, pairs):
-    """Linearisation error δ_c of Lin et al. Eq. 12 over the solve's frame pairs."""
-    sq = np.zeros(3)
-    count = 0
-    for a, b in pairs:
-        both = valid[a] & valid[b]
-        if not both.any():
-            continue
-        k = math.exp(log_exposures[b] - log_exposures[a])
-        lin_a = inverse_fn(values[a][both])
-        lin_b = inverse_fn(values[b][both])
-        sq += np.sum((k * lin_a - lin_b) ** 2, axis=0)
-        count += int(both.sum())
-    return np.sqrt(sq / max(count, 1))
 
 
 def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = False,
@@ -280,11 +261,8 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     # f⁻¹(1) = 1 is built into the basis (Eq. 7 normalisation)
     inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
 
-    def inverse_fn(vals):
-        return np.stack([np.interp(vals[:, c], grid, inverse[:, c]) for c in range(3)], axis=1)
-
-    delta = _delta_eq12(sub.values, valid, inverse_fn, result.log_exposures,
-                        [tuple(p) for p in result.pair_frames])
+    delta = delta_eq12(sub.values, grid, inverse, result.log_exposures,
+                       [tuple(p) for p in result.pair_frames], valid)
 
     # can the data determine the curve?
     exposures = np.exp(result.log_exposures)
