@@ -10,44 +10,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .main import (
-    EPILOG,
-    EXIT_OK,
-    EXIT_OUTPUT,
-    _parse_time,
-    _progress_bar,
-    _say,
-)
+from .common import EPILOG, EXIT_OK, EXIT_OUTPUT, check_outputs, parse_time, progress_bar, say
 
 RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
-
-
-def _check_outputs(outputs, inputs, force: bool) -> None:
-    """Refuse before any work: outputs over inputs, existing outputs without --force."""
-    import selfcal
-
-    resolved_inputs = {Path(p).resolve() for p in inputs}
-    seen = set()
-    for out in outputs:
-        if out is None:
-            continue
-        out = Path(out)
-        r = out.resolve()
-        if r in resolved_inputs:
-            raise selfcal.OutputExistsError(f"{out}: refusing to write over an input file")
-        if r in seen:
-            raise selfcal.InputError(f"{out}: named as two different outputs")
-        seen.add(r)
-        if out.is_dir():
-            raise selfcal.OutputExistsError(f"{out}: is a directory")
-        if out.exists() and not force:
-            raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
-
-
-def _load_model(path):
-    import selfcal
-
-    return selfcal.load_model(path)
 
 
 # ------------------------------------------------------------------------- merge
@@ -69,9 +34,9 @@ def cmd_merge(args) -> int:
     if args.times is not None and len(args.times) != len(images):
         raise selfcal.InputError(f"--times gives {len(args.times)} values for "
                                  f"{len(images)} images")
-    _check_outputs([out, args.preview], images + ([Path(args.model)] if args.model else []),
+    check_outputs([out, args.preview], images + ([Path(args.model)] if args.model else []),
                    args.force)
-    model = _load_model(args.model) if args.model else None
+    model = selfcal.load_model(args.model) if args.model else None
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
@@ -82,7 +47,7 @@ def cmd_merge(args) -> int:
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost,
                        reference=args.reference, linear=args.linear,
-                       progress=_progress_bar("merge"))
+                       progress=progress_bar("merge"))
     write_radiance(out, result.radiance, force=args.force, half=args.half, inputs=images)
     if args.preview:
         write_preview(args.preview, result.radiance, force=args.force, inputs=images,
@@ -94,10 +59,10 @@ def cmd_merge(args) -> int:
     unit = ("t·ISO/100/N² from EXIF" if result.exposure_source.startswith("exif")
             else "the given times" if result.exposure_source.startswith("given")
             else "the model's estimates")
-    _say(f"frames: {len(images)}  ({how}; exposure e = {unit}"
+    say(f"frames: {len(images)}  ({how}; exposure e = {unit}"
          + (", corrected by the model" if result.exposure_source.endswith("+model") else "")
          + ")")
-    _say(f"{'frame':<32} {'e':>10} {'used':>7}" + ("  shift" if result.transforms else ""))
+    say(f"{'frame':<32} {'e':>10} {'used':>7}" + ("  shift" if result.transforms else ""))
     used = result.diagnostics.get("frame_used_fraction", [])
     for k, (src, e) in enumerate(zip(result.sources, result.exposures)):
         mark = " (reference)" if k == result.reference else ""
@@ -105,7 +70,7 @@ def cmd_merge(args) -> int:
         if result.transforms is not None:
             t = result.transforms[k]
             line += f"  {-t[0, 2]:+.1f},{-t[1, 2]:+.1f} px"
-        _say(line + mark)
+        say(line + mark)
     rad = result.radiance
     measured = ~result.unmeasured
     if measured.any():
@@ -113,15 +78,15 @@ def cmd_merge(args) -> int:
         lum = lum[lum > 0]
         if lum.size:
             lo, hi = np.percentile(lum, [0.1, 99.9])
-            _say(f"radiance: {rad.shape[1]}x{rad.shape[0]}, luminance {lo:.4g} .. {hi:.4g} "
+            say(f"radiance: {rad.shape[1]}x{rad.shape[0]}, luminance {lo:.4g} .. {hi:.4g} "
                  f"(0.1-99.9%), {np.log2(hi / max(lo, 1e-30)):.1f} stops; 1 = white at e = 1")
-    _say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
+    say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
     for w in result.warnings:
-        _say(f"warning: {w}")
-    _say(f"wrote {out}")
+        say(f"warning: {w}")
+    say(f"wrote {out}")
     if args.preview:
-        _say(f"wrote {args.preview}")
+        say(f"wrote {args.preview}")
     return EXIT_OK
 
 
@@ -144,12 +109,12 @@ def cmd_linearize(args) -> int:
             raise selfcal.InputError(f"{p}: would be written to the same file as {names[o.name]}"
                                      f" ({o})")
         names[o.name] = p
-    _check_outputs(outputs, images + [Path(args.model)], args.force)
+    check_outputs(outputs, images + [Path(args.model)], args.force)
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
-    model = _load_model(args.model)
-    bar = _progress_bar("linearize")
+    model = selfcal.load_model(args.model)
+    bar = progress_bar("linearize")
     written = []
     for (src, linear), o in zip(linearize_images(images, model, progress=bar), outputs):
         info = read_exposure_info(src)
@@ -158,10 +123,10 @@ def cmd_linearize(args) -> int:
         written.append(o)
         del linear
     kind = "float32" if args.float else "16-bit"
-    _say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "
+    say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "
          "f⁻¹(max code) = 1, EXIF exposure tags kept) -> " + f"{folder}/")
     for o in written:
-        _say(f"wrote {o}")
+        say(f"wrote {o}")
     return EXIT_OK
 
 
@@ -180,7 +145,7 @@ def register(subparsers) -> None:
                    help="radiance map to write (.exr, .hdr or .tif)")
     p.add_argument("--model", metavar="MODEL.json",
                    help="response model (default: calibrate on these frames)")
-    p.add_argument("--times", nargs="+", type=_parse_time, metavar="T",
+    p.add_argument("--times", nargs="+", type=parse_time, metavar="T",
                    help="exposure time per image (1/250, 0.004, or ? for unknown); "
                         "default: EXIF (time, f-number and ISO)")
     p.add_argument("--align", choices=("mtb", "homography"),
@@ -225,7 +190,7 @@ def _guarded(command):
         try:
             return command(args)
         except (OutputWriteError, PermissionError, IsADirectoryError) as exc:
-            _say(f"selfcal: error: {exc}")
+            say(f"selfcal: error: {exc}")
             return EXIT_OUTPUT
 
     run.__name__ = command.__name__

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .main import EPILOG, EXIT_OK, _say
+from .common import EPILOG, EXIT_OK, say
 
 
 def _load_pipeline(path):
@@ -59,7 +59,7 @@ def cmd_to_raw(args) -> int:
                      force=args.force, inputs=args.images)
 
     outs = _convert_files(args, args.images, ".tiff", "to-raw", convert)
-    _say(f"wrote {len(outs)} linear camera-raw TIFF{'s' if len(outs) != 1 else ''} "
+    say(f"wrote {len(outs)} linear camera-raw TIFF{'s' if len(outs) != 1 else ''} "
          f"({'float32' if args.float else '16-bit'}) to {Path(args.output)}/")
     return EXIT_OK
 
@@ -77,7 +77,7 @@ def cmd_render(args) -> int:
                     inputs=args.raws)
 
     outs = _convert_files(args, args.raws, ".jpg", "render", convert)
-    _say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to "
+    say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to "
          f"{Path(args.output)}/")
     return EXIT_OK
 

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from selfcal_cli.main import EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, main
+from selfcal_cli.common import EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT
+from selfcal_cli.main import main
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
