@@ -24,15 +24,10 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
+from .io import _cv2
 
 #: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
 REJECTION_REASONS = ("clipped", "saturated", "not_flat")
-
-
-def _cv2():
-    from .io import _cv2 as get
-
-    return get()
 
 
 @dataclass
