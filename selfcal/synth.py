@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, OutputExistsError
+from .io import _cv2
 
 __all__ = [
     "ToneCurve",
@@ -798,12 +799,6 @@ class SensorModel:
 # --------------------------------------------------------------------------------------
 # stacks
 # --------------------------------------------------------------------------------------
-
-def _cv2():
-    from .io import _cv2 as get
-
-    return get()
-
 
 def _decode_jpeg(data: bytes) -> np.ndarray:
     # the same decoder and flags as selfcal.io.read_image, so files decode to `images`
