@@ -7,6 +7,7 @@ inverse colour mapping of Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), �
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -165,6 +166,211 @@ def _clipped_corrections(raw, rendered, inv, m_inv, blut, rbf, held_out):
     return corrections, scores, pooled
 
 
+def _check_options(backward, n_sets, set_size, matrix_method):
+    if backward not in ("auto",) + BACKWARD_VARIANTS:
+        raise InputError(f"backward must be 'auto', 'lut' or 'rbf', got {backward!r}")
+    if int(n_sets) < 1 or int(set_size) < 3:
+        raise InputError("n_sets must be >= 1 and set_size >= 3")
+    if matrix_method not in ("fast", "literal"):
+        raise InputError(f"matrix_method must be 'fast' or 'literal', got {matrix_method!r}")
+
+
+def _training_samples(raw_samples, rendered_samples, n_train, subset_seed):
+    """The checked samples the fit uses: all, or a seeded subset of ``n_train`` of them.
+
+    Refuses samples that cannot determine the pipeline: fewer than :data:`MIN_SAMPLES`, raw
+    samples without colour variety (the matrix of Gong et al. §3.2 is not determined), a
+    rendered channel that barely varies (its tone curve, §3.3, is not).  Returns ``(raw,
+    rendered, n_given)``: float64 in ``[0, 1]``, and the number of samples given.
+    """
+    raw, rendered = _check_samples(raw_samples, rendered_samples)
+    n_given = raw.shape[0]
+    if n_train is not None:
+        n_train = int(n_train)
+        if n_train < 1:
+            raise InputError(f"n_train must be positive, got {n_train}")
+        if n_train < n_given:
+            pick = np.sort(np.random.default_rng(subset_seed).choice(n_given, n_train,
+                                                                     replace=False))
+            raw, rendered = raw[pick], rendered[pick]
+    n = raw.shape[0]
+    if n < MIN_SAMPLES:
+        raise CalibrationError(f"{n} samples are too few to fit a camera pipeline; give at "
+                               f"least {MIN_SAMPLES} (the paper's one-shot setting uses 140)")
+    spread = np.linalg.svd(raw - raw.mean(axis=0), compute_uv=False)
+    if spread[0] < 1e-6 or spread[2] < 1e-4 * spread[0]:
+        raise CalibrationError("the raw samples have no colour variety (they lie on a line "
+                               "or plane in RGB, e.g. greys only); the colour matrix is not "
+                               "determined -- sample coloured as well as grey surfaces")
+    if np.ptp(rendered, axis=0).min() < 2.0 / 255:
+        raise CalibrationError("the rendered samples barely vary in some channel; the tone "
+                               "curves are not determined")
+    return raw, rendered, n_given
+
+
+@dataclass
+class _ForwardFit:
+    """Steps 1-3 of :func:`fit_pipeline`: the chosen matrix set and its forward pipeline."""
+
+    matrix: np.ndarray
+    curves: object           # MonotonePolynomial, the tone curves f (Eq. 9)
+    lut: object              # LatticeLUT, the forward gamut correction (§3.4)
+    rmse: float              # training RMSE of the whole forward pipeline, [0, 1] scale
+    rmse_without_lut: float
+    chosen_set: int
+    info: list               # rank_based_matrix's per-row constraint counts
+    set_errors: list         # training RMSE (0-255) per set, None for a failed set
+    failures: list
+    set_size: int
+
+
+def _search_matrix_sets(raw, rendered, *, n_sets, set_size, matrix_method, smoothness,
+                        search_lut, rng, progress) -> _ForwardFit:
+    """Steps 1-3: the colour matrix of the best of ``n_sets`` random sample sets.
+
+    For each set, :func:`~selfcal.pipeline.matrix.rank_based_matrix` on the set (Gong et
+    al. §3.2, Eq. 4-8), then the whole forward fit on all samples (:func:`_forward_fit`:
+    tone curves, Eq. 9; forward LUT, §3.4, at the fixed weight ``search_lut``); the set
+    with the lowest training error is kept ("best luck", §3.2).
+    """
+    n = raw.shape[0]
+    size = int(set_size) if n > int(set_size) else max(3, int(round(0.8 * n)))
+    best = None
+    set_errors, failures = [], []
+    for s in range(int(n_sets)):
+        idx = rng.choice(n, size, replace=False)
+        try:
+            unit, info = rank_based_matrix(raw[idx], rendered[idx], method=matrix_method,
+                                           return_info=True)
+            m, curves, flut, err, err_nolut = _forward_fit(unit, raw, rendered, smoothness,
+                                                           search_lut)
+        except CalibrationError as exc:
+            set_errors.append(None)
+            failures.append(str(exc))
+        else:
+            set_errors.append(err * 255)
+            if best is None or err < best[0]:
+                best = (err, s, m, curves, flut, err_nolut, info)
+        if progress is not None:
+            progress("matrix", s + 1, int(n_sets),
+                     "" if set_errors[-1] is None else f"training RMSE {set_errors[-1]:.2f}")
+    if best is None:
+        raise CalibrationError("no random sample set gave a usable colour matrix: "
+                               + (failures[0] if failures else ""))
+    err, chosen, m, curves, flut, err_nolut, info = best
+    return _ForwardFit(matrix=m, curves=curves, lut=flut, rmse=err,
+                       rmse_without_lut=err_nolut, chosen_set=chosen, info=info,
+                       set_errors=set_errors, failures=failures, set_size=size)
+
+
+def _refit_forward_lut(raw, rendered, fwd: _ForwardFit):
+    """The forward LUT again, its weight now chosen by leave-one-out (the search used a
+    fixed one); updates ``fwd.lut`` and ``fwd.rmse``."""
+    m = fwd.matrix
+    y = np.clip(fwd.curves(raw @ m.T), 0.0, 1.0)
+    fwd.lut = lattice_regression_lut(y, rendered, smoothness="auto")
+    fwd.rmse = _rmse(np.clip(y + fwd.lut.residual(y), 0.0, 1.0), rendered)
+
+
+@dataclass
+class _BackwardFit:
+    """Steps 4-5 of :func:`fit_pipeline`: both backward variants and the one chosen."""
+
+    inverse_curves: object   # MonotonePolynomial, f⁻¹
+    lut: object              # LatticeLUT, the backward LUT (§3.5)
+    rbf: object              # RBFColourMapping h⁻¹ (Lin et al. Eq. 10), or None
+    held_out_unclipped: dict
+    corrections: dict
+    correction_scores: dict
+    held_out: dict           # pooled over all samples, per variant
+    variant: str
+
+
+def _fit_backward(raw, rendered, m, m_inv, *, backward, inverse_smoothness,
+                  lut_smoothness, n_centres, rbf_seed, progress) -> _BackwardFit:
+    """Steps 4-5: ``f⁻¹``, backward LUT, RBF ``h⁻¹``, clipped-pixel corrections; the variant.
+
+    With ``backward="auto"`` the variant with the lower held-out error over all training
+    samples (:func:`_clipped_corrections`) is used.
+    """
+    if progress is not None:
+        progress("backward", 0, 1, "inverse tone curves, LUT, RBF")
+    inv, blut, rbf, held_out = _backward_fit(raw, rendered, m, m_inv, inverse_smoothness,
+                                             lut_smoothness, n_centres, rbf_seed,
+                                             backward != "lut")
+    corrections, correction_scores, pooled = _clipped_corrections(
+        raw, rendered, inv, m_inv, blut, rbf, held_out)
+    if backward == "auto":
+        chosen_variant = min(pooled, key=pooled.get) if pooled else "rbf"
+    else:
+        chosen_variant = backward
+    if progress is not None:
+        progress("backward", 1, 1, f"variant {chosen_variant}")
+    return _BackwardFit(inverse_curves=inv, lut=blut, rbf=rbf, held_out_unclipped=held_out,
+                        corrections=corrections, correction_scores=correction_scores,
+                        held_out=pooled, variant=chosen_variant)
+
+
+def _backward_training_rmse(raw, rendered, m_inv, bwd: _BackwardFit) -> dict:
+    """Raw RMSE of each backward variant on the unclipped training samples (no correction)."""
+    ok = ~clipped_mask(rendered)
+    e_t = bwd.inverse_curves(rendered[ok])
+    rho_hat = e_t @ m_inv.T
+    train_err = {"lut": _rmse(np.clip(rho_hat + bwd.lut.residual(rho_hat), 0, 1), raw[ok])}
+    if bwd.rbf is not None:
+        train_err["rbf"] = _rmse(np.clip(bwd.rbf(e_t) @ m_inv.T, 0, 1), raw[ok])
+    return train_err
+
+
+def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n_given,
+                 seed, backward, matrix_method, n_sets, inverse_smoothness,
+                 seconds) -> dict:
+    """:attr:`PipelineModel.diagnostics`: sample counts, training and held-out errors, the
+    regulariser weights chosen, the matrix search, timings."""
+    clipped = clipped_mask(rendered)
+    corrections, rbf, blut, flut = bwd.corrections, bwd.rbf, bwd.lut, fwd.lut
+    clipped_info = {
+        v: {"samples": int(clipped.sum()),
+            "kept": corrections.get(v) is not None,
+            "bandwidth": None if corrections.get(v) is None else corrections[v].bandwidth,
+            "prior_weight": (None if corrections.get(v) is None
+                             else corrections[v].prior_weight),
+            "validation_rmse": bwd.correction_scores.get(v, {})}
+        for v in corrections}
+    return {
+        "method": "rank-based (Gong et al. §3.2-3.5) + RBF h^-1 (Lin et al. ICCV 2011 §6)",
+        "samples": {"given": n_given, "used": raw.shape[0],
+                    "clipped_rendered": int(clipped.sum())},
+        "seed": int(seed),
+        "forward_train_rmse": fwd.rmse * 255,
+        "forward_train_rmse_without_lut": fwd.rmse_without_lut * 255,
+        "backward": bwd.variant,
+        "backward_selection": backward,
+        "backward_validation_rmse": bwd.held_out,
+        "backward_validation_rmse_unclipped": bwd.held_out_unclipped,
+        "clipped_correction": clipped_info,
+        "backward_train_rmse": _backward_training_rmse(raw, rendered, m_inv, bwd),
+        "validation": "leave-one-out in closed form (lattice: hat-matrix diagonal; RBF: "
+                      "Rippa 1999)",
+        "forward_lut_smoothness": flut.smoothness,
+        "forward_lut_validation_rmse": {k: v * 255 for k, v in flut.validation.items()},
+        "inverse_tone_smoothness": getattr(bwd.inverse_curves, "smoothness",
+                                           inverse_smoothness),
+        "backward_lut_smoothness": blut.smoothness,
+        "backward_lut_validation_rmse": blut.validation,
+        "rbf_smoothing": None if rbf is None else rbf.smoothing,
+        "rbf_smoothing_validation": {} if rbf is None else rbf.validation,
+        "matrix_search": {
+            "method": matrix_method, "n_sets": int(n_sets), "set_size": fwd.set_size,
+            "chosen_set": int(fwd.chosen_set), "set_train_rmse": fwd.set_errors,
+            "satisfied": [i["satisfied"] for i in fwd.info],
+            "constraints": [i["constraints"] for i in fwd.info],
+            "failed_sets": len(fwd.failures),
+        },
+        "seconds": seconds,
+    }
+
+
 def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
                  n_sets: int = 25, set_size: int = 200, smoothness: float = SMOOTHNESS,
                  backward: str = "auto", progress=None, matrix_method: str = "fast",
@@ -266,141 +472,40 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     True
     """
     t_start = time.perf_counter()
-    if backward not in ("auto",) + BACKWARD_VARIANTS:
-        raise InputError(f"backward must be 'auto', 'lut' or 'rbf', got {backward!r}")
-    if int(n_sets) < 1 or int(set_size) < 3:
-        raise InputError("n_sets must be >= 1 and set_size >= 3")
-    if matrix_method not in ("fast", "literal"):
-        raise InputError(f"matrix_method must be 'fast' or 'literal', got {matrix_method!r}")
-    raw, rendered = _check_samples(raw_samples, rendered_samples)
-    n_given = raw.shape[0]
-    seeds = np.random.SeedSequence(seed).spawn(3)
-    if n_train is not None:
-        n_train = int(n_train)
-        if n_train < 1:
-            raise InputError(f"n_train must be positive, got {n_train}")
-        if n_train < n_given:
-            pick = np.sort(np.random.default_rng(seeds[0]).choice(n_given, n_train,
-                                                                  replace=False))
-            raw, rendered = raw[pick], rendered[pick]
-    n = raw.shape[0]
-    if n < MIN_SAMPLES:
-        raise CalibrationError(f"{n} samples are too few to fit a camera pipeline; give at "
-                               f"least {MIN_SAMPLES} (the paper's one-shot setting uses 140)")
-    spread = np.linalg.svd(raw - raw.mean(axis=0), compute_uv=False)
-    if spread[0] < 1e-6 or spread[2] < 1e-4 * spread[0]:
-        raise CalibrationError("the raw samples have no colour variety (they lie on a line "
-                               "or plane in RGB, e.g. greys only); the colour matrix is not "
-                               "determined -- sample coloured as well as grey surfaces")
-    if np.ptp(rendered, axis=0).min() < 2.0 / 255:
-        raise CalibrationError("the rendered samples barely vary in some channel; the tone "
-                               "curves are not determined")
-    search_lut = LUT_SMOOTHNESS if lut_smoothness == "auto" else float(lut_smoothness)
+    _check_options(backward, n_sets, set_size, matrix_method)
+    seeds = np.random.SeedSequence(seed).spawn(3)   # subset, matrix sets, RBF centres
+    raw, rendered, n_given = _training_samples(raw_samples, rendered_samples, n_train,
+                                               seeds[0])
 
-    # ---- 1-3: matrix sets, tone curves, forward LUT ---------------------------------
     t0 = time.perf_counter()
-    rng_sets = np.random.default_rng(seeds[1])
-    size = int(set_size) if n > int(set_size) else max(3, int(round(0.8 * n)))
-    best = None
-    set_errors, failures = [], []
-    for s in range(int(n_sets)):
-        idx = rng_sets.choice(n, size, replace=False)
-        try:
-            unit, info = rank_based_matrix(raw[idx], rendered[idx], method=matrix_method,
-                                           return_info=True)
-            m, curves, flut, err, err_nolut = _forward_fit(unit, raw, rendered, smoothness,
-                                                           search_lut)
-        except CalibrationError as exc:
-            set_errors.append(None)
-            failures.append(str(exc))
-        else:
-            set_errors.append(err * 255)
-            if best is None or err < best[0]:
-                best = (err, s, m, curves, flut, err_nolut, info)
-        if progress is not None:
-            progress("matrix", s + 1, int(n_sets),
-                     "" if set_errors[-1] is None else f"training RMSE {set_errors[-1]:.2f}")
-    if best is None:
-        raise CalibrationError("no random sample set gave a usable colour matrix: "
-                               + (failures[0] if failures else ""))
-    err, chosen, m, curves, flut, err_nolut, info = best
+    search_lut = LUT_SMOOTHNESS if lut_smoothness == "auto" else float(lut_smoothness)
+    fwd = _search_matrix_sets(raw, rendered, n_sets=n_sets, set_size=set_size,
+                              matrix_method=matrix_method, smoothness=smoothness,
+                              search_lut=search_lut, rng=np.random.default_rng(seeds[1]),
+                              progress=progress)
+    m = fwd.matrix
     m_inv = np.linalg.inv(m)
-    if lut_smoothness == "auto":  # the set search used a fixed weight: choose it now
-        y = np.clip(curves(raw @ m.T), 0.0, 1.0)
-        flut = lattice_regression_lut(y, rendered, smoothness="auto")
-        err = _rmse(np.clip(y + flut.residual(y), 0.0, 1.0), rendered)
+    if lut_smoothness == "auto":
+        _refit_forward_lut(raw, rendered, fwd)
     t_forward = time.perf_counter() - t0
 
-    # ---- 4: backward ------------------------------------------------------------------
     t0 = time.perf_counter()
-    if progress is not None:
-        progress("backward", 0, 1, "inverse tone curves, LUT, RBF")
-    rbf_seed = int(seeds[2].generate_state(1)[0])
-    inv, blut, rbf, held_out = _backward_fit(raw, rendered, m, m_inv, inverse_smoothness,
-                                             lut_smoothness, n_centres, rbf_seed,
-                                             backward != "lut")
-    corrections, correction_scores, pooled = _clipped_corrections(
-        raw, rendered, inv, m_inv, blut, rbf, held_out)
-    if backward == "auto":
-        chosen_variant = min(pooled, key=pooled.get) if pooled else "rbf"
-    else:
-        chosen_variant = backward
-    if progress is not None:
-        progress("backward", 1, 1, f"variant {chosen_variant}")
+    bwd = _fit_backward(raw, rendered, m, m_inv, backward=backward,
+                        inverse_smoothness=inverse_smoothness, lut_smoothness=lut_smoothness,
+                        n_centres=n_centres, rbf_seed=int(seeds[2].generate_state(1)[0]),
+                        progress=progress)
     t_backward = time.perf_counter() - t0
 
-    clipped = clipped_mask(rendered)
-    ok = ~clipped
-    e_t = inv(rendered[ok])
-    rho_hat = e_t @ m_inv.T
-    train_err = {"lut": _rmse(np.clip(rho_hat + blut.residual(rho_hat), 0, 1), raw[ok])}
-    if rbf is not None:
-        train_err["rbf"] = _rmse(np.clip(rbf(e_t) @ m_inv.T, 0, 1), raw[ok])
-    clipped_info = {
-        v: {"samples": int(clipped.sum()),
-            "kept": corrections.get(v) is not None,
-            "bandwidth": None if corrections.get(v) is None else corrections[v].bandwidth,
-            "prior_weight": (None if corrections.get(v) is None
-                             else corrections[v].prior_weight),
-            "validation_rmse": correction_scores.get(v, {})}
-        for v in corrections}
-
-    diagnostics = {
-        "method": "rank-based (Gong et al. §3.2-3.5) + RBF h^-1 (Lin et al. ICCV 2011 §6)",
-        "samples": {"given": n_given, "used": n, "clipped_rendered": int(clipped.sum())},
-        "seed": int(seed),
-        "forward_train_rmse": err * 255,
-        "forward_train_rmse_without_lut": err_nolut * 255,
-        "backward": chosen_variant,
-        "backward_selection": backward,
-        "backward_validation_rmse": pooled,
-        "backward_validation_rmse_unclipped": held_out,
-        "clipped_correction": clipped_info,
-        "backward_train_rmse": train_err,
-        "validation": "leave-one-out in closed form (lattice: hat-matrix diagonal; RBF: "
-                      "Rippa 1999)",
-        "forward_lut_smoothness": flut.smoothness,
-        "forward_lut_validation_rmse": {k: v * 255 for k, v in flut.validation.items()},
-        "inverse_tone_smoothness": getattr(inv, "smoothness", inverse_smoothness),
-        "backward_lut_smoothness": blut.smoothness,
-        "backward_lut_validation_rmse": blut.validation,
-        "rbf_smoothing": None if rbf is None else rbf.smoothing,
-        "rbf_smoothing_validation": {} if rbf is None else rbf.validation,
-        "matrix_search": {
-            "method": matrix_method, "n_sets": int(n_sets), "set_size": size,
-            "chosen_set": int(chosen), "set_train_rmse": set_errors,
-            "satisfied": [i["satisfied"] for i in info],
-            "constraints": [i["constraints"] for i in info],
-            "failed_sets": len(failures),
-        },
-        "seconds": {"forward": t_forward, "backward": t_backward},
-    }
-    model = PipelineModel(matrix=m, tone_curves=curves, forward_lut=flut,
-                          inverse_tone_curves=inv, backward_lut=blut, rbf=rbf,
-                          backward=chosen_variant, diagnostics=diagnostics,
-                          bake_size=bake_size, clipped_corrections=corrections)
+    diagnostics = _diagnostics(raw, rendered, m_inv, fwd, bwd, n_given=n_given, seed=seed,
+                               backward=backward, matrix_method=matrix_method,
+                               n_sets=n_sets, inverse_smoothness=inverse_smoothness,
+                               seconds={"forward": t_forward, "backward": t_backward})
+    model = PipelineModel(matrix=m, tone_curves=fwd.curves, forward_lut=fwd.lut,
+                          inverse_tone_curves=bwd.inverse_curves, backward_lut=bwd.lut,
+                          rbf=bwd.rbf, backward=bwd.variant, diagnostics=diagnostics,
+                          bake_size=bake_size, clipped_corrections=bwd.corrections)
     t0 = time.perf_counter()
-    model._table(chosen_variant)  # bake now: to_raw is then fast from the first call
+    model._table(bwd.variant)  # bake now: to_raw is then fast from the first call
     diagnostics["seconds"]["bake"] = time.perf_counter() - t0
     diagnostics["seconds"]["total"] = time.perf_counter() - t_start
     return model
