@@ -131,20 +131,11 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         raise CalibrationError(
             "one frame only: a response needs at least two frames at different exposures")
     if align:
-        from ..hdr import calibrate_aligned
-
-        if align is True:
-            align = "mtb"
-        if align not in ("mtb", "homography"):
-            raise InputError(f"unknown alignment {align!r} (mtb or homography)")
-        warnings: list[str] = []
-        model, _, _ = calibrate_aligned(
-            frames, exposure_times, method=align, clip_margin=clip_margin,
-            warnings=warnings, progress=progress, refine_exposures=refine_exposures,
+        return _calibrate_after_alignment(
+            frames, exposure_times, align, refine_exposures=refine_exposures,
             n_components=n_components, saturation_threshold=saturation_threshold,
-            basis=basis, max_samples=max_samples, seed=seed)
-        model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
-        return model
+            clip_margin=clip_margin, basis=basis, max_samples=max_samples, seed=seed,
+            progress=progress)
 
     sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
     times, time_source = resolve_exposure_times(frames, exposure_times, sources)
@@ -153,7 +144,75 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         lacking = [src for src, t in zip(sources, times) if t is None]
         for src in lacking:
             warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
+    basis, n_components = _log_domain_basis(basis, n_components)
 
+    samples, masks, keep = _sample_usable_frames(
+        frames, sources, times, warnings, max_samples=max_samples, clip_margin=clip_margin,
+        saturation_threshold=saturation_threshold, seed=seed, progress=progress)
+    sub = _subset(samples, keep)
+    sub_masks = {k: v[keep] for k, v in masks.items()}
+    sub_times = [times[k] for k in keep]
+    used_sources = [sources[k] for k in keep]
+    log_times = _log_times(sub_times)
+
+    result = _solve(sub, basis, log_times, sub_masks, n_components=n_components,
+                    refine_exposures=refine_exposures,
+                    saturation_threshold=saturation_threshold, clip_margin=clip_margin,
+                    progress=progress)
+    warnings.extend(result.warnings)
+    contradictions = []
+    if np.isfinite(log_times).sum() >= 2 and not refine_exposures:
+        contradictions = _contradicted_times(
+            sub, basis, log_times, sub_masks, used_sources, sub_times, warnings,
+            n_components=n_components, saturation_threshold=saturation_threshold,
+            clip_margin=clip_margin)
+
+    grid, inverse = _inverse_response(basis, result.coefficients, n_components)
+    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
+    pairs = [tuple(p) for p in result.pair_frames]
+    delta = delta_eq12(sub.values, grid, inverse, result.log_exposures, pairs, valid)
+    exposures = np.exp(result.log_exposures)
+    verdict, determinacy = _verdict(valid, sub.values, exposures, len(keep), warnings)
+
+    full_exposures = np.full(len(frames), np.nan)
+    full_exposures[keep] = exposures
+    diagnostics = _diagnostics(
+        result, verdict=verdict, warnings=warnings, exposure_source=time_source,
+        refine_exposures=refine_exposures, n_components=n_components,
+        saturation_threshold=saturation_threshold, clip_margin=clip_margin,
+        frames_used=used_sources, delta=delta, samples=samples, determinacy=determinacy,
+        contradictions=contradictions)
+    model = ResponseModel(intensity=grid.copy(), inverse=inverse,
+                          coefficients=result.coefficients, basis_name=basis.name,
+                          exposures=full_exposures, exposure_times=list(times),
+                          sources=sources, max_code=samples.max_code,
+                          diagnostics=diagnostics)
+    model.fit_data = _btf_data(sub, sub_masks, result, used_sources)
+    return model
+
+
+def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, progress,
+                               **options):
+    """``calibrate_response(..., align=...)``: align the frames, then calibrate.
+
+    The warnings of the alignment come first in the model's diagnostics.
+    """
+    from ..hdr import calibrate_aligned
+
+    if align is True:
+        align = "mtb"
+    if align not in ("mtb", "homography"):
+        raise InputError(f"unknown alignment {align!r} (mtb or homography)")
+    warnings: list[str] = []
+    model, _, _ = calibrate_aligned(
+        frames, exposure_times, method=align, clip_margin=clip_margin,
+        warnings=warnings, progress=progress, **options)
+    model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
+    return model
+
+
+def _log_domain_basis(basis, n_components: int):
+    """The response basis in the log domain of Eq. 7, and N capped at its size."""
     if basis is None:
         from .basis import builtin_basis
 
@@ -164,31 +223,33 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         basis = load_basis_file(basis)
     if basis.domain != "log":
         basis = basis.to_log_domain()
-    n_components = int(min(n_components, basis.n_components))
+    return basis, int(min(n_components, basis.n_components))
 
+
+def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip_margin,
+                          saturation_threshold, seed, progress):
+    """Read the frames' samples and masks; choose the frames the solve can use.
+
+    Dropped, with a warning each: duplicates (identical pixels), frames clipped almost
+    everywhere, and frames sharing fewer than :data:`MIN_SHARED_SAMPLES` unclipped
+    samples with every other frame.
+
+    Returns
+    -------
+    samples : SampleSet
+        Of every frame.
+    masks : dict of ndarray
+        ``frame_masks`` of every frame.
+    keep : list of int
+        Indices of the usable frames (at least two).
+    """
     def frame_progress(k, n, src):
         if progress is not None:
             progress("read", k, n, src)
 
     samples = collect_samples(frames, sources=sources, max_samples=max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress)
-
-    # duplicates: identical pixels at different given times contradict each other
-    keep = list(range(len(frames)))
-    seen: dict[str, int] = {}
-    for k, dig in enumerate(samples.digests):
-        if dig in seen:
-            j = seen[dig]
-            if times[j] is not None and times[k] is not None and not math.isclose(
-                    times[j], times[k], rel_tol=1e-3):
-                raise InputError(
-                    f"identical pixels to {sources[j]} but a different exposure time "
-                    f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
-            warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
-            keep.remove(k)
-        else:
-            seen[dig] = k
-
+    keep = _without_duplicates(samples.digests, times, sources, warnings)
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=saturation_threshold)
     unclipped_fraction = 1.0 - masks["clipped"].mean(axis=1)
@@ -212,17 +273,45 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         raise CalibrationError(
             "fewer than two usable frames remain (the others are duplicates, clipped "
             "everywhere or share no unclipped samples): " + "; ".join(warnings))
+    return samples, masks, keep
 
-    sub = _subset(samples, keep)
-    sub_masks = {k: v[keep] for k, v in masks.items()}
-    sub_times = [times[k] for k in keep]
-    log_times = np.array([np.nan if t is None else math.log(t) for t in sub_times])
+
+def _without_duplicates(digests, times, sources, warnings) -> list[int]:
+    """Indices of the frames that are not a copy of an earlier one.
+
+    Identical pixels at different given times contradict each other: an InputError.
+    """
+    keep = list(range(len(digests)))
+    seen: dict[str, int] = {}
+    for k, dig in enumerate(digests):
+        if dig in seen:
+            j = seen[dig]
+            if times[j] is not None and times[k] is not None and not math.isclose(
+                    times[j], times[k], rel_tol=1e-3):
+                raise InputError(
+                    f"identical pixels to {sources[j]} but a different exposure time "
+                    f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
+            warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
+            keep.remove(k)
+        else:
+            seen[dig] = k
+    return keep
+
+
+def _log_times(times) -> np.ndarray:
+    """Log exposure times (NaN where unknown); an error when all are known and equal."""
+    log_times = np.array([np.nan if t is None else math.log(t) for t in times])
     known = np.isfinite(log_times)
     if known.sum() >= 2 and np.ptp(log_times[known]) < math.log(1.0001) and known.all():
         raise CalibrationError(
             "all frames have the same exposure time: Eq. 8 needs exposure changes "
             "(bracket the exposure, or pass --unknown-exposures if the times are wrong)")
+    return log_times
 
+
+def _solve(sub, basis, log_times, sub_masks, *, n_components, refine_exposures,
+           saturation_threshold, clip_margin, progress):
+    """Eq. 8 over the usable frames' samples (:func:`solve_exposure_equations`)."""
     if progress is not None:
         progress("solve", 0, 1, "")
     result = solve_exposure_equations(
@@ -231,43 +320,59 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         clip_margin=clip_margin, masks=sub_masks)
     if progress is not None:
         progress("solve", 1, 1, "")
-    warnings.extend(result.warnings)
+    return result
 
-    # do the pixels contradict the given times?  Re-estimate with the times as a prior.
+
+def _contradicted_times(sub, basis, log_times, sub_masks, used_sources, sub_times,
+                        warnings, *, n_components, saturation_threshold, clip_margin):
+    """Given times the pixels contradict by more than :data:`CONTRADICTION_FACTOR`.
+
+    Re-solves with the times as a prior (``refine_exposures=True``, a short solve) and
+    compares the estimated exposure ratios with the given ones; warns for each frame.
+    """
+    known = np.isfinite(log_times)
     contradictions = []
-    if known.sum() >= 2 and not refine_exposures:
-        free = solve_exposure_equations(
-            sub, basis, log_times, n_components=n_components, refine_exposures=True,
-            saturation_threshold=saturation_threshold, clip_margin=clip_margin,
-            masks=sub_masks, max_iterations=4, monotone=False)
-        # compare ratios, not absolute values: the prior only pins the overall scale
-        dev = free.log_exposures - log_times
-        dev = dev - np.nanmedian(dev[known])
-        for j in np.flatnonzero(known):
-            if abs(dev[j]) > math.log(CONTRADICTION_FACTOR):
-                k = keep[j]
-                est = math.exp(log_times[j] + dev[j])
-                contradictions.append({"frame": sources[k], "given": sub_times[j],
-                                       "estimated": est})
-                warnings.append(
-                    f"{sources[k]}: the pixels contradict the given exposure time "
-                    f"({sub_times[j]:g} s given, the pixels say about {est:g} s); "
-                    "consider --refine-exposures")
+    free = solve_exposure_equations(
+        sub, basis, log_times, n_components=n_components, refine_exposures=True,
+        saturation_threshold=saturation_threshold, clip_margin=clip_margin,
+        masks=sub_masks, max_iterations=4, monotone=False)
+    # compare ratios, not absolute values: the prior only pins the overall scale
+    dev = free.log_exposures - log_times
+    dev = dev - np.nanmedian(dev[known])
+    for j in np.flatnonzero(known):
+        if abs(dev[j]) > math.log(CONTRADICTION_FACTOR):
+            est = math.exp(log_times[j] + dev[j])
+            contradictions.append({"frame": used_sources[j], "given": sub_times[j],
+                                   "estimated": est})
+            warnings.append(
+                f"{used_sources[j]}: the pixels contradict the given exposure time "
+                f"({sub_times[j]:g} s given, the pixels say about {est:g} s); "
+                "consider --refine-exposures")
+    return contradictions
 
-    coeffs = result.coefficients
+
+def _inverse_response(basis, coefficients, n_components):
+    """f⁻¹ on the basis grid from the Eq. 7 coefficients, made non-decreasing.
+
+    Returns the grid and f⁻¹ as (grid size, 3).
+    """
     grid = basis.intensity
-    g = basis.mean[None, :] + coeffs @ basis.components[:n_components]
-    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
+    g = basis.mean[None, :] + coefficients @ basis.components[:n_components]
     # f⁻¹(1) = 1 is built into the basis (Eq. 7 normalisation)
     inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
+    return grid, inverse
 
-    delta = delta_eq12(sub.values, grid, inverse, result.log_exposures,
-                       [tuple(p) for p in result.pair_frames], valid)
 
-    # can the data determine the curve?
-    exposures = np.exp(result.log_exposures)
+def _verdict(valid, values, exposures, n_frames, warnings):
+    """Can the data determine the curve?  The verdict string and what it rests on.
+
+    Poorly determined when the exposures span less than :data:`MIN_EXPOSURE_RATIO`, fewer
+    than three frames are usable, fewer than 100 sample locations are valid, or the valid
+    samples of a channel cover less than half of 32 bins over the code range (ours: the
+    paper gives no such test).  Adds a warning when poorly determined.
+    """
     ratio = float(exposures.max() / exposures.min())
-    used_codes = np.where(valid[..., None], sub.values, np.nan)
+    used_codes = np.where(valid[..., None], values, np.nan)
     coverage = []
     for c in range(3):
         v = used_codes[..., c]
@@ -278,8 +383,8 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     verdict_problems = []
     if ratio < MIN_EXPOSURE_RATIO:
         verdict_problems.append(f"exposure ratio only {ratio:.2f}× over the stack")
-    if len(keep) < 3:
-        verdict_problems.append(f"only {len(keep)} usable exposures")
+    if n_frames < 3:
+        verdict_problems.append(f"only {n_frames} usable exposures")
     if n_valid_samples < 100:
         verdict_problems.append(f"only {n_valid_samples} valid samples")
     if min(coverage) < 0.5:
@@ -289,21 +394,29 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         verdict_problems)
     if verdict_problems:
         warnings.append("the data may not determine the curve: " + "; ".join(verdict_problems))
+    return verdict, {"exposure_ratio": ratio, "valid_locations": n_valid_samples,
+                     "code_coverage": coverage}
 
-    full_exposures = np.full(len(frames), np.nan)
-    full_exposures[keep] = exposures
-    per_pair = {f"{sources[keep[a]]} -> {sources[keep[b]]}": v
+
+def _diagnostics(result, *, verdict, warnings, exposure_source, refine_exposures,
+                 n_components, saturation_threshold, clip_margin, frames_used, delta,
+                 samples, determinacy, contradictions) -> dict:
+    """The model's ``diagnostics``: how the fit went, for the report and the CLI.
+
+    ``delta_eq12`` is δ of Eq. 12 over the solve's inliers (:func:`selfcal.metrics.delta_eq12`).
+    """
+    per_pair = {f"{frames_used[a]} -> {frames_used[b]}": v
                 for (a, b), v in result.per_pair_rms.items()}
-    diagnostics = {
+    return {
         "verdict": verdict,
         "warnings": warnings,
-        "exposure_source": time_source,
+        "exposure_source": exposure_source,
         "refine_exposures": bool(refine_exposures),
         "ambiguity_resolved_by_prior": bool(result.ambiguity_prior),
         "n_components": n_components,
         "saturation_threshold": saturation_threshold,
         "clip_margin": clip_margin,
-        "frames_used": [sources[k] for k in keep],
+        "frames_used": frames_used,
         "residual_rms_log": result.residual_rms,
         "per_pair_rms_log": per_pair,
         "delta_eq12": delta.tolist(),
@@ -313,19 +426,13 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
             "pair_rows_used": int(result.rows_used),
             "pair_rows_downweighted": int(result.rows_downweighted),
             "rejected": dict(result.rejections),
-            "valid_locations": n_valid_samples,
-            "code_coverage": coverage,
+            "valid_locations": determinacy["valid_locations"],
+            "code_coverage": determinacy["code_coverage"],
         },
         "monotone_constrained": bool(result.monotone_constrained),
         "contradicting_times": contradictions,
-        "exposure_ratio": ratio,
+        "exposure_ratio": determinacy["exposure_ratio"],
     }
-    model = ResponseModel(intensity=grid.copy(), inverse=inverse, coefficients=coeffs,
-                          basis_name=basis.name, exposures=full_exposures,
-                          exposure_times=list(times), sources=sources,
-                          max_code=samples.max_code, diagnostics=diagnostics)
-    model.fit_data = _btf_data(sub, sub_masks, result, [sources[k] for k in keep])
-    return model
 
 
 def _btf_data(samples, masks, result, names):
