@@ -1,0 +1,166 @@
+"""The priors added to the Eq. 8 normal equations, each a named term with its weight.
+
+None of them is paper 002's (Lin et al., ICCV 2011, §5 solves Eq. 8 by plain least
+squares and fixes the exponential ambiguity with the camera's exposure values); each
+exists for one reason:
+
+- :attr:`PriorTerms.coefficient_precision`, the *PCA-variance prior* c_n ~ N(0, λ_n / w):
+  the data leave the bend of the never-observed last codes (and, with fewer than two known
+  times, the exponential ambiguity) open; the curve database's variances decide it.  It is
+  on whenever the basis carries PCA variances and ``prior_weight > 0`` — the built-in
+  basis does, so it is on in every solve, whatever the number of known times.
+- :attr:`PriorTerms.ridge`: the same role for a basis without PCA variances (it replaces
+  the PCA-variance prior, never adds to it); it keeps the coefficient block invertible.
+- :class:`WhiteContinuation`, the *white-continuation prior*: beyond the brightest valid
+  sample f⁻¹(1) = 1 is pure extrapolation; the straight continuation of the observed curve
+  should meet g(1) = 0, which removes the almost free shift of g over the observed range.
+- :class:`ExposurePrior`, for ``refine_exposures``: shutters are inaccurate, so the given
+  times are a Gaussian prior on the log exposures rather than fixed values.
+
+The censored white-threshold rows are data rows, not a prior: see :mod:`.equations`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Width (normalised codes) of the stretch below the brightest valid sample whose slope the
+#: white-continuation prior continues to g(1).
+WHITE_CONTINUATION_WINDOW = 8.0 / 255.0
+
+
+@dataclass(frozen=True, eq=False)
+class WhiteContinuation:
+    """The white-continuation term of one channel: J(c) = ``a · c + b0``, prior J ~ N(0, σ²).
+
+    J = g(top) + s·(1 − top), s = (g(top) − g(top − w)) / w, is how far the straight
+    continuation of the observed curve from the brightest valid sample ``top`` misses
+    g(1) = 0.
+    """
+
+    channel: int
+    a: np.ndarray           # (N,) coefficients of J in c_channel
+    b0: float               # J at c = 0 (the basis mean)
+
+
+def white_continuation_terms(values, valid, basis, N: int,
+                             window: float = WHITE_CONTINUATION_WINDOW):
+    """One :class:`WhiteContinuation` per channel with a valid sample (selfcal's).
+
+    Beyond the brightest valid sample (clipping keeps the last codes unobserved) the
+    normalisation f⁻¹(1) = 1 is pure extrapolation, and a basis that can bend sharply in
+    the last codes makes a constant shift of g over the observed range (the scale of f⁻¹)
+    almost free.  A Gaussian prior on J, how far the straight continuation of the observed
+    curve misses g(1) = 0, removes that freedom.
+    """
+    grid = basis.intensity
+    terms = []
+    for c in range(3):
+        vals = np.where(valid, values[..., c], np.nan)
+        if not np.isfinite(vals).any():
+            continue
+        top = float(min(np.nanmax(vals), grid[-2]))
+        lo_pt = max(top - window, 0.0)
+        r = (1.0 - top) / max(top - lo_pt, 1e-6)
+        g0_pts, H_pts = basis.design(np.array([top, lo_pt]), N)
+        a = H_pts[0] * (1 + r) - H_pts[1] * r
+        b0 = g0_pts[0] * (1 + r) - g0_pts[1] * r
+        terms.append(WhiteContinuation(c, a, b0))
+    return tuple(terms)
+
+
+def pca_variance_precision(basis, N: int, prior_weight: float):
+    """Precision ``prior_weight / λ_n`` of the PCA-variance prior, or None without variances.
+
+    None when the basis carries no PCA variances or ``prior_weight`` is 0: the ridge then
+    takes its place.
+    """
+    ev = getattr(basis, "explained_variance", None)
+    return (prior_weight / np.asarray(ev[:N], dtype=float)
+            if ev is not None and prior_weight > 0 else None)
+
+
+@dataclass(frozen=True, eq=False)
+class ExposurePrior:
+    """Gaussian prior log exposure ~ N(log given time, σ²) at the frames with a given time.
+
+    Used with ``refine_exposures`` only: shutters are inaccurate, so the given times are
+    evidence, not constraints.  Same units as the data term (noise-scaled weights).
+    """
+
+    mean: np.ndarray        # (F,) log given times (NaN where unknown)
+    frames: np.ndarray      # (F,) bool: frames with a given time
+    sigma: float            # std in log units
+
+    def add_to_normal(self, Q: np.ndarray, q: np.ndarray, N: int) -> None:
+        """Add the prior to the full system (exposure columns after the 3·N coefficients)."""
+        kk = np.flatnonzero(self.frames)
+        prior_w = 1.0 / self.sigma ** 2
+        Q[3 * N + kk, 3 * N + kk] += prior_w
+        q[3 * N + kk] += prior_w * self.mean[kk]
+
+    def add_to_exposure_block(self, Q: np.ndarray, q: np.ndarray) -> None:
+        """Add the prior to the exposure block alone (the exposure step of the alternation).
+
+        The same prior as :meth:`add_to_normal`; the right-hand side is written
+        ``mean / σ²`` here and ``(1 / σ²) · mean`` there, as it always was (the two can
+        differ in the last bit, and the results must not change).
+        """
+        kk = np.flatnonzero(self.frames)
+        Q[kk, kk] += 1.0 / self.sigma ** 2
+        q[kk] += self.mean[kk] / self.sigma ** 2
+
+
+@dataclass(frozen=True, eq=False)
+class PriorTerms:
+    """Every prior of the solve, with its weight (see the module docstring for why each).
+
+    Attributes
+    ----------
+    coefficient_precision : ndarray (N,) or None
+        PCA-variance prior c_n ~ N(0, λ_n / prior_weight), the same for every channel; None
+        when the basis has no variances, and then ``ridge`` acts instead.
+    ridge : float
+        Ridge on the coefficients relative to the mean diagonal of their data block; only
+        when ``coefficient_precision`` is None.
+    white_continuation : tuple of WhiteContinuation
+        The white-continuation prior, one term per channel.
+    white_continuation_sigma : float
+        Its std (log units).
+    exposure : ExposurePrior
+        The prior on the log exposures; added only when the solve refines the given times.
+    """
+
+    coefficient_precision: np.ndarray | None
+    ridge: float
+    white_continuation: tuple
+    white_continuation_sigma: float
+    exposure: ExposurePrior
+
+    def add_to(self, Q: np.ndarray, q: np.ndarray, N: int, exposure_prior: bool) -> None:
+        """Add the priors to the normal equations ``Q x = q`` in place."""
+        self.add_coefficient_prior(Q, N)
+        self.add_white_continuation(Q, q, N)
+        if exposure_prior:
+            self.exposure.add_to_normal(Q, q, N)
+
+    def add_coefficient_prior(self, Q: np.ndarray, N: int) -> None:
+        """The PCA-variance prior, or the ridge for a basis without variances."""
+        scale = np.trace(Q[:3 * N, :3 * N]) / (3 * N) if N else 1.0
+        if self.coefficient_precision is not None:
+            # Gaussian prior c_n ~ N(0, λ_n) from the curve database's PCA variances: it
+            # decides what the data leave open (the bend in the never-observed last codes)
+            Q[:3 * N, :3 * N] += np.diag(np.tile(self.coefficient_precision, 3))
+        else:
+            Q[:3 * N, :3 * N] += self.ridge * scale * np.eye(3 * N)
+
+    def add_white_continuation(self, Q: np.ndarray, q: np.ndarray, N: int) -> None:
+        """The white-continuation prior J_c ~ N(0, σ²) of each channel."""
+        sigma = self.white_continuation_sigma
+        for term in self.white_continuation:
+            c, a, b0 = term.channel, term.a, term.b0
+            blk = slice(c * N, (c + 1) * N)
+            Q[blk, blk] += np.outer(a, a) / sigma ** 2
+            q[blk] -= a * b0 / sigma ** 2
