@@ -33,6 +33,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from selfcal.errors import InputError  # noqa: E402
+from selfcal.metrics import rmse  # noqa: E402
 from selfcal.response.basis import builtin_basis, read_dorf_mat, read_invemor  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "dorf_emor"
@@ -45,7 +46,7 @@ def fit_rmse(basis, curves, n: int) -> np.ndarray:
     for j in range(len(curves)):
         x, y = curves.x[j], curves.y[j]
         c = basis.fit_inverse_response(x, y, n)
-        out[j] = np.sqrt(np.mean((basis.inverse_response(c, x) - y) ** 2))
+        out[j] = rmse(basis.inverse_response(c, x), y)
     return out
 
 

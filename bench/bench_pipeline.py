@@ -40,13 +40,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import Timer, data_dir, table  # noqa: E402
 
+from selfcal.metrics import rmse  # noqa: E402
+
 WB_CODE = 14          # the NUS D7000 model's fluorescent setting (its sample images' one)
 TRAIN_SIZES = (1500, 140)
-
-
-def rmse(a, b) -> float:
-    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
-    return float(np.sqrt(np.mean(d * d)))
 
 
 # --------------------------------------------------------------------------------------

@@ -26,8 +26,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import (best_scale_rmse, data_dir, log_linearisation_error,  # noqa: E402
-                    opencv_inverse_response, per_code_floor, table)
+from common import data_dir, opencv_inverse_response, table  # noqa: E402
+
+from selfcal.metrics import (best_scale_rmse, log_linearisation_error,  # noqa: E402
+                             per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 
@@ -48,15 +50,14 @@ def one_curve(args):
     out = {}
     metric = {}
     model = selfcal.calibrate_response(stack.images, TIMES)
-    out["selfcal"] = float(np.sqrt(np.mean((model.inverse_response()[inner] - truth[inner]) ** 2)))
+    out["selfcal"] = rmse(model.inverse_response()[inner], truth[inner])
     metric["selfcal"] = log_linearisation_error(stack.images, TIMES, model.inverse_response())
     metric["truth"] = log_linearisation_error(stack.images, TIMES, truth)
     metric["floor"] = log_linearisation_error(stack.images, TIMES,
                                               per_code_floor(stack.images, TIMES))
     two = [TIMES[0], None, None, None, None, TIMES[-1]]
     model = selfcal.calibrate_response(stack.images, two)
-    out["selfcal_2known"] = float(np.sqrt(np.mean((model.inverse_response()[inner]
-                                                   - truth[inner]) ** 2)))
+    out["selfcal_2known"] = rmse(model.inverse_response()[inner], truth[inner])
     for method in ("debevec", "robertson"):
         resp = opencv_inverse_response(stack.images, TIMES, method)
         out[method] = best_scale_rmse(resp[inner], truth[inner])

@@ -22,7 +22,7 @@ image has it", which is what the metric rewards:
   (the metric's pairs);
 * ``+ N = 11``: the same with eleven basis functions per channel;
 * ``per-code floor``: one free log f⁻¹ per code, least squares over the metric's own
-  pixel pairs (``common.per_code_floor``): the metric fitted to itself.
+  pixel pairs (``selfcal.metrics.per_code_floor``): the metric fitted to itself.
 
 The sampling and solver variants are applied by wrapping selfcal's own functions inside
 this script; the library keeps no switch for them.
@@ -49,8 +49,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import (best_scale_rmse, data_dir, log_linearisation_error,  # noqa: E402
-                    opencv_inverse_response, per_code_floor, real_stacks, table)
+from common import data_dir, opencv_inverse_response, real_stacks, table  # noqa: E402
+
+from selfcal.metrics import (best_scale_rmse, log_linearisation_error,  # noqa: E402
+                             per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 REAL = ("memorial", "piccante", "frobisher")
@@ -128,15 +130,12 @@ def _dorf_stack(args, *, exact: bool):
 def one_synthetic(args):
     stack = _dorf_stack(args, exact=False)
     truth = stack.inverse_response()[1:255]
-    rmse = {}
+    errors = {}
     selfcal_keys = dict(SELFCAL_VARIANTS)
     for key, lut in curves_for(stack.images, TIMES).items():
         est = lut[1:255]
-        if key in selfcal_keys:
-            rmse[key] = float(np.sqrt(np.mean((est - truth) ** 2)))
-        else:
-            rmse[key] = best_scale_rmse(est, truth)
-    return args[0], rmse
+        errors[key] = rmse(est, truth) if key in selfcal_keys else best_scale_rmse(est, truth)
+    return args[0], errors
 
 
 def one_exact(args):
@@ -204,9 +203,9 @@ def main():
     for key, label in EXACT_ROWS:
         metric = np.array([exact[i][key][0] for i in sorted(exact)])
         truth_metric = np.array([exact[i]["truth"][0] for i in sorted(exact)])
-        rmse = np.median([exact[i][key][1] for i in exact])
+        median_rmse = np.median([exact[i][key][1] for i in exact])
         rows.append([label, f"{np.median(metric):.4f}", f"{np.median(metric / truth_metric):.3f}",
-                     f"{np.sum(metric < truth_metric)} of {metric.size}", f"{rmse:.4f}"])
+                     f"{np.sum(metric < truth_metric)} of {metric.size}", f"{median_rmse:.4f}"])
     print(f"\nA camera that follows the per-channel model exactly ({len(exact)} DoRF curves, "
           "identity matrix, no gamut mapping, no jitter; noise and JPEG q90):\n")
     print(table(["curve", "metric median", "metric / true curve's (median)",

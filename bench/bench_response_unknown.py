@@ -27,6 +27,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, table  # noqa: E402
 
+from selfcal.metrics import rmse  # noqa: E402
+
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 KNOWN = {"all": TIMES,
          "two": [TIMES[0], None, None, None, None, TIMES[-1]],
@@ -47,9 +49,8 @@ def one_stack(args):
     out = {}
     for key, times in KNOWN.items():
         model = selfcal.calibrate_response(stack.images, times)
-        rmse = float(np.sqrt(np.mean((model.inverse_response()[1:255] - truth) ** 2)))
         gamma = float(np.polyfit(true_log, np.log(model.exposures), 1)[0])
-        out[key] = (rmse, gamma)
+        out[key] = (rmse(model.inverse_response()[1:255], truth), gamma)
     return group, label, out
 
 
@@ -76,10 +77,10 @@ def main():
     for group in ("common", "DoRF"):
         res = [r[2] for r in results if r[0] == group]
         for key in KNOWN:
-            rmse = [r[key][0] for r in res]
+            errors = [r[key][0] for r in res]
             gam = [r[key][1] for r in res]
-            rows.append([group, key, f"{len(res)}", f"{np.median(rmse):.4f}",
-                         f"{np.max(rmse):.4f}", f"{min(gam):.2f} … {max(gam):.2f}"])
+            rows.append([group, key, f"{len(res)}", f"{np.median(errors):.4f}",
+                         f"{np.max(errors):.4f}", f"{min(gam):.2f} … {max(gam):.2f}"])
     print("Exposure times known: all, two (first and last), one (first), none; "
           "f⁻¹ RMSE over codes 1..254 and the recovered exponent γ (1 = resolved)\n")
     print(table(["curves", "times known", "stacks", "median RMSE", "max RMSE", "γ range"],

@@ -22,6 +22,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import Timer, table  # noqa: E402
 
+from selfcal.metrics import rmse  # noqa: E402
+
 CAMERAS = [
     ("film curves, seed 0", None, 0),
     ("sRGB", "srgb", 1),
@@ -57,10 +59,10 @@ def main():
         unclipped = (raw < 0.98).all(axis=2) & (jpeg < 255).all(axis=2)
         rows.append([
             label, f"{t.seconds:.1f}",
-            f"{np.sqrt(np.mean((rendered - codes)[unclipped] ** 2)):.2f}",
-            f"{np.sqrt(np.mean((back - raw)[unclipped] ** 2)):.4f}",
-            f"{np.sqrt(np.mean((raw_rt - raw)[unclipped] ** 2)):.4f}",
-            f"{np.sqrt(np.mean((jpeg_rt - codes)[unclipped] ** 2)):.2f}",
+            f"{rmse(rendered[unclipped], codes[unclipped]):.2f}",
+            f"{rmse(back[unclipped], raw[unclipped]):.4f}",
+            f"{rmse(raw_rt[unclipped], raw[unclipped]):.4f}",
+            f"{rmse(jpeg_rt[unclipped], codes[unclipped]):.2f}",
         ])
     print("RAW-path model from one simulated RAW+JPEG pair, applied to another scene of the "
           "same camera (pixels unclipped in raw and JPEG)\n")
