@@ -37,7 +37,7 @@ selfcal.calibrate_response(paths).save(model_path)
 MERGE = r"""
 import json, resource, sys, time
 import selfcal
-from selfcal.hdr_io import write_radiance
+from selfcal.hdr.io import write_radiance
 paths, model_path, out = json.loads(sys.argv[1])
 model = selfcal.load_model(model_path)
 

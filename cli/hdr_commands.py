@@ -22,7 +22,7 @@ def cmd_merge(args) -> int:
 
     import selfcal
     from selfcal.hdr import merge_hdr
-    from selfcal.hdr_io import RADIANCE_SUFFIXES, write_preview, write_radiance
+    from selfcal.hdr.io import RADIANCE_SUFFIXES, write_preview, write_radiance
 
     images = [Path(p) for p in args.images]
     out = Path(args.output)
@@ -95,7 +95,7 @@ def cmd_merge(args) -> int:
 def cmd_linearize(args) -> int:
     import selfcal
     from selfcal.hdr import linearize_images
-    from selfcal.hdr_io import write_linear
+    from selfcal.hdr.io import write_linear
     from selfcal.io import read_exposure_info
 
     images = [Path(p) for p in args.images]
@@ -185,7 +185,7 @@ def _guarded(command):
     """Map write failures (not caught by the main front end) to the output exit code."""
 
     def run(args) -> int:
-        from selfcal.hdr_io import OutputWriteError
+        from selfcal.hdr.io import OutputWriteError
 
         try:
             return command(args)

@@ -51,7 +51,7 @@ def _convert_files(args, inputs, suffix: str, desc: str, convert) -> list:
 
 
 def cmd_to_raw(args) -> int:
-    from selfcal.hdr_io import write_linear
+    from selfcal.hdr.io import write_linear
     from selfcal.io import read_image
 
     def convert(model, src, out):

@@ -30,7 +30,7 @@ from .response.model import ResponseModel
 from .pipeline import PipelineModel, fit_pipeline
 from .choose import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
 from .raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
-from .hdr import merge_hdr  # noqa: F401  (HDR radiance maps, selfcal.hdr)
+from .hdr import merge_hdr  # HDR radiance maps (selfcal.hdr)
 
 __version__ = "0.1.0"
 
@@ -45,6 +45,7 @@ __all__ = [
     "ResponseModel",
     "fit_pipeline",
     "PipelineModel",
+    "merge_hdr",
     "errors",
     "CalibrationError",
     "InputError",

@@ -1,4 +1,4 @@
-"""HDR merge (selfcal.hdr), radiance output (selfcal.hdr_io) and the merge/linearize CLI."""
+"""HDR merge (selfcal.hdr), alignment (selfcal.align), radiance files (selfcal.hdr.io), CLI."""
 
 from __future__ import annotations
 
@@ -14,15 +14,9 @@ import cv2  # noqa: E402
 
 import selfcal  # noqa: E402
 from selfcal import synth  # noqa: E402
-from selfcal.hdr import (  # noqa: E402
-    HDRResult,
-    NoiseModel,
-    estimate_alignment,
-    linearize_images,
-    merge_hdr,
-    warp_to_reference,
-)
-from selfcal.hdr_io import (  # noqa: E402
+from selfcal.align import estimate_alignment, warp_to_reference  # noqa: E402
+from selfcal.hdr import HDRResult, NoiseModel, linearize_images, merge_hdr  # noqa: E402
+from selfcal.hdr.io import (  # noqa: E402
     OutputWriteError,
     read_radiance,
     write_linear,
@@ -103,7 +97,7 @@ def test_radiance_with_on_the_fly_calibration(stack):
 
 
 def test_noise_weighting_formula():
-    from selfcal.hdr import noise_variance
+    from selfcal.hdr.weights import noise_variance
 
     nm = NoiseModel(shot=1e-4, read=1e-3, code=1.0)
     v = noise_variance(np.array([0.25]), np.array([2.0]), 0.5, nm)

@@ -106,7 +106,7 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         Seed of every random choice (the same input gives the same model).
     align : {False, "mtb", "homography"}
         Handheld stacks: align the frames to the middle exposure first
-        (:func:`selfcal.hdr.calibrate_aligned`); misaligned frames give wrong
+        (:func:`selfcal.response.aligned.calibrate_aligned`); misaligned frames give wrong
         correspondences, which read as contradicted exposure times.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
@@ -197,7 +197,7 @@ def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, pr
 
     The warnings of the alignment come first in the model's diagnostics.
     """
-    from ..hdr import calibrate_aligned
+    from .aligned import calibrate_aligned
 
     if align is True:
         align = "mtb"
@@ -206,7 +206,8 @@ def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, pr
     warnings: list[str] = []
     model, _, _ = calibrate_aligned(
         frames, exposure_times, method=align, clip_margin=clip_margin,
-        warnings=warnings, progress=progress, **options)
+        warnings=warnings, progress=progress, calibrate=calibrate_response,
+        resolve_times=resolve_exposure_times, **options)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, SelfcalError
-from .io import _cv2, atomic_output, write_image
+from ..errors import InputError, SelfcalError
+from ..io import _cv2, atomic_output, write_image
 
 __all__ = [
     "OutputWriteError",

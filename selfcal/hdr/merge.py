@@ -1,0 +1,627 @@
+"""The HDR merge: a bracketed stack's frames, weighted, into one radiance map.
+
+The merge is the weighted mean of Debevec & Malik (*Recovering High Dynamic Range Radiance
+Maps from Photographs*, SIGGRAPH 1997, §2.2, their Eq. 6), taken on linear radiance rather
+than its logarithm (the form whose inverse-variance weights are noise-optimal, Granados et
+al. 2010), over the frames of a bracketed stack::
+
+    E = Σ_j w_j(I_j) · f⁻¹(I_j) / e_j  /  Σ_j w_j(I_j)
+
+with the inverse response f⁻¹ of :func:`selfcal.calibrate_response` (Lin, Kim, Süsstrunk &
+Brown, *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011, §5) or of
+any model that linearises codes (a RAW-path ``PipelineModel`` with ``to_raw``), and
+``e_j`` the relative exposure of frame ``j`` (``t · ISO/100 / N²`` from EXIF, so that the
+radiance of several brackets of one session comes out on one scale;
+:func:`selfcal.frames._resolve_exposures`).  The weights are in :mod:`.weights`, the
+deghosting in :mod:`.deghost`, the alignment in :mod:`selfcal.align`.
+
+Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
+
+* **clipped pixels never leak in**: a frame gets weight *zero* at a pixel where *any*
+  channel is clipped (a code within ``clip_margin`` of 0 or of the maximum), not merely a
+  small triangle weight on the clipped channel;
+* pixels that **no frame measured** unclipped are filled by a documented rule and reported
+  in :attr:`HDRResult.unmeasured`: per channel, from the **darkest** frame (shortest
+  exposure) when some channel is clipped at white there -- a highlight; its ``f⁻¹(I)/e``
+  is a lower bound -- and otherwise from the **brightest** frame -- a shadow; an upper
+  bound.  Where alignment leaves that frame without data, the reference frame is used;
+* a **noise-aware** weighting (inverse variance of f⁻¹(I)/e under a shot + read + code
+  noise model, after Granados et al. 2010 and Hasinoff et al. 2010) besides Debevec's hat;
+* optional **alignment** to the reference frame (median threshold bitmaps, Ward 2003;
+  ECC homography, Evangelidis & Psarakis 2008) and **deghosting** against the reference
+  frame with the noise model;
+* frames are **streamed**: paths are decoded one at a time (twice with alignment: once to
+  estimate it, once to merge) into float32 accumulators (numerator and denominator per
+  channel) of the frame size, processed in strips of rows with OpenCV lookup tables
+  (``cv2.LUT``) for f⁻¹ and the weights, in parallel threads.  Only the reference frame's
+  codes (for deghosting) and those of the darkest and brightest frames (for the fill) are
+  kept, as codes; 17 frames of 24 MP merge in well under 2 GB.
+
+References
+----------
+.. [Debevec1997] P. E. Debevec and J. Malik, "Recovering High Dynamic Range Radiance Maps
+   from Photographs", SIGGRAPH 1997.
+.. [Lin2011] H. Lin, S. J. Kim, S. Süsstrunk and M. S. Brown, "Revisiting Radiometric
+   Calibration for Color Computer Vision", ICCV 2011.
+.. [Granados2010] M. Granados, B. Ajdin, M. Wand, C. Theobalt, H.-P. Seidel and H. P. A.
+   Lensch, "Optimal HDR reconstruction with linear digital cameras", CVPR 2010.
+.. [Hasinoff2010] S. W. Hasinoff, F. Durand and W. T. Freeman, "Noise-optimal capture for
+   high dynamic range photography", CVPR 2010.
+.. [Ward2003] G. Ward, "Fast, Robust Image Registration for Compositing High Dynamic Range
+   Photographs from Hand-Held Exposures", Journal of Graphics Tools 8(2), 2003.
+.. [Evangelidis2008] G. D. Evangelidis and E. Z. Psarakis, "Parametric Image Alignment
+   Using Enhanced Correlation Coefficient Maximization", IEEE TPAMI 30(10), 2008.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..align import _negligible, estimate_alignment, warp_to_reference
+from ..errors import CalibrationError, InputError
+from ..frames import (
+    _STRIP_PIXELS,
+    DEFAULT_CLIP_MARGIN,
+    _apply_lut,
+    _clip_limits,
+    _default_reference,
+    _Frames,
+    _Lineariser,
+    _max_code,
+    _name_arrays,
+    _resolve_exposures,
+)
+from ..io import _cv2, _is_path, read_image
+from ..response.aligned import calibrate_aligned
+from ..response.calibrate import calibrate_response, resolve_exposure_times
+from .deghost import _ghost_mask, _poor_agreement
+from .weights import NoiseModel, _FrameTables
+
+__all__ = ["HDRResult", "merge_hdr", "linearize_images"]
+
+#: Coverage mask of a warped frame: value of clipped pixels; 255 is outside the frame, and
+#: interpolated values above _OUTSIDE count as outside (for the fill of unmeasured pixels).
+_CLIPPED = 100
+_OUTSIDE = 177
+
+
+@dataclass
+class HDRResult:
+    """The radiance map of :func:`merge_hdr` and what was trusted to make it.
+
+    Attributes
+    ----------
+    radiance : numpy.ndarray
+        float32 ``HxWx3`` RGB radiance, ``f⁻¹(I) / e``: 1 is the signal that reaches white
+        in a frame of relative exposure 1 (1 s at ISO 100 and f/1 when the exposures come
+        from EXIF).
+    unmeasured : numpy.ndarray
+        bool ``HxW``: pixels that no frame measured with every channel unclipped; their
+        values are the fill of :func:`merge_hdr` (a bound, not a measurement).
+    ghost : numpy.ndarray
+        bool ``HxW``: pixels where deghosting excluded at least one frame (so the value
+        comes from the reference frame and the frames that agree with it).
+    exposures : numpy.ndarray
+        The relative exposure ``e_j`` used for each frame.
+    warnings : list of str
+    sources : list of str
+        The frames (file names or ``"array #k"``).
+    reference : int
+        Index of the reference frame (alignment and deghosting).
+    transforms : list of numpy.ndarray or None
+        Per frame, the 3×3 matrix mapping reference pixel coordinates to that frame's
+        (identity for the reference); None without alignment.
+    exposure_source : str
+        ``"given"``, ``"exif"``, ``"model"`` or ``"exif+model"``.
+    frame_count : numpy.ndarray
+        uint8 ``HxW``: number of frames that contributed to each pixel.
+    diagnostics : dict
+        Per-frame fraction of pixels used, fraction excluded by deghosting, the weighting,
+        and the model's verdict when it was calibrated on the fly.
+    model : object
+        The response model used (calibrated on the fly when none was given).
+    """
+
+    radiance: np.ndarray
+    unmeasured: np.ndarray
+    ghost: np.ndarray
+    exposures: np.ndarray
+    warnings: list = field(default_factory=list)
+    sources: list = field(default_factory=list)
+    reference: int = 0
+    transforms: list | None = None
+    exposure_source: str = "given"
+    frame_count: np.ndarray | None = None
+    diagnostics: dict = field(default_factory=dict)
+    model: object = field(default=None, repr=False)
+
+
+# --------------------------------------------------------------------------------------
+# the merge
+# --------------------------------------------------------------------------------------
+
+def merge_hdr(images, exposure_times=None, model=None, *, weighting="hat",
+              align=False, deghost: bool = False, reference: int | None = None,
+              linear: bool = False, noise: NoiseModel | None = None,
+              clip_margin: float = DEFAULT_CLIP_MARGIN, deghost_threshold: float = 3.0,
+              deghost_tolerance: float = 0.1, calibrate_options: dict | None = None,
+              progress=None) -> HDRResult:
+    """Merge a bracketed exposure stack into a radiance map.
+
+    The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
+    here on linear values rather than logarithms)::
+
+        E = Σ_j w_j · f⁻¹(I_j) / e_j  /  Σ_j w_j
+
+    with the inverse response f⁻¹ of a :class:`~selfcal.ResponseModel` (Lin et al., ICCV
+    2011, §5; calibrated on the fly with :func:`selfcal.calibrate_response` when none is
+    given) and ``e_j`` the frame's relative exposure.  Ours, not the papers': ``w_j`` is
+    **zero** wherever any channel of frame ``j`` is clipped (a code within ``clip_margin``
+    of 0 or of the maximum), so clipped values never leak in; pixels no frame measures
+    unclipped are filled -- from the darkest frame for highlights (a lower bound), the
+    brightest for shadows (an upper bound) -- and flagged in :attr:`HDRResult.unmeasured`;
+    and frames are streamed in strips (see the module docstring).
+
+    Parameters
+    ----------
+    images : sequence
+        ``HxWx3`` uint8/uint16 RGB arrays or paths (JPEG/PNG/TIFF), one scene; or, with
+        ``linear=True``, linear values (float in [0, 1] with white = 1, or uint8/uint16
+        codes proportional to the signal).
+    exposure_times : sequence of float or None, optional
+        Relative exposure per frame (seconds, or anything proportional to the exposure;
+        None = unknown).  Default: EXIF ``t · ISO/100 / N²`` for paths
+        (:attr:`selfcal.io.ExposureInfo.relative_exposure`), so that brackets of one
+        session share a scale.  Where the model refined the exposures, or found a given
+        time contradicted by the pixels (``model.diagnostics['contradicting_times']``),
+        its estimates are used instead (scaled to the given units) with a warning.
+    model : ResponseModel or object, optional
+        Anything with ``inverse_response(codes) -> (n, 3)`` (per-channel f⁻¹, the fast LUT
+        path), or with ``to_raw(rendered) -> float32`` (a pipeline model: the backward
+        JPEG→raw map, applied to each strip; its noise slopes are taken on the grey axis).
+        Default: calibrated on the fly from the frames -- with ``align``, from the frames
+        aligned first (downscaled to a 2048-pixel long side; alignment then uses a
+        gamma-2.2 stand-in response), since misaligned frames give wrong correspondences.
+    weighting : {"hat", "noise"} or callable
+        ``"hat"``: Debevec & Malik's triangle on the code (:func:`.weights.weight_hat`).
+        ``"noise"``: inverse variance of ``f⁻¹(I)/e`` under :class:`.weights.NoiseModel`,
+        ``w = e² / (shot·x + read² + (f⁻¹'(z)·σ_z)²)`` (Granados et al., CVPR 2010;
+        Hasinoff et al., CVPR 2010; see :func:`.weights.noise_variance`).
+        A callable ``w(z)`` of the normalised code ``z`` in [0, 1] (any shape,
+        element-wise, non-negative) is used like the hat (colour-hdri style).
+    align : {False, "mtb", "homography"}
+        Align every frame to the reference (see :func:`selfcal.align.estimate_alignment`);
+        ``True`` means ``"mtb"``.  Warped frames carry no data outside their footprint,
+        and a pixel interpolated from a clipped one counts as clipped.
+    deghost : bool
+        Per pixel, exclude frames whose radiance estimate disagrees with the reference
+        frame's beyond the noise: on luminance ``Y``,
+        ``(g·Y_j − Y_ref)² > k² (g²·Var[Y_j] + Var[Y_ref])`` with
+        ``k = deghost_threshold``, the variances of the noise model plus a relative
+        floor ``(max(deghost_tolerance, s) · Y)²`` for calibration and exposure errors,
+        where ``g`` and ``s`` are the median and robust spread of the frame's ratio to the
+        reference over the pixels both measure; then a 5×5 median filter (ghosts are
+        regions; :mod:`.deghost`).  Where the reference frame is clipped, the weighted
+        mean of all frames is kept.  :attr:`HDRResult.ghost` marks the pixels where a
+        frame was excluded.  Moving objects that change only hue, not luminance, are not
+        detected.
+    reference : int, optional
+        Index of the reference frame; default the middle one by exposure.
+    linear : bool
+        The frames are linear already (no model; a given model is an error).
+    noise : NoiseModel, optional
+        For ``weighting="noise"`` and deghosting.  Default :class:`NoiseModel()`.
+    clip_margin : float
+        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped
+        (default 2, as in calibration).
+    deghost_threshold, deghost_tolerance : float
+        ``k`` and the relative error floor of the deghosting test.
+    calibrate_options : dict, optional
+        Keyword arguments for :func:`selfcal.calibrate_response` when it runs on the fly.
+    progress : callable, optional
+        ``progress(stage, done, total, detail)`` with stages ``"read"``/``"solve"`` (the
+        calibration), ``"align"`` and ``"merge"``.
+
+    Returns
+    -------
+    HDRResult
+
+    Raises
+    ------
+    InputError
+        Unreadable or mismatched frames (the message names the file), bad arguments.
+    CalibrationError
+        Exposures that cannot be determined; calibration failures.
+
+    Examples
+    --------
+    >>> import selfcal
+    >>> from selfcal import synth
+    >>> stack = synth.demo_stack()
+    >>> result = selfcal.merge_hdr(stack.images, stack.exposure_times)
+    >>> result.radiance.dtype, result.radiance.shape
+    (dtype('float32'), (256, 384, 3))
+    """
+    align = _check_options(weighting, align, linear, model)
+    noise = NoiseModel() if noise is None else noise
+    frames = _Frames(images, linear)
+    linear = frames.linear  # raw files are linear
+    n = len(frames)
+    warnings: list[str] = []
+    diagnostics: dict = {"weighting": weighting if isinstance(weighting, str)
+                         else getattr(weighting, "__name__", "callable")}
+
+    fresh, transforms, ref0 = False, None, None
+    if model is None and not linear:
+        model, transforms, ref0 = _calibrate_on_the_fly(
+            frames, exposure_times, align, reference, clip_margin, calibrate_options,
+            progress, warnings, diagnostics)
+        fresh = True
+    exposures, exposure_source = _resolve_exposures(frames, exposure_times, model, fresh,
+                                                    warnings)
+    ref = _default_reference(exposures) if reference is None else int(reference)
+    if not 0 <= ref < n:
+        raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
+    transforms = _align_to_reference(frames, exposures, model, align, ref, transforms, ref0,
+                                     linear=linear, clip_margin=clip_margin,
+                                     warnings=warnings, progress=progress)
+
+    sums = _MergeSums(frames.shape, exposures, ref)
+    need_x = deghost and n > 1
+    _accumulate_frames(sums, frames, exposures, model, transforms, linear=linear,
+                       weighting=weighting, noise=noise, clip_margin=clip_margin,
+                       deghost=need_x, deghost_threshold=deghost_threshold,
+                       deghost_tolerance=deghost_tolerance, progress=progress)
+    diagnostics.update(sums.frame_diagnostics(frames.sources, deghost=need_x))
+    poor = _poor_agreement(sums.ghost_stats, frames.sources, ref) if need_x else None
+    if poor:
+        warnings.append(poor)
+    unmeasured = sums.divide_and_fill()
+    n_unmeasured = int(np.count_nonzero(unmeasured))
+    if n_unmeasured:
+        warnings.append(f"{n_unmeasured} pixels ({100 * n_unmeasured / unmeasured.size:.2g}%) "
+                        "are clipped in every frame (unmeasured; filled from the darkest "
+                        "frame for highlights, the brightest for shadows)")
+    return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
+                     exposures=exposures, warnings=warnings, sources=list(frames.sources),
+                     reference=ref, transforms=transforms, exposure_source=exposure_source,
+                     frame_count=sums.count, diagnostics=diagnostics, model=model)
+
+
+def _check_options(weighting, align, linear: bool, model):
+    """``align`` as a method name or False (``True`` means ``"mtb"``); errors for bad options."""
+    if weighting not in ("hat", "noise") and not callable(weighting):
+        raise InputError(f"unknown weighting {weighting!r} (hat, noise or a function)")
+    if align is True:
+        align = "mtb"
+    if align not in (False, None, "mtb", "homography"):
+        raise InputError(f"unknown alignment {align!r} (mtb or homography)")
+    if linear and model is not None:
+        raise InputError("linear=True: the frames are linear already; do not pass a model")
+    return align
+
+
+def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, clip_margin,
+                          calibrate_options, progress, warnings: list, diagnostics: dict):
+    """The frames' own response (Lin et al., ICCV 2011, §5), when no model is given.
+
+    With ``align``, calibrated on the frames aligned first
+    (:func:`selfcal.response.aligned.calibrate_aligned`).  The calibration's warnings join
+    ``warnings`` (all but the contradicted times, which :func:`_resolve_exposures` reports
+    with what is done about them) and its verdict ``diagnostics``.
+
+    Returns
+    -------
+    (model, transforms or None, reference frame of the transforms or None)
+    """
+    if len(frames) < 2:
+        raise CalibrationError("one frame and no model: give a model (a response needs "
+                               "at least two frames to calibrate)")
+    options = dict(calibrate_options or {})
+    transforms = ref0 = None
+    if align:
+        model, transforms, ref0 = calibrate_aligned(
+            frames, exposure_times, calibrate=calibrate_response,
+            resolve_times=resolve_exposure_times, method=align, reference=reference,
+            clip_margin=clip_margin, warnings=warnings, progress=progress, **options)
+        diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
+    else:
+        model = calibrate_response(frames.items, exposure_times, progress=progress,
+                                   **options)
+    diag = getattr(model, "diagnostics", {})
+    diagnostics["model_verdict"] = diag.get("verdict")
+    for w in diag.get("warnings", []):
+        if "contradict" not in w:       # reported by _resolve_exposures, with what is done
+            warnings.append(f"calibration: {_name_arrays(w, frames.sources)}")
+    for c in diag.get("contradicting_times", []) or []:
+        c["frame"] = _name_arrays(str(c.get("frame")), frames.sources)
+    return model, transforms, ref0
+
+
+def _align_to_reference(frames: _Frames, exposures, model, align, ref: int, transforms,
+                        ref0, *, linear: bool, clip_margin: float, warnings: list, progress):
+    """Per frame, the map from reference pixel coordinates to its own (None without align).
+
+    Transforms from an aligned calibration (``transforms``, relative to frame ``ref0``) are
+    reused; when the model's exposures moved the reference, they are re-expressed relative
+    to the new one.
+    """
+    if align and len(frames) > 1 and transforms is None:
+        return estimate_alignment(frames, exposures, model, method=align, reference=ref,
+                                  linear=linear, clip_margin=clip_margin,
+                                  warnings=warnings, progress=progress)
+    if transforms is not None and ref != ref0:
+        inv = np.linalg.inv(transforms[ref])
+        transforms = [t @ inv for t in transforms]
+        transforms = [t / t[2, 2] for t in transforms]
+        transforms[ref] = np.eye(3)
+    return transforms
+
+
+# --------------------------------------------------------------------------------------
+# accumulation in strips
+# --------------------------------------------------------------------------------------
+
+class _MergeSums:
+    """A merge in progress: its float32 sums over row strips, and what each frame left.
+
+    ``num`` = Σ_j w_j·f⁻¹(I_j)/e_j and ``den`` = Σ_j w_j per channel (Eq. 6 of Debevec &
+    Malik, on linear values), ``count`` the frames each pixel got, ``ghost`` the pixels
+    deghosting took a frame from.  ``kept`` holds the codes (and coverage masks) of the
+    reference, darkest and brightest frames, for deghosting and the fill.
+    """
+
+    def __init__(self, shape, exposures, ref: int):
+        hh, ww = shape
+        n = len(exposures)
+        self.num = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.den = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.count = np.zeros((hh, ww), dtype=np.uint8)
+        self.ghost = np.zeros((hh, ww), dtype=bool)
+        self.width = ww
+        self.rows = max(8, _STRIP_PIXELS // max(ww, 1))
+        self.strips = [slice(y, min(y + self.rows, hh)) for y in range(0, hh, self.rows)]
+        self.ref = ref
+        self.darkest = int(np.argmin(exposures))
+        self.brightest = int(np.argmax(exposures))
+        self.kept: dict[int, tuple] = {}          # frame -> (codes, coverage mask or None)
+        self.tables: dict[int, _FrameTables] = {}
+        self.hi = None                            # codes at or above it are clipped white
+        self.used = [0.0] * n                     # pixels each frame contributed to
+        self.excluded = [0.0] * n                 # pixels deghosting took from each frame
+        self.ghost_stats: dict[int, dict] = {}    # frame -> agreement with the reference
+        self.cv2 = _cv2()
+        self._local = threading.local()
+
+    def add_strip(self, s: slice, img, cover, off, tab: _FrameTables, max_code):
+        """One strip of one frame into the sums (strips are disjoint: threads may share).
+
+        Returns the number of pixels the frame contributed and that deghosting excluded.
+        """
+        cv2 = self.cv2
+        codes = img[s]
+        valid = tab.valid(codes)
+        if cover is not None:
+            valid[cover[s] > 0] = 0
+        excluded = 0
+        if off is not None:
+            o = off[s] > 0
+            o &= valid > 0
+            if o.any():
+                valid[o] = 0
+                self.ghost[s] |= o
+                excluded = int(o.sum())
+        n_valid = cv2.countNonZero(valid)
+        if n_valid == 0:
+            return 0, excluded
+        num, den = self.num, self.den
+        if tab.lut:
+            # invalid pixels -> the maximum code in every channel, where the tables
+            # hold zero weight: then plain (unmasked) sums.  Strip buffers are reused
+            # (fresh large allocations cost page faults).
+            rows_s = s.stop - s.start
+            bufs = _thread_buffers(self._local, self.rows, self.width, img.dtype)
+            if n_valid < valid.size:
+                buf = bufs["codes"][:rows_s]
+                np.copyto(buf, codes)
+                cv2.bitwise_or(buf, (max_code,) * 3 + (0,), dst=buf,
+                               mask=cv2.bitwise_not(valid))
+                codes = buf
+            a, w, _, _ = tab.evaluate(codes, need_x=False,
+                                      out=(bufs["a"][:rows_s], bufs["w"][:rows_s]))
+            np.add(num[s], a, out=num[s])
+            np.add(den[s], w, out=den[s])
+        else:
+            a, w, _, _ = tab.evaluate(codes, need_x=False)
+            cv2.add(num[s], a, dst=num[s], mask=valid)
+            cv2.add(den[s], w, dst=den[s], mask=valid)
+        np.add(self.count[s], valid >> 7, out=self.count[s])
+        return n_valid, excluded
+
+    def frame_diagnostics(self, sources, *, deghost: bool) -> dict:
+        """Per frame, the fraction of pixels used (and excluded by deghosting)."""
+        npix = float(self.num.shape[0] * self.num.shape[1])
+        out = {"frame_used_fraction": [u / npix for u in self.used]}
+        if deghost:
+            out["deghost_excluded_fraction"] = [e / npix for e in self.excluded]
+            out["deghost_reference_agreement"] = {
+                sources[k]: st for k, st in sorted(self.ghost_stats.items())}
+        return out
+
+    def divide_and_fill(self) -> np.ndarray:
+        """``num`` becomes the radiance ``num / den``; unmeasured channels are filled.
+
+        Returns the bool mask of the pixels no frame measured (:func:`_fill_strip`).
+        ``den`` is released.
+        """
+        hh, ww = self.num.shape[:2]
+        unmeasured = np.zeros((hh, ww), dtype=bool)
+        for s in self.strips:
+            ns, ds = self.num[s], self.den[s]
+            hole = ds <= 0
+            np.divide(ns, ds, out=ns, where=~hole)
+            hole_px = _any_channel(hole)
+            if hole_px.any():
+                unmeasured[s] = hole_px
+                fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
+                                   self.ref, self.hi)
+                np.copyto(ns, fill, where=hole)
+        self.den = None
+        return unmeasured
+
+
+def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, transforms, *,
+                       linear: bool, weighting, noise: NoiseModel, clip_margin: float,
+                       deghost: bool, deghost_threshold: float, deghost_tolerance: float,
+                       progress):
+    """Every frame into ``sums``, the reference frame first (deghosting compares with it).
+
+    Per frame: its tables of weights and radiance (:class:`.weights._FrameTables`); its
+    warp onto the reference grid with a coverage mask (:data:`_CLIPPED` where it was
+    clipped, 255 outside it); its deghosting mask against the reference
+    (:func:`.deghost._ghost_mask`); then its strips -- in parallel threads on the table
+    path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from this
+    thread only.
+    """
+    n = len(frames)
+    ref = sums.ref
+    order = [ref] + [k for k in range(n) if k != ref]
+    lin = None
+    pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
+    try:
+        for done, k in enumerate(order):
+            img = frames.load(k)
+            if lin is None:
+                mc = _max_code(img)
+                lin = _Lineariser(model, linear, mc)
+                lo, hi = _clip_limits(mc, clip_margin, linear)
+                sums.hi = hi
+            elif _max_code(img) != lin.max_code:
+                raise InputError(f"sample type {img.dtype} differs from the other frames",
+                                 frames.sources[k])
+            tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
+                               deghost or k == ref, float(np.max(exposures)))
+            sums.tables[k] = tab
+            cover = None
+            if (transforms is not None and k != ref
+                    and not _negligible(transforms[k], frames.shape)):
+                # clipped anywhere (before warping) -> _CLIPPED; outside the frame -> 255
+                bad = np.where(tab.valid(img) > 0, 0, _CLIPPED).astype(np.uint8)
+                img = warp_to_reference(img, transforms[k])
+                cover = warp_to_reference(bad, transforms[k], border_value=255)
+                del bad
+            if (k in (sums.darkest, sums.brightest)
+                    or (k == ref and (deghost or transforms is not None))):
+                sums.kept[k] = (img, cover)
+            off = None
+            if deghost and k != ref:
+                off, stats = _ghost_mask(img, cover, sums.kept[ref][0], tab, sums.tables[ref],
+                                         sums.strips, deghost_threshold, deghost_tolerance)
+                sums.ghost_stats[k] = stats
+
+            def accumulate(s, img=img, cover=cover, off=off, tab=tab):
+                return sums.add_strip(s, img, cover, off, tab, lin.max_code)
+
+            for n_valid, excluded in (pool.map if tab.lut else map)(accumulate, sums.strips):
+                sums.used[k] += float(n_valid)
+                sums.excluded[k] += float(excluded)
+            del img, cover
+            if progress is not None:
+                progress("merge", done + 1, n, frames.sources[k])
+    finally:
+        pool.shutdown()
+
+
+def _thread_buffers(local, rows: int, width: int, dtype) -> dict:
+    """Per-thread strip buffers (codes, weighted values, weights)."""
+    bufs = getattr(local, "bufs", None)
+    if bufs is None or bufs["codes"].dtype != dtype:
+        bufs = local.bufs = {"codes": np.empty((rows, width, 3), dtype=dtype),
+                             "a": np.empty((rows, width, 3), dtype=np.float32),
+                             "w": np.empty((rows, width, 3), dtype=np.float32)}
+    return bufs
+
+
+# --------------------------------------------------------------------------------------
+# the fill of unmeasured pixels
+# --------------------------------------------------------------------------------------
+
+def _any_channel(mask3: np.ndarray) -> np.ndarray:
+    """``mask3.any(axis=2)`` for 3 channels, without numpy's slow strided reduction."""
+    return mask3[..., 0] | mask3[..., 1] | mask3[..., 2]
+
+
+def _fill_strip(s, kept, tables, darkest, brightest, ref, hi):
+    """Values for pixels no frame measured: darkest frame for highlights, else brightest.
+
+    A pixel is a highlight when some channel of the darkest frame is clipped at white
+    there.  Where the chosen frame was warped and does not reach the pixel, the reference
+    frame's value is used.
+    """
+    dcodes, dcover = kept[darkest]
+    bcodes, bcover = kept[brightest]
+    high = _any_channel(dcodes[s] >= hi)
+    fill = np.where(high[..., None], tables[darkest].radiance(dcodes[s]),
+                    tables[brightest].radiance(bcodes[s]))
+    outside = np.zeros(high.shape, dtype=bool)
+    if dcover is not None:
+        outside |= high & (dcover[s] > _OUTSIDE)
+    if bcover is not None:
+        outside |= ~high & (bcover[s] > _OUTSIDE)
+    if outside.any():
+        fill[outside] = tables[ref].radiance(kept[ref][0][s])[outside]
+    return fill
+
+
+# --------------------------------------------------------------------------------------
+# linearised frames
+# --------------------------------------------------------------------------------------
+
+def linearize_images(images, model, *, progress=None):
+    """Linearise frames one at a time: ``f⁻¹(I)`` per channel (Lin et al., ICCV 2011, §5).
+
+    A generator, so a long list of large frames never sits in memory at once.  Values are
+    linear camera signal with ``f⁻¹(max code) = 1`` (not divided by the exposure), as
+    :meth:`selfcal.ResponseModel.linearize` gives them; for a model with ``to_raw`` (the
+    RAW path's backward model) that is used instead.
+
+    Parameters
+    ----------
+    images : sequence
+        uint8/uint16 RGB arrays or paths.
+    model : ResponseModel or object with ``to_raw``
+    progress : callable, optional
+        ``progress("linearize", done, total, source)``.
+
+    Yields
+    ------
+    (str, numpy.ndarray)
+        The source (path or ``"array #k"``) and its float32 ``HxWx3`` linear image.
+    """
+    items = list(images)
+    sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(items)]
+    for k, item in enumerate(items):
+        img = read_image(item) if _is_path(item) else np.asarray(item)
+        if img.ndim != 3 or img.shape[2] != 3:
+            raise InputError(f"expected an HxWx3 RGB image, got shape {img.shape}", sources[k])
+        if img.dtype not in (np.uint8, np.uint16):
+            raise InputError(f"unsupported dtype {img.dtype} (uint8 or uint16 codes)",
+                             sources[k])
+        lin = _Lineariser(model, False, _max_code(img))
+        if lin.kind == "lut":
+            out = np.empty(img.shape, dtype=np.float32)
+            table = lin.table.astype(np.float32)
+            rows = max(8, _STRIP_PIXELS // img.shape[1])
+            for y in range(0, img.shape[0], rows):
+                out[y:y + rows] = _apply_lut(img[y:y + rows], table)
+        else:
+            out = lin.values(img)
+        del img
+        if progress is not None:
+            progress("linearize", k + 1, len(items), sources[k])
+        yield sources[k], out

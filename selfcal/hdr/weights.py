@@ -1,0 +1,228 @@
+"""The merge's weights: Debevec & Malik's hat, inverse noise variance, per-frame tables.
+
+The weighted mean of :func:`selfcal.hdr.merge_hdr` gives each frame ``j`` at each pixel
+and channel the weight ``w_j``:
+
+* ``"hat"``: Debevec & Malik's triangle on the normalised code, ``w(z) = 2 min(z, 1 − z)``
+  (*Recovering High Dynamic Range Radiance Maps from Photographs*, SIGGRAPH 1997, §2.1);
+* ``"noise"``: the inverse variance of the frame's radiance estimate ``f⁻¹(I)/e`` under a
+  shot + read noise model of the sensor (Granados et al., *Optimal HDR reconstruction
+  with linear digital cameras*, CVPR 2010; Hasinoff et al., *Noise-optimal capture for
+  high dynamic range photography*, CVPR 2010), the minimum-variance combination.
+
+Ours, not the papers': the code-noise term of :class:`NoiseModel` -- quantisation and JPEG
+compression, carried to the linear domain through the slope of the inverse response,
+which dominates in JPEGs -- and the variance taken from each frame's own measurement
+rather than iterated with the merged estimate as Granados et al. do; a weight of zero
+wherever *any* channel is clipped; and :class:`_FrameTables`, which tabulates weight,
+weighted radiance, radiance and variance at every code once per frame, so that the merge
+and the deghosting are lookups (``cv2.LUT``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..frames import _apply_lut, _Lineariser
+from ..io import _cv2
+
+__all__ = ["NoiseModel", "noise_variance", "weight_hat"]
+
+
+def weight_hat(z):
+    """Debevec & Malik's hat (triangle) weighting on the normalised code ``z`` in [0, 1].
+
+    ``w(z) = 2 min(z, 1 - z)``: 1 at mid-grey, 0 at black and white (Debevec & Malik,
+    SIGGRAPH 1997, §2.1, with ``Z_min = 0``, ``Z_max = 1``).  :func:`selfcal.merge_hdr`
+    sets the weight to zero at clipped codes in any case.
+
+    Parameters
+    ----------
+    z : array_like
+        Normalised codes ``I / max_code`` (any shape).
+
+    Returns
+    -------
+    numpy.ndarray
+        Weights of the same shape.
+    """
+    z = np.asarray(z, dtype=np.float64)
+    return 2.0 * np.minimum(z, 1.0 - z).clip(0.0, None)
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Noise of one linearised measurement ``x = f⁻¹(z)`` (white = 1), per channel.
+
+    ``Var[x] = shot · x + read² + (f⁻¹'(z) · code / 255)²``
+
+    a Poisson (shot) term proportional to the signal, a signal-independent read-noise term
+    (the camera noise model of Granados et al., CVPR 2010, and Hasinoff et al., CVPR 2010),
+    and the noise of the code itself -- quantisation and JPEG compression, ``code`` codes
+    on the 8-bit scale -- carried to the linear domain through the slope of the inverse
+    response (first order error propagation).  For linear input (``linear=True``) the code
+    term is only the quantisation of the data.
+
+    Attributes
+    ----------
+    shot : float
+        Shot-noise variance per unit signal: 1 / (electrons at white), at the stack's ISO.
+        Default 1e-4 (10,000 e⁻ at white).
+    read : float
+        Read-noise standard deviation as a fraction of white.  Default 1e-3.
+    code : float
+        Standard deviation of the code noise in 8-bit codes (quantisation ≈ 0.29, JPEG
+        compression adds about a code).  Default 1.0.
+    """
+
+    shot: float = 1e-4
+    read: float = 1e-3
+    code: float = 1.0
+
+    def __post_init__(self):
+        for name in ("shot", "read", "code"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise InputError(f"NoiseModel.{name} must be a finite number >= 0, got {v!r}")
+
+
+def noise_variance(x, slope, exposure: float, noise: NoiseModel = NoiseModel(), *,
+                   code_std: float | None = None):
+    """Variance of the radiance estimate ``X = f⁻¹(z) / e`` of one frame.
+
+    ``Var[X] = (shot · x + read² + (slope · σ_z)²) / e²`` with ``x = f⁻¹(z)``,
+    ``slope = d f⁻¹ / dz`` and ``σ_z = noise.code / 255`` (see :class:`NoiseModel`).  The
+    noise-aware weight is its inverse, ``w = 1 / Var[X]`` -- the minimum-variance
+    (maximum-likelihood, for Gaussian noise) combination of the frames' estimates
+    (Granados et al., CVPR 2010; Hasinoff et al., CVPR 2010).  The variance uses each
+    frame's own measurement ``x`` (Granados et al. iterate with the merged estimate; the
+    difference is small where the code noise dominates, as in JPEGs).
+
+    Parameters
+    ----------
+    x, slope : array_like
+        Linearised values and the slope of f⁻¹ at the codes (normalised code units).
+    exposure : float
+        Relative exposure ``e`` of the frame.
+    noise : NoiseModel
+    code_std : float, optional
+        Code noise in normalised units, overriding ``noise.code / 255``.
+
+    Returns
+    -------
+    numpy.ndarray
+    """
+    x = np.maximum(np.asarray(x, dtype=np.float64), 0.0)
+    sz = noise.code / 255.0 if code_std is None else float(code_std)
+    var = noise.shot * x + noise.read ** 2 + (np.asarray(slope) * sz) ** 2
+    return np.maximum(var, 1e-20) / float(exposure) ** 2
+
+
+class _FrameTables:
+    """Everything :func:`selfcal.merge_hdr` needs from one frame, as tables on the codes.
+
+    ``weighted`` = w·f⁻¹/e, ``weight`` = w (zero at clipped codes), ``radiance`` = f⁻¹/e,
+    ``variance`` = Var[f⁻¹/e] (noise model), each ``(K, 3)`` float32.  For linear float
+    data and ``to_raw`` models the same quantities are computed on the strip.
+    """
+
+    def __init__(self, lin: _Lineariser, exposure: float, weighting, noise: NoiseModel,
+                 lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0):
+        self.lin = lin
+        self.e = float(exposure)
+        self.e_norm = float(exposure_norm)
+        self.weighting = weighting
+        self.noise = noise
+        self.lo, self.hi = lo, hi
+        self.lut = lin.table is not None and lin.kind != "to_raw"
+        if lin.table is None:
+            return
+        mc = lin.max_code
+        z = np.arange(mc + 1) / mc
+        x = lin.table
+        ok = ((np.arange(mc + 1) > lo) & (np.arange(mc + 1) < hi))[:, None]
+        w = self._weights(np.repeat(z[:, None], 3, axis=1), x, lin.slope) * ok
+        self.w_table = w.astype(np.float32)
+        self.x_table = (x / self.e).astype(np.float32)
+        self.a_table = (w * x / self.e).astype(np.float32)
+        if need_variance:
+            var = noise_variance(x, lin.slope, self.e, noise, code_std=lin.code_std())
+            self.v_table = var.astype(np.float32)
+
+    def _weights(self, z, x, slope):
+        if self.weighting == "hat":
+            return weight_hat(z)
+        if self.weighting == "noise":
+            # 1 / Var[f⁻¹(I)/e], scaled by the longest exposure² (a common factor, which
+            # keeps float32 sums in range)
+            var = noise_variance(x, slope, self.e / self.e_norm, self.noise,
+                                 code_std=self.lin.code_std())
+            return 1.0 / var
+        w = np.asarray(self.weighting(z), dtype=np.float64)
+        if w.shape != np.shape(z):
+            w = np.broadcast_to(w, np.shape(z))
+        if not np.all(np.isfinite(w)) or np.any(w < 0):
+            raise InputError("the weighting function returned negative or non-finite weights")
+        return w
+
+    def valid(self, codes):
+        """uint8 mask, 255 where every channel is unclipped."""
+        cv2 = _cv2()
+        if codes.dtype == np.uint8 or codes.dtype == np.uint16:
+            lo = math.floor(self.lo) + 1
+            hi = math.ceil(self.hi) - 1
+            return cv2.inRange(codes, (lo, lo, lo), (hi, hi, hi))
+        lo = float(np.nextafter(np.float32(self.lo), np.float32(np.inf)))
+        hi = float(np.nextafter(np.float32(self.hi), np.float32(-np.inf)))
+        return cv2.inRange(np.asarray(codes, dtype=np.float32), (lo,) * 3, (hi,) * 3)
+
+    def radiance(self, codes) -> np.ndarray:
+        """f⁻¹(I)/e on a strip, float32, clipped or not."""
+        if self.lut:
+            return _apply_lut(codes, self.x_table)
+        return self.lin.values(codes) / np.float32(self.e)
+
+    def radiance_variance(self, codes):
+        """(f⁻¹(I)/e, Var[f⁻¹(I)/e]) on a strip, float32 (for deghosting)."""
+        if self.lut:
+            return _apply_lut(codes, self.x_table), _apply_lut(codes, self.v_table)
+        _, _, x, v = self.evaluate(codes, need_x=True)
+        return x, v
+
+    def evaluate(self, codes, *, need_x: bool, out=None):
+        """(weighted, weight, radiance or None, variance or None) on a strip.
+
+        ``out``: optional pair of float32 buffers for the first two (table path only).
+        """
+        if self.lut:
+            a = _apply_lut(codes, self.a_table, None if out is None else out[0])
+            w = _apply_lut(codes, self.w_table, None if out is None else out[1])
+            if need_x:
+                return a, w, _apply_lut(codes, self.x_table), _apply_lut(codes, self.v_table)
+            return a, w, None, None
+        # functional path: linear float data or a to_raw model
+        x = self.lin.values(codes)
+        if self.lin.table is not None:           # to_raw: weights from codes
+            w = _apply_lut(codes, self.w_table)
+            slope = None
+        else:
+            z = x
+            slope = np.ones_like(x)
+            w = self._weights(z, x, slope).astype(np.float32)
+            w[~((x > self.lo) & (x < self.hi))] = 0.0
+        X = x / np.float32(self.e)
+        a = w * X
+        if not need_x:
+            return a, w, None, None
+        if self.lin.table is not None:
+            slope = _apply_lut(codes, self.lin.slope.astype(np.float32))
+            v = noise_variance(x, slope, self.e, self.noise,
+                               code_std=self.lin.code_std())
+        else:
+            v = noise_variance(x, slope, self.e, self.noise,
+                               code_std=self.lin.code_std())
+        return a, w, X, v.astype(np.float32)
