@@ -22,15 +22,21 @@ from __future__ import annotations
 import inspect
 import math
 import os
+import sys
 import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
 from .errors import CalibrationError, InputError, SelfcalWarning
-from .io import IMAGE_SUFFIXES, ExposureInfo, effective_exposure_times
+from .io import (IMAGE_SUFFIXES, ExposureInfo, effective_exposure_times, read_exposure_info,
+                 read_image, read_image_size)
+from .pairs import collect_pair_samples, raw_exposure_ratios
+from .pipeline import fit_pipeline
 from .raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff, read_raw_exposure_info
+from .response.calibrate import calibrate_response
 
 __all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
            "calibrate_pipeline"]
@@ -48,9 +54,7 @@ MIN_PIPELINE_SAMPLES = 200
 MIN_PAIR_SAMPLES = 50
 
 
-# --------------------------------------------------------------------------------------
-# grouping
-# --------------------------------------------------------------------------------------
+# ---- grouping ------------------------------------------------------------------------
 
 @dataclass
 class InputGroups:
@@ -179,9 +183,7 @@ def group_inputs(paths) -> InputGroups:
     return groups
 
 
-# --------------------------------------------------------------------------------------
-# the result
-# --------------------------------------------------------------------------------------
+# ---- the result ----------------------------------------------------------------------
 
 @dataclass
 class CalibrationResult:
@@ -248,9 +250,7 @@ class CalibrationResult:
         return lines
 
 
-# --------------------------------------------------------------------------------------
-# helpers
-# --------------------------------------------------------------------------------------
+# ---- helpers -------------------------------------------------------------------------
 
 def _fmt_time(t) -> str:
     if t is None or not math.isfinite(t):
@@ -284,8 +284,6 @@ def _names(paths, limit=4) -> str:
 
 
 def _frame_info(path: Path, raw_path: Path | None) -> ExposureInfo:
-    from .io import read_exposure_info
-
     info = read_exposure_info(path)
     if raw_path is not None and (info.exposure_time is None or info.iso is None
                                  or info.f_number is None):
@@ -317,8 +315,6 @@ def _brightness_changes(paths) -> bool:
     Median code difference (8-bit scale) against the first frame over pixels unclipped in
     both, on DCT-reduced decodes.
     """
-    from .io import read_image
-
     greys = []
     for p in paths:
         img = read_image(p, reduce=8)
@@ -338,39 +334,18 @@ def _brightness_changes(paths) -> bool:
     return False
 
 
-def _fit_pipeline_function():
-    """``selfcal.pipeline.fit_pipeline``, or None when this installation lacks it."""
-    try:
-        from . import pipeline as _pipeline
-    except ImportError:
-        return None
-    fn = getattr(_pipeline, "fit_pipeline", None)
-    if fn is None:
-        try:
-            from .pipeline import fit_pipeline as fn  # noqa: F811  (lazy submodule)
-        except ImportError:
-            return None
-    return fn
-
-
 def _split_options(options: dict, response_options, pipeline_options):
-    from .response.calibrate import calibrate_response
-
-    resp = dict(response_options or {})
-    pipe = dict(pipeline_options or {})
+    """Route ``calibrate``'s extra keyword options by name to the path that takes them."""
+    resp, pipe = dict(response_options or {}), dict(pipeline_options or {})
     resp_names = set(inspect.signature(calibrate_response).parameters) - {
         "images", "exposure_times", "progress"}
-    fit = _fit_pipeline_function()
-    pipe_names: set | None = None
-    if fit is not None:
-        params = inspect.signature(fit).parameters
-        if not any(p.kind is p.VAR_KEYWORD for p in params.values()):
-            pipe_names = set(params) - {"raw_samples", "rendered_samples", "progress"}
+    pipe_names = set(inspect.signature(fit_pipeline).parameters) - {
+        "raw_samples", "rendered_samples", "progress"}
     unknown = []
     for key, value in options.items():
         if key in resp_names:
             resp[key] = value
-        elif pipe_names is None or key in pipe_names:
+        elif key in pipe_names:
             pipe[key] = value
         else:
             unknown.append(key)
@@ -380,15 +355,23 @@ def _split_options(options: dict, response_options, pipeline_options):
     return resp, pipe
 
 
-def _image_size(path: Path):
-    from .io import read_image_size
+class _Report:
+    """Why each path was (or was not) taken, and the warnings (each also emitted)."""
 
-    return read_image_size(path)
+    def __init__(self):
+        self.reasons: list[str] = []
+        self.warnings: list[str] = []
+
+    def warn(self, msg: str):
+        self.warnings.append(msg)
+        # attribute the warning to the caller's line, whichever piece of this module warns
+        level, frame = 1, sys._getframe(0)
+        while frame is not None and frame.f_code.co_filename == __file__:
+            frame, level = frame.f_back, level + 1
+        _warnings.warn(msg, SelfcalWarning, stacklevel=level)
 
 
-# --------------------------------------------------------------------------------------
-# calibrate
-# --------------------------------------------------------------------------------------
+# ---- calibrate -----------------------------------------------------------------------
 
 def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
               exposure_source: str = "auto", raw_half_size: bool = True,
@@ -465,26 +448,84 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
     resp_opts, pipe_opts = _split_options(options, response_options, pipeline_options)
     resp_opts.setdefault("seed", seed)
     groups = group_inputs(paths)
-    notes: list[str] = []
-    reasons: list[str] = []
-
-    def warn(msg):
-        notes.append(msg)
-        _warnings.warn(msg, SelfcalWarning, stacklevel=3)
-
+    report = _Report()
     for p, why in groups.ignored:
-        warn(f"{p}: ignored ({why})")
+        report.warn(f"{p}: ignored ({why})")
     for raw in groups.unpaired_raws:
-        warn(f"{raw}: raw file without a rendered image of the same name "
-             f"({raw.stem}.jpg) in its folder; not used")
+        report.warn(f"{raw}: raw file without a rendered image of the same name "
+                    f"({raw.stem}.jpg) in its folder; not used")
 
-    raw_of = groups.raw_of
     given_times = _given_times(exposure_times, groups.rendered)
+    candidates, infos, eff = _size_groups(groups, given_times, exposure_source)
+    chosen = _response_group(candidates, report)
+    want_pipeline = bool(groups.pairs)
+    if chosen is None and not want_pipeline:
+        raise CalibrationError(_missing_message(groups, candidates))
 
-    # ---- the response path: which frames, at how many exposures?
+    samples, pair_data = None, []
+    if want_pipeline:
+        samples, pair_data = _read_pairs(groups, seed=seed, max_samples=max_pair_samples,
+                                         half_size=raw_half_size, block=block,
+                                         progress=progress, report=report)
+    plan = _ResponsePlan()
+    if chosen is not None:
+        plan = _plan_response(chosen, pair_data, infos, eff, given_times, exposure_source,
+                              report)
+    if not plan.frames and not plan.raw_decided:
+        why = _response_missing(groups, candidates)
+        if why:
+            report.reasons.append(f"no response path: {why}")
+    if not plan.frames and not want_pipeline:
+        raise CalibrationError(_missing_message(groups, candidates))
+
+    taken = []
+    response_model = _run_response(plan, resp_opts, progress=progress,
+                                   pipeline_follows=want_pipeline, report=report)
+    if response_model is not None:
+        taken.append("response")
+    pipeline_model = None
+    if want_pipeline:
+        pipeline_model = _run_pipeline(samples, pair_data, groups, pipe_opts, seed=seed,
+                                       progress=progress, response_taken=bool(taken),
+                                       report=report)
+        if pipeline_model is not None:
+            taken.append("pipeline")
+    if not taken:
+        raise CalibrationError("neither calibration path succeeded: "
+                               + "; ".join(report.reasons))
+    return CalibrationResult(
+        taken=tuple(taken), reasons=report.reasons, response=response_model,
+        pipeline=pipeline_model, groups=groups, response_frames=list(plan.frames),
+        exposure_source=plan.exposure_kind, exposure_times=plan.times,
+        raw_exposures=plan.raw_exposures, pairs=pair_data,
+        n_pipeline_samples=0 if samples is None else len(samples),
+        warnings=report.warnings)
+
+
+# ---- the pieces of calibrate ---------------------------------------------------------
+
+class _SizeGroup(NamedTuple):
+    """Rendered frames of one image size, and whether they can take the response path."""
+
+    size: tuple
+    frames: list
+    #: "ok" (≥ 2 distinct exposures, known or by brightness), "raw?" (decided by the raw
+    #: ratios), "single", "same" (all at one known time), "no_change" (no times, no change)
+    status: str
+    known: list        # the known exposures (EXIF or given)
+
+
+def _size_groups(groups: InputGroups, given_times, exposure_source):
+    """The rendered frames grouped by image size, each with its response-path status.
+
+    Returns ``(candidates, infos, eff)``: the :class:`_SizeGroup` list, each frame's
+    :class:`~selfcal.io.ExposureInfo` (EXIF, completed from its raw) and its effective
+    exposure (EXIF time × ISO / N² relative to the first frame, or the given time).
+    """
+    raw_of = groups.raw_of
     sizes: dict[tuple, list[Path]] = {}
     for p in groups.rendered:
-        sizes.setdefault(_image_size(p), []).append(p)
+        sizes.setdefault(read_image_size(p), []).append(p)
     infos = {p: _frame_info(p, raw_of.get(p)) for p in groups.rendered}
     eff = dict(zip(groups.rendered, effective_exposure_times([infos[p] for p in groups.rendered])))
     if given_times is not None:
@@ -493,196 +534,199 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
     candidates = []
     for size, frames in sizes.items():
         known = [eff[p] for p in frames if eff[p] is not None]
-        n_known = _distinct(known)
         unknown = [p for p in frames if eff[p] is None]
         with_raw = [p for p in frames if p in raw_of]
         if len(frames) < 2:
             status = "single"
-        elif n_known >= 2:
+        elif _distinct(known) >= 2:
             status = "ok"
         elif len(with_raw) >= 2 and exposure_source in ("auto", "raw") and \
                 given_times is None:
-            status = "raw?"   # decided by the raw ratios below
+            status = "raw?"   # decided by the raw ratios
         elif unknown and _brightness_changes(frames):
             status = "ok"
         else:
             status = "same" if not unknown else "no_change"
-        candidates.append((size, frames, status, known))
-    usable = [c for c in candidates if c[2] in ("ok", "raw?")]
-    usable.sort(key=lambda c: -len(c[1]))
-    response_frames = list(usable[0][1]) if usable else []
+        candidates.append(_SizeGroup(size, frames, status, known))
+    return candidates, infos, eff
+
+
+def _response_group(candidates, report: _Report) -> _SizeGroup | None:
+    """The size group the response path calibrates: the usable one with most frames (one
+    scene per calibration; the other usable ones are reported as not used)."""
+    usable = [c for c in candidates if c.status in ("ok", "raw?")]
+    usable.sort(key=lambda c: -len(c.frames))
     for c in usable[1:]:
-        warn(f"{_noun(c[1])} of another size ({c[0][1]}x{c[0][0]}: {_names(c[1])}) not "
-             "used by the response path (one scene per calibration)")
+        report.warn(f"{_noun(c.frames)} of another size ({c.size[1]}x{c.size[0]}: "
+                    f"{_names(c.frames)}) not used by the response path (one scene per "
+                    "calibration)")
+    return usable[0] if usable else None
 
-    want_pipeline = bool(groups.pairs)
-    if not response_frames and not want_pipeline:
-        raise CalibrationError(_missing_message(groups, candidates))
 
-    # ---- read, register and sample the pairs (pipeline data and raw exposure ratios)
-    from .pairs import collect_pair_samples
+def _read_pairs(groups: InputGroups, *, seed, max_samples, half_size, block, progress,
+                report: _Report):
+    """Read, register and sample every RAW+JPEG pair (pipeline data and raw exposure
+    ratios); warn about pairs with too few usable samples."""
+    samples, pair_data = collect_pair_samples(
+        [r for r, _ in groups.pairs], [j for _, j in groups.pairs], seed=seed,
+        max_samples=max_samples, half_size=half_size, block=block, progress=progress)
+    for pd in pair_data:
+        c = pd.samples.counts
+        if c.get("valid", 0) < MIN_PAIR_SAMPLES:
+            report.warn(f"{pd.rendered_name}: only {c.get('valid', 0)} usable samples against "
+                        f"its raw ({c.get('clipped_raw', 0)} blocks clipped in the raw, "
+                        f"{c.get('clipped_rendered', 0)} clipped in the JPEG, "
+                        f"{c.get('high_gradient', 0)} high-gradient, of {c.get('total', 0)})")
+    return samples, pair_data
 
-    pair_data = []
-    samples = None
-    if groups.pairs:
-        samples, pair_data = collect_pair_samples(
-            [r for r, _ in groups.pairs], [j for _, j in groups.pairs], seed=seed,
-            max_samples=max_pair_samples, half_size=raw_half_size, block=block,
-            progress=progress)
-        for pd in pair_data:
-            c = pd.samples.counts
-            if c.get("valid", 0) < MIN_PAIR_SAMPLES:
-                warn(f"{pd.rendered_name}: only {c.get('valid', 0)} usable samples against "
-                     f"its raw ({c.get('clipped_raw', 0)} blocks clipped in the raw, "
-                     f"{c.get('clipped_rendered', 0)} clipped in the JPEG, "
-                     f"{c.get('high_gradient', 0)} high-gradient, of {c.get('total', 0)})")
 
-    # ---- exposures for the response path
-    times_for_response = None
-    exposure_kind = None
-    raw_decided = False
-    raw_exposures: dict = {}
-    if response_frames:
-        pd_by_rendered = {Path(pd.rendered_name): pd for pd in pair_data}
-        framed = [p for p in response_frames if p in pd_by_rendered]
-        raw_rel = {}
-        if len(framed) >= 2 and exposure_source in ("auto", "raw"):
-            from .pairs import raw_exposure_ratios
+@dataclass
+class _ResponsePlan:
+    """The response path's frames and exposures, as :func:`_plan_response` decided them."""
 
-            try:
-                rel, rep = raw_exposure_ratios([pd_by_rendered[p].thumbnail for p in framed])
-            except InputError as exc:
-                rel, rep = None, None
-                warn(f"exposure ratios from the raws failed ({exc}); using EXIF times")
-            if rel is not None:
-                comp = rep["component"]
-                for p, e, cmp_ in zip(framed, rel, comp):
-                    if cmp_ >= 0 and np.isfinite(e):
-                        raw_rel[p] = (float(e), cmp_)
-        status = next(c[2] for c in candidates if c[1] == usable[0][1])
-        if status == "raw?":
-            raw_decided = True
-            n_raw = _distinct([v[0] for v in raw_rel.values()])
-            if n_raw < 2:
-                response_frames = []
-                reasons.append(
-                    f"no response path: the raws of {_noun(framed)} show no exposure "
-                    "change between them")
-        if response_frames:
-            if given_times is not None:
-                times_for_response = [given_times[p] for p in response_frames]
-                exposure_kind = "given"
-                reasons.append("exposure times: given by the caller")
-            elif exposure_source == "unknown":
-                times_for_response = [None] * len(response_frames)
-                exposure_kind = "unknown"
-                reasons.append("exposure times: unknown (solved jointly with the response)")
-            elif raw_rel and exposure_source in ("auto", "raw") and len(raw_rel) >= 2:
-                times_for_response, exposure_kind, raw_exposures = _times_from_raws(
-                    response_frames, raw_rel, eff, warn)
-                n_used = sum(1 for p in response_frames if p in raw_rel)
-                dev = _exif_deviation(raw_exposures)
-                reasons.append(
-                    f"exposure ratios from the raws (Lin et al. 2011 §5: median ratio of "
-                    f"unclipped, well-exposed raw values) for {n_used} of "
-                    f"{len(response_frames)} frames"
-                    + (f"; EXIF times differ from them by up to {100 * dev:.1f}%"
-                       if dev is not None else "")
-                    + ("; in seconds via the EXIF times" if any(
-                        eff.get(p) is not None for p in raw_rel) else
-                       "; relative to the first frame (no EXIF times)"))
-            elif exposure_source == "raw":
-                raise CalibrationError(
-                    "exposure_source='raw' needs at least two response frames with raws "
-                    f"(have {len(raw_rel)}: {_names(list(raw_rel)) or 'none'})")
-            else:
-                exposure_kind = "exif"
-                if any(infos[p].exposure_time is None and eff.get(p) is not None
-                       for p in response_frames):
-                    times_for_response = [eff[p] for p in response_frames]
-                missing = [p for p in response_frames if eff.get(p) is None]
-                if len(missing) == len(response_frames):
-                    exposure_kind = "unknown"
-                    reasons.append(
-                        "exposure times: none in EXIF; solved jointly with the response "
-                        "(up to the exponential ambiguity of Lin et al. §5 -- raws of the "
-                        "same frames would fix it)")
-                else:
-                    reasons.append("exposure times: EXIF" + (
-                        f" ({len(missing)} frame(s) without: solved jointly)" if missing
-                        else ""))
-            shown = sorted({t for t in (eff.get(p) for p in response_frames)
-                            if t is not None})
-            span = (f" ({_fmt_time(shown[0])} … {_fmt_time(shown[-1])})"
-                    if len(shown) >= 2 else "")
-            n_exp = _distinct([eff.get(p) for p in response_frames])
-            reasons.insert(0, (
-                f"response path: {_noun(response_frames)} of one scene"
-                + (f" at {n_exp} exposures{span}" if n_exp >= 2 else
-                   " at different exposures")))
+    frames: list = field(default_factory=list)
+    times: list | None = None          # passed to calibrate_response (None: it reads EXIF)
+    exposure_kind: str | None = None   # CalibrationResult.exposure_source
+    raw_exposures: dict = field(default_factory=dict)
+    raw_decided: bool = False          # the raw ratios decided whether the path is taken
 
-    if not response_frames and not raw_decided:
-        why = _response_missing(groups, candidates)
-        if why:
-            reasons.append(f"no response path: {why}")
-    if not response_frames and not want_pipeline:
-        raise CalibrationError(_missing_message(groups, candidates))
 
-    # ---- run the response path
-    taken = []
-    response_model = None
-    if response_frames:
-        from .response.calibrate import calibrate_response
+def _plan_response(group: _SizeGroup, pair_data, infos, eff, given_times, exposure_source,
+                   report: _Report) -> _ResponsePlan:
+    """The response path's frames and where their exposures come from, with the reasons.
 
+    Raw exposure ratios (Lin et al. §5) decide a group whose frames have raws but fewer
+    than two known exposures: without an exposure change between the raws, the response
+    path is not taken.
+    """
+    plan = _ResponsePlan(frames=list(group.frames))
+    raw_rel, framed = _raw_ratios(plan.frames, pair_data, exposure_source, report)
+    if group.status == "raw?":
+        plan.raw_decided = True
+        if _distinct([v[0] for v in raw_rel.values()]) < 2:
+            report.reasons.append(
+                f"no response path: the raws of {_noun(framed)} show no exposure "
+                "change between them")
+            plan.frames = []
+            return plan
+    reasons = _response_exposures(plan, raw_rel, infos, eff, given_times, exposure_source,
+                                  report)
+    shown = sorted({t for t in (eff.get(p) for p in plan.frames) if t is not None})
+    span = f" ({_fmt_time(shown[0])} … {_fmt_time(shown[-1])})" if len(shown) >= 2 else ""
+    n_exp = _distinct([eff.get(p) for p in plan.frames])
+    header = (f"response path: {_noun(plan.frames)} of one scene"
+              + (f" at {n_exp} exposures{span}" if n_exp >= 2 else " at different exposures"))
+    report.reasons += [header] + reasons
+    return plan
+
+
+def _raw_ratios(frames, pair_data, exposure_source, report: _Report):
+    """Relative exposures of the frames with raws, from the raws themselves.
+
+    :func:`selfcal.pairs.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
+    directly computed by dividing the raw values between two images").  Returns
+    ``(raw_rel, framed)``: frame → (relative exposure, connected set), for the frames whose
+    ratio is known, and the frames that have a raw.
+    """
+    pd_by_rendered = {Path(pd.rendered_name): pd for pd in pair_data}
+    framed = [p for p in frames if p in pd_by_rendered]
+    raw_rel = {}
+    if len(framed) >= 2 and exposure_source in ("auto", "raw"):
         try:
-            response_model = calibrate_response([str(p) for p in response_frames],
-                                                times_for_response, progress=progress,
-                                                **resp_opts)
-            taken.append("response")
-        except CalibrationError as exc:
-            if not want_pipeline:
-                raise
-            warn(f"the response path failed: {exc}")
-            reasons.append(f"response path failed: {exc}")
-
-    # ---- run the pipeline path
-    pipeline_model = None
-    n_samples = 0 if samples is None else len(samples)
-    if want_pipeline:
-        fit = _fit_pipeline_function()
-        problem = None
-        if fit is None:
-            problem = ("the RAW path (selfcal.pipeline.fit_pipeline) is not available in "
-                       "this installation")
-        elif n_samples < MIN_PIPELINE_SAMPLES:
-            problem = (f"only {n_samples} usable raw/JPEG samples from "
-                       f"{len(groups.pairs)} pair(s) (need ≥ {MIN_PIPELINE_SAMPLES}): "
-                       "the pairs are clipped or too textured -- "
-                       + "; ".join(f"{Path(pd.rendered_name).name}: " + ", ".join(
-                           f"{k} {v}" for k, v in pd.samples.counts.items())
-                                   for pd in pair_data))
-        if problem is not None:
-            if not taken:
-                raise CalibrationError(problem)
-            warn(f"pipeline path skipped: {problem}")
-            reasons.append(f"pipeline path skipped: {problem}")
+            rel, rep = raw_exposure_ratios([pd_by_rendered[p].thumbnail for p in framed])
+        except InputError as exc:
+            report.warn(f"exposure ratios from the raws failed ({exc}); using EXIF times")
         else:
-            pipe_opts.setdefault("seed", seed)
-            pipeline_model = fit(samples.raw, samples.rendered, progress=progress,
-                                 **pipe_opts)
-            taken.append("pipeline")
-            reasons.append(
-                f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
-                f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples")
-    if not taken:
-        raise CalibrationError("neither calibration path succeeded: " + "; ".join(reasons))
-    # reasons: taken paths first
-    return CalibrationResult(
-        taken=tuple(taken), reasons=reasons, response=response_model,
-        pipeline=pipeline_model, groups=groups, response_frames=list(response_frames),
-        exposure_source=exposure_kind, exposure_times=times_for_response,
-        raw_exposures=raw_exposures, pairs=pair_data, n_pipeline_samples=n_samples,
-        warnings=notes)
+            for p, e, cmp_ in zip(framed, rel, rep["component"]):
+                if cmp_ >= 0 and np.isfinite(e):
+                    raw_rel[p] = (float(e), cmp_)
+    return raw_rel, framed
+
+
+def _response_exposures(plan: _ResponsePlan, raw_rel, infos, eff, given_times,
+                        exposure_source, report: _Report) -> list[str]:
+    """Fill in the plan's exposures: given, unknown, from the raws, or EXIF (in that order
+    of precedence); returns the reasons that say which."""
+    frames = plan.frames
+    if given_times is not None:
+        plan.times, plan.exposure_kind = [given_times[p] for p in frames], "given"
+        return ["exposure times: given by the caller"]
+    if exposure_source == "unknown":
+        plan.times, plan.exposure_kind = [None] * len(frames), "unknown"
+        return ["exposure times: unknown (solved jointly with the response)"]
+    if raw_rel and exposure_source in ("auto", "raw") and len(raw_rel) >= 2:
+        plan.times, plan.exposure_kind, plan.raw_exposures = _times_from_raws(
+            frames, raw_rel, eff, report.warn)
+        n_used = sum(1 for p in frames if p in raw_rel)
+        dev = _exif_deviation(plan.raw_exposures)
+        return [
+            f"exposure ratios from the raws (Lin et al. 2011 §5: median ratio of "
+            f"unclipped, well-exposed raw values) for {n_used} of {len(frames)} frames"
+            + (f"; EXIF times differ from them by up to {100 * dev:.1f}%"
+               if dev is not None else "")
+            + ("; in seconds via the EXIF times" if any(
+                eff.get(p) is not None for p in raw_rel) else
+               "; relative to the first frame (no EXIF times)")]
+    if exposure_source == "raw":
+        raise CalibrationError(
+            "exposure_source='raw' needs at least two response frames with raws "
+            f"(have {len(raw_rel)}: {_names(list(raw_rel)) or 'none'})")
+    plan.exposure_kind = "exif"
+    if any(infos[p].exposure_time is None and eff.get(p) is not None for p in frames):
+        plan.times = [eff[p] for p in frames]
+    missing = [p for p in frames if eff.get(p) is None]
+    if len(missing) == len(frames):
+        plan.exposure_kind = "unknown"
+        return ["exposure times: none in EXIF; solved jointly with the response (up to the "
+                "exponential ambiguity of Lin et al. §5 -- raws of the same frames would "
+                "fix it)"]
+    return ["exposure times: EXIF" + (
+        f" ({len(missing)} frame(s) without: solved jointly)" if missing else "")]
+
+
+def _run_response(plan: _ResponsePlan, resp_opts, *, progress, pipeline_follows,
+                  report: _Report):
+    """The response path (:func:`selfcal.calibrate_response`) on the planned frames, or
+    None without frames; a failure is an error unless the pipeline path follows."""
+    if not plan.frames:
+        return None
+    try:
+        return calibrate_response([str(p) for p in plan.frames], plan.times,
+                                  progress=progress, **resp_opts)
+    except CalibrationError as exc:
+        if not pipeline_follows:
+            raise
+        report.warn(f"the response path failed: {exc}")
+        report.reasons.append(f"response path failed: {exc}")
+        return None
+
+
+def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, progress,
+                  response_taken, report: _Report):
+    """The pipeline path (:func:`selfcal.pipeline.fit_pipeline`) on the joined pair samples.
+
+    With too few samples it is skipped with a warning when the response path was taken,
+    and is an error otherwise.
+    """
+    n_samples = 0 if samples is None else len(samples)
+    if n_samples < MIN_PIPELINE_SAMPLES:
+        problem = (f"only {n_samples} usable raw/JPEG samples from "
+                   f"{len(groups.pairs)} pair(s) (need ≥ {MIN_PIPELINE_SAMPLES}): "
+                   "the pairs are clipped or too textured -- "
+                   + "; ".join(f"{Path(pd.rendered_name).name}: " + ", ".join(
+                       f"{k} {v}" for k, v in pd.samples.counts.items())
+                               for pd in pair_data))
+        if not response_taken:
+            raise CalibrationError(problem)
+        report.warn(f"pipeline path skipped: {problem}")
+        report.reasons.append(f"pipeline path skipped: {problem}")
+        return None
+    model = fit_pipeline(samples.raw, samples.rendered, progress=progress,
+                         **{"seed": seed, **pipe_opts})
+    report.reasons.append(
+        f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
+        f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples")
+    return model
 
 
 def _given_times(exposure_times, rendered):
@@ -690,10 +734,8 @@ def _given_times(exposure_times, rendered):
         return None
     if isinstance(exposure_times, dict):
         lookup = {Path(k).resolve(): v for k, v in exposure_times.items()}
-        out = {}
-        for p in rendered:
-            out[p] = lookup.get(p.resolve())
-        return {p: (None if t is None else float(t)) for p, t in out.items()}
+        times = [lookup.get(p.resolve()) for p in rendered]
+        return {p: (None if t is None else float(t)) for p, t in zip(rendered, times)}
     times = list(exposure_times)
     if len(times) != len(rendered):
         raise InputError(f"{len(times)} exposure times given for {len(rendered)} rendered "
@@ -741,10 +783,8 @@ def _times_from_raws(frames, raw_rel, eff, warn):
 
 def _exif_deviation(raw_exposures):
     """Largest relative deviation of EXIF times from the raw-derived (used) exposures."""
-    devs = []
-    for v in raw_exposures.values():
-        if v["exif"] is not None and v["used"] is not None:
-            devs.append(math.log(v["exif"] / v["used"]))
+    devs = [math.log(v["exif"] / v["used"]) for v in raw_exposures.values()
+            if v["exif"] is not None and v["used"] is not None]
     if len(devs) < 2:
         return None
     devs = np.array(devs) - np.mean(devs)
@@ -791,9 +831,7 @@ def _missing_message(groups: InputGroups, candidates) -> str:
     return f"{_response_missing(groups, candidates)} and {_raws_note(groups)}: {need}"
 
 
-# --------------------------------------------------------------------------------------
-# calibrate_pipeline
-# --------------------------------------------------------------------------------------
+# ---- calibrate_pipeline --------------------------------------------------------------
 
 def _as_list(x):
     if isinstance(x, (str, os.PathLike)):
@@ -845,11 +883,8 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
         Unreadable files, a rendered image that does not match its raw (both named),
         arrays of different sizes that cannot be registered.
     CalibrationError
-        Too few usable samples (everything clipped or textured), or no pipeline fit in this
-        installation.
+        Too few usable samples (everything clipped or textured).
     """
-    from .pairs import collect_pair_samples
-
     raws, rendered = _as_list(raws), _as_list(rendered)
     samples, pairs = collect_pair_samples(raws, rendered, seed=seed, max_samples=max_samples,
                                           half_size=raw_half_size, block=block,
@@ -860,8 +895,5 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
             f"{MIN_PIPELINE_SAMPLES}): " + "; ".join(
                 f"{Path(p.rendered_name).name}: " + ", ".join(
                     f"{k} {v}" for k, v in p.samples.counts.items()) for p in pairs))
-    fit = _fit_pipeline_function()
-    if fit is None:
-        raise CalibrationError("the RAW path (selfcal.pipeline.fit_pipeline) is not "
-                               "available in this installation")
-    return fit(samples.raw, samples.rendered, seed=seed, progress=progress, **fit_options)
+    return fit_pipeline(samples.raw, samples.rendered, seed=seed, progress=progress,
+                        **fit_options)
