@@ -386,7 +386,7 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
       times count as distinct when their brightness visibly differs.
     * ≥ 1 RAW+JPEG pair (see :func:`group_inputs`) → the pipeline path: every pair is read
       (:func:`selfcal.raw.read_raw_linear`), registered
-      (:func:`selfcal.pairs.register_raw_jpeg`) and sampled
+      (:func:`selfcal.registration.register_raw_jpeg`) and sampled
       (:func:`selfcal.pairs.pair_samples`), and the joined samples go to
       :func:`selfcal.pipeline.fit_pipeline` (Gong et al., rank-based radiometric
       calibration, §3; Lin et al. §6).

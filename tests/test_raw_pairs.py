@@ -11,8 +11,8 @@ import pytest
 from selfcal import synth
 from selfcal.errors import InputError
 from selfcal.io import read_image, write_bytes_atomic, write_image
-from selfcal.pairs import (Registration, pair_samples, raw_exposure_ratios,
-                           raw_thumbnail, register_raw_jpeg, sample_raw_jpeg_pair)
+from selfcal.pairs import pair_samples, raw_exposure_ratios, raw_thumbnail, sample_raw_jpeg_pair
+from selfcal.registration import Registration, register_raw_jpeg
 from selfcal.raw import (RAW_SUFFIXES, is_linear_tiff, read_raw_exposure_info,
                          read_raw_linear)
 
