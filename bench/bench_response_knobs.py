@@ -1,0 +1,153 @@
+"""Issue 3: the JPEG-only path's knobs, one at a time, on the truth and on the real-stack metric.
+
+Each row changes one setting of the shipped method and scores it on
+
+* synthetic stacks with a known truth, built as in acceptance 1 (every ``--step``-th DoRF
+  curve, and ``--srgb`` sRGB stacks; 384×576, 6 shots 1/250 … 1/8 s, ±3 % jitter, noise,
+  smooth gamut map, JPEG q90): the median RMSE of f⁻¹ over codes 1 … 254;
+* the real stacks memorial and piccante with the acceptance-2 metric
+  (``selfcal.metrics.log_linearisation_error``, nominal times), where the shipped method
+  stays above OpenCV Robertson (bench_response_real.py).
+
+Knobs that are arguments of the solver (``solve_exposure_equations``) or of the sampling
+(``collect_samples``) are set by wrapping them inside this script; the library keeps no
+switch for them.
+
+    python bench/bench_response_knobs.py [--step 20] [--srgb 6] [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import functools
+import os
+import sys
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import data_dir, real_stacks, table  # noqa: E402
+
+from selfcal.metrics import log_linearisation_error, rmse  # noqa: E402
+
+TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
+REAL = ("memorial", "piccante")
+
+# key -> (row label, calibrate_response kwargs, solver kwargs, sampling kwargs)
+KNOBS = [
+    ("shipped", "as shipped", {}, {}, {}),
+    ("beta1", "β = 1 (no saturation rejection; default 0.5)",
+     {"saturation_threshold": 1.0}, {}, {}),
+    ("n11", "N = 11 basis functions (default 5)", {"n_components": 11}, {}, {}),
+    ("prior10", "coefficient prior weight 10 (default 100)", {}, {"prior_weight": 10.0}, {}),
+    ("prior1", "coefficient prior weight 1", {}, {"prior_weight": 1.0}, {}),
+    ("nothreshold", "no censored white-threshold rows", {}, {"white_threshold": False}, {}),
+    ("adjacent", "adjacent pairs only (max_rank_gap 1; default 3)", {},
+     {"max_rank_gap": 1}, {}),
+    ("nonmonotone", "no monotonicity constraint", {}, {"monotone": False}, {}),
+    ("block2", "2×2 block means (default: single pixels on these frames)", {}, {},
+     {"block": 2}),
+]
+
+
+@contextlib.contextmanager
+def knob(key):
+    """Wrap selfcal's solve and sampling for one knob; yields calibrate kwargs."""
+    import selfcal.response.calibrate as cal
+
+    _, _, kwargs, solver_kw, sampling_kw = next(k for k in KNOBS if k[0] == key)
+    saved = (cal.solve_exposure_equations, cal.collect_samples)
+    try:
+        if solver_kw:
+            cal.solve_exposure_equations = functools.partial(saved[0], **solver_kw)
+        if sampling_kw:
+            cal.collect_samples = functools.partial(saved[1], **sampling_kw)
+        yield kwargs
+    finally:
+        cal.solve_exposure_equations, cal.collect_samples = saved
+
+
+def _rmse_per_knob(stack):
+    import selfcal
+
+    truth = stack.inverse_response()[1:255]
+    out = {}
+    for key, *_ in KNOBS:
+        with knob(key) as kwargs:
+            model = selfcal.calibrate_response(stack.images, TIMES, **kwargs)
+        out[key] = rmse(model.inverse_response()[1:255], truth)
+    return out
+
+
+def one_dorf(args):
+    index, irradiance, brightness = args
+    from selfcal import synth
+
+    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
+    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=index)
+    stack = synth.simulate_stack(synth.make_scene(384, 576, seed=index), pipe, TIMES,
+                                 jitter=0.03, jpeg_quality=90, seed=index)
+    return "dorf", index, _rmse_per_knob(stack)
+
+
+def one_srgb(seed):
+    from selfcal import synth
+
+    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=seed)
+    stack = synth.simulate_stack(synth.make_scene(384, 576, seed=seed), pipe, TIMES,
+                                 jitter=0.03, jpeg_quality=90, seed=seed)
+    return "srgb", seed, _rmse_per_knob(stack)
+
+
+def _run(task):
+    kind, arg = task
+    return one_dorf(arg) if kind == "dorf" else one_srgb(arg)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--step", type=int, default=20, help="use every K-th DoRF curve")
+    parser.add_argument("--srgb", type=int, default=6, help="number of sRGB stacks")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
+    args = parser.parse_args()
+    import scipy.io as sio
+
+    import selfcal
+    from selfcal.io import read_image
+
+    stacks = real_stacks()
+    real = {}
+    for name in REAL:
+        paths, times = stacks[name]
+        images = [read_image(p) for p in paths]
+        real[name] = {}
+        for key, *_ in KNOBS:
+            with knob(key) as kwargs:
+                lut = selfcal.calibrate_response(images, times, **kwargs).inverse_response()
+            real[name][key] = log_linearisation_error(images, times, lut)
+
+    mat = sio.loadmat(data_dir("dorf_emor", "201_CRF_data.mat"))
+    tasks = [("dorf", (i, mat["I"][i], mat["B"][i]))
+             for i in range(0, mat["I"].shape[0], args.step)]
+    tasks += [("srgb", seed) for seed in range(args.srgb)]
+    with Pool(args.jobs) as pool:
+        results = list(pool.imap_unordered(_run, tasks))
+    dorf = [r[2] for r in results if r[0] == "dorf"]
+    srgb = [r[2] for r in results if r[0] == "srgb"]
+
+    rows = []
+    for key, label, *_ in KNOBS:
+        rows.append([label, f"{np.median([r[key] for r in dorf]):.4f}",
+                     f"{np.median([r[key] for r in srgb]):.4f}",
+                     *(f"{real[n][key]:.4f}" for n in REAL)])
+    print(f"Median f⁻¹ RMSE over codes 1..254 on {len(dorf)} DoRF curves (every "
+          f"{args.step}th) and {len(srgb)} sRGB stacks; the acceptance-2 metric on the real "
+          "stacks (nominal times)\n")
+    print(table(["knob", "DoRF f⁻¹ RMSE", "sRGB f⁻¹ RMSE", *REAL], rows))
+
+
+if __name__ == "__main__":
+    main()
