@@ -25,12 +25,11 @@ MIN_EXPOSURE_RATIO = 1.5
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
 #: Basis functions per channel (N of Eq. 7), as Lin et al.  More components fit DoRF
-#: curves better (every 10th of the 201 curves, bench/bench_response_synthetic.py
-#: protocol: median RMSE 0.0044 with N = 5, 0.0029 with N = 11) but let the last,
-#: never-observed codes bend on sRGB curves (10 synthetic sRGB stacks: 0.0016 -> 0.0019;
-#: the sRGB stack of tests/test_response.py: 0.0049 -> 0.0096), and sRGB-like curves are
-#: what most cameras write.  On the real stacks N = 11 lowers the acceptance-2 metric by
-#: at most 2.5 % (memorial 0.1760 -> 0.1716; bench/BENCHMARKS.md).
+#: curves better (every 20th of the 201 curves: median f⁻¹ RMSE 0.0050 with N = 5, 0.0029
+#: with N = 11) but let the last, never-observed codes bend on sRGB curves (6 synthetic
+#: sRGB stacks: 0.0025 -> 0.0028), and sRGB-like curves are what most cameras write.  On
+#: the real stacks N = 11 lowers the acceptance-2 metric by at most 2.5 % (memorial
+#: 0.1760 -> 0.1716).  All from bench/bench_response_knobs.py.
 DEFAULT_N_COMPONENTS = 5
 #: Sample locations drawn from a stack (block means; stratified, see collect_samples).
 DEFAULT_MAX_SAMPLES = 4000
@@ -404,7 +403,9 @@ def _diagnostics(result, *, verdict, warnings, exposure_source, refine_exposures
                  samples, determinacy, contradictions) -> dict:
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
-    ``delta_eq12`` is δ of Eq. 12 over the solve's inliers (:func:`selfcal.metrics.delta_eq12`).
+    ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.metrics.delta_eq12`) per channel over the
+    solve's frame pairs and inliers (samples neither clipped nor above β in either frame:
+    what the curve was fitted to), not over all points as paper 002 scores its Fig. 4.
     """
     per_pair = {f"{frames_used[a]} -> {frames_used[b]}": v
                 for (a, b), v in result.per_pair_rms.items()}
