@@ -2,7 +2,7 @@
 
 Registered on the main parser by :func:`register`; nothing numerical lives here (the work
 is :func:`selfcal.merge_hdr`, :func:`selfcal.hdr.linearize_images` and
-:mod:`selfcal.hdr_io`).
+:mod:`selfcal.hdr.io`).
 """
 
 from __future__ import annotations
