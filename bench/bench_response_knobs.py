@@ -10,8 +10,9 @@ Each row changes one setting of the shipped method and scores it on
   stays above OpenCV Robertson (bench_response_real.py).
 
 Knobs that are arguments of the solver (``solve_exposure_equations``) or of the sampling
-(``collect_samples``) are set by wrapping them inside this script; the library keeps no
-switch for them.
+(``collect_samples``), and the per-channel ranking that replaces
+``samples._local_contrast``, are set by wrapping selfcal's functions inside this script;
+the library keeps no switch for them.
 
     python bench/bench_response_knobs.py [--step 20] [--srgb 6] [--jobs 2]
 """
@@ -50,24 +51,42 @@ KNOBS = [
     ("nonmonotone", "no monotonicity constraint", {}, {"monotone": False}, {}),
     ("block2", "2×2 block means (default: single pixels on these frames)", {}, {},
      {"block": 2}),
+    ("perchannel", "sample ranking by per-channel spatial spread (no neutrality)", {}, {},
+     {}),
 ]
+
+
+def _per_channel_contrast(blocks):
+    """The sample ranking's spread without its across-channel part: the largest
+    per-channel spread over a block and its 8 neighbours, over the block's level, so a
+    flat coloured block ranks as flat as a flat neutral one (``samples._local_contrast``
+    takes the spread across channels too)."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    blocks = np.asarray(blocks, dtype=np.float32)
+    size = (3, 3, 1) if blocks.shape[0] > 2 else (1, 1, 1)
+    spread = (maximum_filter(blocks, size=size) - minimum_filter(blocks, size=size)).max(axis=2)
+    return spread / np.maximum(blocks.mean(axis=2), 1.0)
 
 
 @contextlib.contextmanager
 def knob(key):
     """Wrap selfcal's solve and sampling for one knob; yields calibrate kwargs."""
     import selfcal.response.calibrate as cal
+    import selfcal.samples as samples
 
     _, _, kwargs, solver_kw, sampling_kw = next(k for k in KNOBS if k[0] == key)
-    saved = (cal.solve_exposure_equations, cal.collect_samples)
+    saved = (cal.solve_exposure_equations, cal.collect_samples, samples._local_contrast)
     try:
         if solver_kw:
             cal.solve_exposure_equations = functools.partial(saved[0], **solver_kw)
         if sampling_kw:
             cal.collect_samples = functools.partial(saved[1], **sampling_kw)
+        if key == "perchannel":
+            samples._local_contrast = _per_channel_contrast
         yield kwargs
     finally:
-        cal.solve_exposure_equations, cal.collect_samples = saved
+        cal.solve_exposure_equations, cal.collect_samples, samples._local_contrast = saved
 
 
 def _rmse_per_knob(stack):
