@@ -1,7 +1,7 @@
 """Aligning the frames of a handheld stack to its reference frame.
 
 Below both paths: the response calibration aligns a handheld stack before it samples it
-(:mod:`selfcal.response.aligned`), and the merge aligns before it accumulates
+(:func:`selfcal.response.calibrate.calibrate_aligned`), and the merge aligns before it accumulates
 (:func:`selfcal.merge_hdr`).  Two methods, each on OpenCV:
 
 * ``"mtb"``: an integer translation by median threshold bitmaps (Ward, *Fast, Robust
@@ -421,3 +421,27 @@ def _working_reduce(frames: _Frames, size: int) -> int:
     while r < 8 and long_side / (2 * r) >= size:
         r *= 2
     return r
+
+
+def aligned_working_frames(frames: _Frames, transforms, max_side: int = 2048) -> list:
+    """The frames warped onto the reference, downscaled to ``max_side`` (for calibration).
+
+    Calibration samples block means on a coarse grid, so a reduced copy loses little, and
+    17 frames of 24 MP then take about 80 MB instead of 1.2 GB.
+    """
+    cv2 = _cv2()
+    full_h, full_w = frames.shape
+    s0 = min(1.0, max_side / max(full_h, full_w))
+    size = (max(8, round(full_w * s0)), max(8, round(full_h * s0)))
+    sx, sy = size[0] / full_w, size[1] / full_h
+    reduce = _working_reduce(frames, max_side)
+    out = []
+    for k in range(len(frames)):
+        img = frames.load(k, reduce=reduce)
+        if (img.shape[1], img.shape[0]) != size:
+            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        t = _rescale_homography(transforms[k], sx, sy)
+        if not _negligible(t, img.shape[:2]):
+            img = warp_to_reference(img, t)
+        out.append(img)
+    return out

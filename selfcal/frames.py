@@ -1,7 +1,8 @@
 """A stack's frames as the merge and the alignment read them: decoding, linearising, exposures.
 
-The rooms above -- :mod:`selfcal.align`, :mod:`selfcal.response.aligned` and the merge of
-:mod:`selfcal.hdr` -- all see a bracketed stack through the pieces here:
+The rooms above -- :mod:`selfcal.align`, the response path's "align, then calibrate"
+(:func:`selfcal.response.calibrate.calibrate_aligned`) and the merge of :mod:`selfcal.hdr`
+-- all see a bracketed stack through the pieces here:
 
 * :class:`_Frames`: the frames, arrays used as they are or paths decoded one at a time
   (JPEG/PNG/TIFF through :mod:`selfcal.io`, camera raw through :mod:`selfcal.raw`), with

@@ -15,7 +15,7 @@ each module.  Where each piece lives:
 
 Below this package, and shared with the response path: the frames, linearisers and
 exposures in :mod:`selfcal.frames`, the alignment in :mod:`selfcal.align`; "align, then
-calibrate" is :func:`selfcal.response.aligned.calibrate_aligned`.
+calibrate" is :func:`selfcal.response.calibrate.calibrate_aligned`.
 """
 
 from __future__ import annotations

@@ -77,8 +77,7 @@ from ..frames import (
     _resolve_exposures,
 )
 from ..io import _cv2, _is_path, read_image
-from ..response.aligned import calibrate_aligned
-from ..response.calibrate import calibrate_response, resolve_exposure_times
+from ..response.calibrate import calibrate_aligned, calibrate_response
 from .deghost import _ghost_mask, _poor_agreement
 from .weights import NoiseModel, _FrameTables
 
@@ -311,7 +310,7 @@ def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, cli
     """The frames' own response (Lin et al., ICCV 2011, §5), when no model is given.
 
     With ``align``, calibrated on the frames aligned first
-    (:func:`selfcal.response.aligned.calibrate_aligned`).  The calibration's warnings join
+    (:func:`selfcal.response.calibrate.calibrate_aligned`).  The calibration's warnings join
     ``warnings`` (all but the contradicted times, which :func:`_resolve_exposures` reports
     with what is done about them) and its verdict ``diagnostics``.
 
@@ -326,8 +325,7 @@ def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, cli
     transforms = ref0 = None
     if align:
         model, transforms, ref0 = calibrate_aligned(
-            frames, exposure_times, calibrate=calibrate_response,
-            resolve_times=resolve_exposure_times, method=align, reference=reference,
+            frames, exposure_times, method=align, reference=reference,
             clip_margin=clip_margin, warnings=warnings, progress=progress, **options)
         diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
     else:

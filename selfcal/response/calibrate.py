@@ -11,7 +11,16 @@ import math
 
 import numpy as np
 
+from ..align import aligned_working_frames, estimate_alignment
 from ..errors import CalibrationError, InputError
+from ..frames import (
+    DEFAULT_CLIP_MARGIN,
+    _default_reference,
+    _Frames,
+    _given_exposures,
+    _name_arrays,
+    _resolve_exposures,
+)
 from ..io import _is_path
 from ..metrics import delta_eq12
 from ..samples import collect_samples, frame_masks
@@ -105,7 +114,7 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         Seed of every random choice (the same input gives the same model).
     align : {False, "mtb", "homography"}
         Handheld stacks: align the frames to the middle exposure first
-        (:func:`selfcal.response.aligned.calibrate_aligned`); misaligned frames give wrong
+        (:func:`calibrate_aligned`); misaligned frames give wrong
         correspondences, which read as contradicted exposure times.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
@@ -196,8 +205,6 @@ def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, pr
 
     The warnings of the alignment come first in the model's diagnostics.
     """
-    from .aligned import calibrate_aligned
-
     if align is True:
         align = "mtb"
     if align not in ("mtb", "homography"):
@@ -205,10 +212,84 @@ def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, pr
     warnings: list[str] = []
     model, _, _ = calibrate_aligned(
         frames, exposure_times, method=align, clip_margin=clip_margin,
-        warnings=warnings, progress=progress, calibrate=calibrate_response,
-        resolve_times=resolve_exposure_times, **options)
+        warnings=warnings, progress=progress, **options)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
+
+
+def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None, clip_margin: float = DEFAULT_CLIP_MARGIN,
+                      warnings: list | None = None, progress=None, max_side: int = 2048,
+                      **options):
+    """Align a handheld stack to its reference frame, then calibrate its response.
+
+    Misaligned frames give wrong correspondences, and the solve of Lin et al. (ICCV 2011,
+    Eq. 8) then reads them as contradicted exposure times; so the frames are aligned first
+    (:func:`selfcal.align.estimate_alignment`; with unknown times, after a provisional
+    calibration that supplies the exposures the homography needs) and the response is
+    calibrated on the aligned frames, downscaled to ``max_side``
+    (:func:`selfcal.align.aligned_working_frames`: the calibration uses block means only).
+
+    Ours, not the paper's: with unknown times, a provisional calibration on the unaligned
+    frames supplies the exposures the homography needs; the model's sources and messages
+    name the original frames.
+
+    Parameters
+    ----------
+    images : sequence
+        Frames (arrays or paths).
+    exposure_times : sequence of float or None, optional
+        As for :func:`selfcal.calibrate_response`.
+    method : {"mtb", "homography"}
+        Alignment (see :func:`selfcal.align.estimate_alignment`).
+    reference : int, optional
+        Reference frame; default the middle exposure.
+    options
+        Passed on to :func:`calibrate_response`.
+
+    Returns
+    -------
+    model : ResponseModel
+        Its ``sources`` are the original frames'; ``diagnostics["calibrated_on"]`` says
+        what it was calibrated on, ``diagnostics["alignment"]`` holds the transforms.
+    transforms : list of numpy.ndarray
+        Per frame, the 3×3 map from reference to frame pixel coordinates.
+    reference : int
+    """
+    frames = images if isinstance(images, _Frames) else _Frames(images, False)
+    n = len(frames)
+    warnings = [] if warnings is None else warnings
+    given, _ = _given_exposures(frames, exposure_times)
+    provisional = None
+    if any(g is None for g in given):
+        provisional = calibrate_response(frames.items, exposure_times, progress=progress, **options)
+        given = list(_resolve_exposures(frames, exposure_times, provisional, True, [])[0])
+    ref = _default_reference(given) if reference is None else int(reference)
+    if not 0 <= ref < n:
+        raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
+    transforms = estimate_alignment(frames, given, provisional, method=method, reference=ref,
+                                    clip_margin=clip_margin, warnings=warnings,
+                                    progress=progress)
+    small = aligned_working_frames(frames, transforms, max_side=max_side)
+    # the solve gets the frames' own times (seconds, None where unknown), as unaligned
+    times, time_source = resolve_exposure_times(frames.items, exposure_times, list(frames.sources))
+    options.setdefault("clip_margin", clip_margin)
+    model = calibrate_response(small, times, progress=progress, **options)
+    model.diagnostics["exposure_source"] = time_source
+    model.sources = list(frames.sources)
+    diag = model.diagnostics
+    diag["warnings"] = [_name_arrays(w, frames.sources) for w in diag.get("warnings", [])]
+    diag["frames_used"] = [_name_arrays(f, frames.sources)
+                           for f in diag.get("frames_used", [])]
+    diag["per_pair_rms_log"] = {_name_arrays(k, frames.sources): v
+                                for k, v in diag.get("per_pair_rms_log", {}).items()}
+    for c in diag.get("contradicting_times", []) or []:
+        c["frame"] = _name_arrays(str(c.get("frame")), frames.sources)
+    model.diagnostics["calibrated_on"] = (f"frames aligned ({method}), long side "
+                                          f"{max(small[0].shape[:2])} px")
+    model.diagnostics["alignment"] = {
+        "method": method, "reference": frames.sources[ref],
+        "transforms": [np.round(t, 6).tolist() for t in transforms]}
+    return model, transforms, ref
 
 
 def _log_domain_basis(basis, n_components: int):
