@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import opencv_inverse_response, real_stacks, table  # noqa: E402
+from common import opencv_inverse_response, read_real_stacks, table  # noqa: E402
 
 from selfcal.samples import hsv_saturation  # noqa: E402
 
@@ -57,13 +57,11 @@ def pair_pixels(images, times, lut_by_curve, channel):
 
 def main():
     import selfcal
-    from selfcal.io import read_image
 
-    stacks = real_stacks()
+    stacks = read_real_stacks(CELLS)
     band_rows, largest_rows = [], []
     for name, (channel, lo, hi) in CELLS.items():
-        paths, times = stacks[name]
-        images = [read_image(p) for p in paths]
+        images, times = stacks[name]
         luts = {"selfcal": selfcal.calibrate_response(images, times).inverse_response(),
                 "robertson": opencv_inverse_response(images, times, "robertson")}
         px = pair_pixels(images, times, luts, channel)

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import data_dir, real_stacks, table  # noqa: E402
+from common import data_dir, read_real_stacks, table  # noqa: E402
 
 from selfcal.metrics import log_linearisation_error, rmse  # noqa: E402
 
@@ -135,13 +135,9 @@ def main():
     import scipy.io as sio
 
     import selfcal
-    from selfcal.io import read_image
 
-    stacks = real_stacks()
     real = {}
-    for name in REAL:
-        paths, times = stacks[name]
-        images = [read_image(p) for p in paths]
+    for name, (images, times) in read_real_stacks(REAL).items():
         real[name] = {}
         for key, *_ in KNOBS:
             with knob(key) as kwargs:

@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import data_dir, opencv_inverse_response, real_stacks, table  # noqa: E402
+from common import data_dir, opencv_inverse_response, read_real_stacks, table  # noqa: E402
 
 from selfcal.metrics import (best_scale_rmse, log_linearisation_error,  # noqa: E402
                              per_code_floor, rmse)
@@ -165,13 +165,8 @@ def main():
     args = parser.parse_args()
     import scipy.io as sio
 
-    from selfcal.io import read_image
-
-    stacks = real_stacks()
     real = {}
-    for name in REAL:
-        paths, times = stacks[name]
-        images = [read_image(p) for p in paths]
+    for name, (images, times) in read_real_stacks(REAL).items():
         real[name] = {k: log_linearisation_error(images, times, lut)
                       for k, lut in curves_for(images, times).items()}
 

@@ -44,6 +44,15 @@ def real_stacks():
     return stacks
 
 
+def read_real_stacks(names):
+    """Decoded frames of the named real stacks: name -> (RGB images, nominal times)."""
+    from selfcal.io import read_image
+
+    stacks = real_stacks()
+    return {name: ([read_image(p) for p in stacks[name][0]], stacks[name][1])
+            for name in names}
+
+
 def opencv_inverse_response(images_rgb, times, method: str) -> np.ndarray:
     """OpenCV's CalibrateDebevec / CalibrateRobertson response as f⁻¹, (256, 3) RGB."""
     import cv2
