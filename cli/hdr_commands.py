@@ -48,7 +48,8 @@ def cmd_merge(args) -> int:
                        align=args.align or False, deghost=args.deghost,
                        reference=args.reference, linear=args.linear,
                        progress=progress_bar("merge"))
-    write_radiance(out, result.radiance, force=args.force, half=args.half, inputs=images)
+    written = write_radiance(out, result.radiance, force=args.force, half=args.half,
+                             inputs=images)
     if args.preview:
         write_preview(args.preview, result.radiance, force=args.force, inputs=images,
                       mask=~result.unmeasured)
@@ -84,7 +85,10 @@ def cmd_merge(args) -> int:
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
     for w in result.warnings:
         say(f"warning: {w}")
-    say(f"wrote {out}")
+    say(f"wrote {out}" + ("" if written.scale == 1 else
+                          f" (half floats scaled into range: stored values x {written.scale:g}"
+                          " = radiance; the factor is recorded in the file as"
+                          " selfcalRadianceScale)"))
     if args.preview:
         say(f"wrote {args.preview}")
     return EXIT_OK

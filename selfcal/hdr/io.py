@@ -8,6 +8,14 @@ Formats chosen by the file suffix:
   OpenCV (8-bit mantissas with a shared exponent: about 1 % relative precision);
 * ``.tif`` / ``.tiff`` -- float32 (or float16 with ``half=True``) RGB TIFF, through tifffile.
 
+Half floats end at 65,504.  Rather than write ``inf`` there (a radiance in EXIF units,
+``t·ISO/100/N²``, exceeds it for a daylight bracket: f/16, ISO 100, 1/4000 s), a half-float
+output whose largest magnitude exceeds :data:`HALF_LIMIT` (2¹⁵ = 32,768) is stored divided
+by a power of two, and the factor is recorded in the file -- the EXR header attribute
+``selfcalRadianceScale`` (type ``double``), or the JSON of the TIFF's ImageDescription tag
+(key ``selfcalRadianceScale``).  **A reader must multiply the stored values by it**
+(:func:`read_radiance` does).  Files that fit are written unscaled and carry no attribute.
+
 Every file is written to a temporary file with the same suffix in the target folder and
 renamed onto the target (:func:`selfcal.io.atomic_output`); an existing file is replaced
 only with ``force=True``, and an input never.
@@ -15,7 +23,11 @@ only with ``force=True``, and an input never.
 
 from __future__ import annotations
 
+import json
 import math
+import os
+import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +38,10 @@ from ..io import _cv2, atomic_output, write_image
 __all__ = [
     "OutputWriteError",
     "RADIANCE_SUFFIXES",
+    "HALF_LIMIT",
+    "SCALE_ATTRIBUTE",
+    "RadianceFile",
+    "half_scale",
     "EXR_COMPRESSIONS",
     "write_radiance",
     "read_radiance",
@@ -35,6 +51,15 @@ __all__ = [
 ]
 
 RADIANCE_SUFFIXES = {".exr", ".hdr", ".pic", ".tif", ".tiff"}
+
+#: The largest magnitude a half-float output stores: 2¹⁵, about half of float16's largest
+#: finite value (65,504), so rounding to half cannot overflow and a reader can still double
+#: the values (an exposure adjustment) without reaching inf.
+HALF_LIMIT = 2.0 ** 15
+
+#: Name of the recorded scale: an EXR header attribute (``double``) and a key of the JSON
+#: in a TIFF's ImageDescription tag.  Stored values times it are the radiance.
+SCALE_ATTRIBUTE = "selfcalRadianceScale"
 
 
 class OutputWriteError(SelfcalError, OSError):
@@ -50,6 +75,48 @@ def _check_radiance(radiance) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise InputError("radiance holds NaN or infinite values")
     return arr
+
+
+@dataclass(frozen=True)
+class RadianceFile:
+    """What :func:`write_radiance` wrote: the path, and the scale a reader multiplies by.
+
+    ``os.PathLike`` (and ``str()`` gives the path), so it can be used wherever the
+    written path is wanted.
+
+    Attributes
+    ----------
+    path : pathlib.Path
+    scale : float
+        Stored values times ``scale`` are the radiance: 1 unless a half-float output had
+        to be scaled into range (then a power of two > 1, also recorded in the file as
+        :data:`SCALE_ATTRIBUTE`).
+    """
+
+    path: Path
+    scale: float = 1.0
+
+    def __fspath__(self) -> str:
+        return os.fspath(self.path)
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+
+def half_scale(radiance) -> float:
+    """The power of two a half-float output of ``radiance`` is divided by (ours).
+
+    ``2**k`` with the smallest integer ``k >= 0`` such that ``max|radiance| / 2**k <=``
+    :data:`HALF_LIMIT`; 1 when the values fit as they are.  Dividing by a power of two is
+    exact, so stored values times the scale equal the radiance to half precision (relative
+    error ≤ 2⁻¹¹ for stored magnitudes ≥ 2⁻¹⁴; smaller ones are float16 subnormals, and
+    magnitudes below ``2⁻²⁴ · scale`` are stored as 0).
+    """
+    arr = np.asarray(radiance)
+    peak = float(np.max(np.abs(arr))) if arr.size else 0.0
+    if not peak <= HALF_LIMIT:
+        return float(2.0 ** math.ceil(math.log2(peak / HALF_LIMIT)))
+    return 1.0
 
 
 #: OpenEXR compressions (lossless ones; PIZ is the usual choice for photographs).
@@ -70,8 +137,12 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
     force : bool
         Replace an existing file.
     half : bool
-        16-bit half floats (EXR ``IMWRITE_EXR_TYPE_HALF``; float16 TIFF).  Ignored for
-        RGBE, which has its own 32-bit shared-exponent encoding.
+        16-bit half floats (EXR ``IMWRITE_EXR_TYPE_HALF``; float16 TIFF).  Never writes
+        inf: when ``max|radiance|`` exceeds :data:`HALF_LIMIT`, the values are stored
+        divided by the power of two :func:`half_scale` gives, and that factor is recorded
+        as :data:`SCALE_ATTRIBUTE` (EXR header attribute; TIFF ImageDescription JSON) and
+        returned -- a reader must multiply the stored values by it.  Ignored for RGBE,
+        which has its own 32-bit shared-exponent encoding (up to about 1.7e38).
     inputs : iterable of paths
         Files never to be written over.
     compression : {"piz", "zip", "zips", "rle", "none"}
@@ -80,7 +151,9 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
 
     Returns
     -------
-    pathlib.Path
+    RadianceFile
+        The path (``os.PathLike``) and the scale a reader multiplies the stored values by
+        (1 unless a half-float output was scaled into range).
 
     Raises
     ------
@@ -97,13 +170,20 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
         raise InputError(f"unsupported radiance format {path.suffix!r} "
                          "(use .exr, .hdr or .tif)", path)
     arr = _check_radiance(radiance)
+    scale = half_scale(arr) if half and suffix not in (".hdr", ".pic") else 1.0
     if suffix in (".tif", ".tiff"):
-        data = arr.astype(np.float16 if half else np.float32, copy=False)
-        _write_tiff(path, data, force=force, inputs=inputs)
-        return path
+        if scale != 1.0:
+            data = (arr.astype(np.float32) / np.float32(scale)).astype(np.float16)
+        else:
+            data = arr.astype(np.float16 if half else np.float32, copy=False)
+        _write_tiff(path, data, force=force, inputs=inputs,
+                    metadata={SCALE_ATTRIBUTE: scale} if scale != 1.0 else None)
+        return RadianceFile(path, scale)
 
     cv2 = _cv2()
     bgr = np.ascontiguousarray(arr[:, :, ::-1], dtype=np.float32)
+    if scale != 1.0:
+        bgr /= np.float32(scale)
     if suffix == ".exr":
         codes = {"piz": cv2.IMWRITE_EXR_COMPRESSION_PIZ, "zip": cv2.IMWRITE_EXR_COMPRESSION_ZIP,
                  "zips": cv2.IMWRITE_EXR_COMPRESSION_ZIPS,
@@ -123,11 +203,106 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
             raise OutputWriteError(f"{path}: OpenCV could not write it ({exc})") from None
         if not ok:
             raise OutputWriteError(f"{path}: OpenCV could not write it (no {suffix} encoder?)")
-    return path
+        if scale != 1.0:
+            tmp = Path(tmp)
+            data = _exr_add_attribute(tmp.read_bytes(), SCALE_ATTRIBUTE, "double",
+                                      struct.pack("<d", scale), path)
+            tmp.write_bytes(data)
+    return RadianceFile(path, scale)
+
+
+# OpenEXR file layout (openexr.com, "OpenEXR File Layout"): magic, version field, header
+# attributes (name NUL, type NUL, int32 size, value) ended by a NUL byte, then the chunk
+# offset table (uint64 absolute file offsets), then the chunks.  Scan lines per chunk by
+# compression (NO, RLE, ZIPS, ZIP, PIZ, PXR24, B44, B44A, DWAA, DWAB):
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+_EXR_LINES_PER_CHUNK = (1, 1, 1, 16, 32, 16, 32, 32, 32, 256)
+
+
+def _exr_header(data: bytes, path) -> tuple[dict, int]:
+    """The attributes ``name -> (type, raw value)`` of a single-part EXR and the offset
+    of the NUL byte that ends its header.  Ours: a reader of the layout, not of pixels."""
+    if len(data) < 8 or data[:4] != _EXR_MAGIC:
+        raise InputError("not an OpenEXR file", path)
+    version = int.from_bytes(data[4:8], "little")
+    if version & 0xFF != 2 or version & 0x1A00:       # tiled, deep or multi-part
+        raise InputError("an OpenEXR layout other than single-part scan lines "
+                         f"(version field {version:#x})", path)
+    attrs, pos = {}, 8
+    try:
+        while data[pos] != 0:
+            end = data.index(b"\0", pos)
+            name = data[pos:end].decode("latin-1")
+            tend = data.index(b"\0", end + 1)
+            kind = data[end + 1:tend].decode("latin-1")
+            (size,) = struct.unpack_from("<i", data, tend + 1)
+            attrs[name] = (kind, data[tend + 5:tend + 5 + size])
+            pos = tend + 5 + size
+    except (IndexError, ValueError, struct.error):
+        raise InputError("truncated OpenEXR header", path) from None
+    return attrs, pos
+
+
+def _exr_add_attribute(data: bytes, name: str, kind: str, value: bytes, path) -> bytes:
+    """Insert a header attribute into a single-part scan-line EXR file (ours).
+
+    The header grows by the attribute's length, so every entry of the chunk offset table
+    (absolute offsets) moves by as much; the chunks themselves are copied unchanged.
+    """
+    try:
+        attrs, end = _exr_header(data, path)
+        if name in attrs:
+            raise InputError(f"the OpenEXR header has a {name} attribute already", path)
+        xmin, ymin, xmax, ymax = struct.unpack("<4i", attrs["dataWindow"][1])
+        compression = attrs["compression"][1][0]
+        lines = _EXR_LINES_PER_CHUNK[compression]
+    except (InputError, KeyError, IndexError, struct.error) as exc:
+        raise OutputWriteError(f"{path}: the EXR OpenCV wrote cannot take the "
+                               f"{name} attribute ({exc})") from None
+    chunks = -(-(ymax - ymin + 1) // lines)
+    table = np.frombuffer(data, dtype="<u8", count=chunks, offset=end + 1)
+    attr = name.encode("latin-1") + b"\0" + kind.encode("latin-1") + b"\0"
+    attr += struct.pack("<i", len(value)) + value
+    moved = (table + np.uint64(len(attr))).astype("<u8").tobytes()
+    return data[:end] + attr + b"\0" + moved + data[end + 1 + 8 * chunks:]
+
+
+def _recorded_scale(path: Path) -> float:
+    """The :data:`SCALE_ATTRIBUTE` recorded in a radiance file, 1 when there is none."""
+    suffix = path.suffix.lower()
+    value = None
+    if suffix == ".exr":
+        with open(path, "rb") as fh:
+            head = fh.read(1 << 16)
+        attrs, _ = _exr_header(head, path)
+        if SCALE_ATTRIBUTE in attrs:
+            kind, raw = attrs[SCALE_ATTRIBUTE]
+            value = struct.unpack("<d" if kind == "double" else "<f", raw)[0]
+    elif suffix in (".tif", ".tiff"):
+        import tifffile
+
+        with tifffile.TiffFile(path) as tif:
+            text = tif.pages[0].description
+        try:
+            meta = json.loads(text) if text else {}
+        except ValueError:
+            meta = {}
+        if isinstance(meta, dict):
+            value = meta.get(SCALE_ATTRIBUTE)
+    if value is None:
+        return 1.0
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise InputError(f"invalid {SCALE_ATTRIBUTE} {value!r}", path)
+    return value
 
 
 def read_radiance(path) -> np.ndarray:
-    """Read an EXR, RGBE or float TIFF radiance map as float32 ``HxWx3`` RGB."""
+    """Read an EXR, RGBE or float TIFF radiance map as float32 ``HxWx3`` RGB.
+
+    The stored values are multiplied by the scale recorded as :data:`SCALE_ATTRIBUTE`
+    (see :func:`write_radiance`), so a scaled half-float file reads back as the radiance.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("no such file", path)
@@ -135,13 +310,17 @@ def read_radiance(path) -> np.ndarray:
     if suffix in (".tif", ".tiff"):
         import tifffile
 
-        arr = tifffile.imread(path)
-        return np.asarray(arr, dtype=np.float32)
-    cv2 = _cv2()
-    bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if bgr is None:
-        raise InputError("cannot be decoded as a radiance map", path)
-    return np.ascontiguousarray(bgr[:, :, ::-1], dtype=np.float32)
+        arr = np.asarray(tifffile.imread(path), dtype=np.float32)
+    else:
+        cv2 = _cv2()
+        bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if bgr is None:
+            raise InputError("cannot be decoded as a radiance map", path)
+        arr = np.ascontiguousarray(bgr[:, :, ::-1], dtype=np.float32)
+    scale = _recorded_scale(path)
+    if scale != 1.0:
+        arr *= np.float32(scale)
+    return arr
 
 
 # --------------------------------------------------------------------------------------
@@ -292,11 +471,14 @@ def write_linear(path, linear, *, float32: bool = False, force: bool = False, in
     return path
 
 
-def _write_tiff(path, data, *, force, inputs, extratags=()):
+def _write_tiff(path, data, *, force, inputs, extratags=(), metadata=None):
     import tifffile
 
+    # metadata (a dict) goes into ImageDescription as JSON, next to tifffile's "shape"
+    extra = {} if metadata is None else {"metadata": dict(metadata)}
     with atomic_output(path, force=force, inputs=inputs) as tmp:
         try:
-            tifffile.imwrite(tmp, data, photometric="rgb", extratags=list(extratags))
+            tifffile.imwrite(tmp, data, photometric="rgb", extratags=list(extratags),
+                             **extra)
         except OSError as exc:
             raise OutputWriteError(f"{path}: cannot be written ({exc})") from None
