@@ -1,0 +1,296 @@
+"""Issue 13: truth-free odd/even agreement of HDR merges on real stacks.
+
+For each real stack (memorial with its shutter_times.txt, piccante, ntu, frobisher and
+every scene of ../shared/data/real_brackets, with EXIF times), frames sorted by exposure:
+
+* one response is calibrated from **all** frames -- selfcal's ``calibrate_response`` with
+  its defaults, OpenCV's ``CalibrateDebevec``, colour-hdri's
+  ``camera_response_functions_Debevec1997``;
+* the **even**-indexed frames (0, 2, 4, ... in exposure order) and the **odd**-indexed
+  ones (1, 3, ...) are merged separately with that response: selfcal's ``merge_hdr`` with
+  its defaults, with ``weighting="noise"`` and with ``weighting="hat"``; OpenCV's
+  ``MergeDebevec``; colour-hdri's ``image_stack_to_HDRI``;
+* where both halves measured a pixel the two radiance maps should agree up to one global
+  scale.  The score is the median (and the 90th percentile) of ``|log(E_odd / E_even) − s|``
+  with ``s`` the median log ratio, per channel, pooled over the three channels, over the
+  pixels measured in both halves.
+
+"Measured" is defined once per half from the codes, the same for every method: some frame
+of that half has every channel strictly inside selfcal's clip limits
+(``selfcal.frames._clip_limits`` with the default 2-code margin: 2 < code < 253 for 8-bit
+frames).  A non-finite or non-positive radiance value on a scored pixel counts as an
+infinite disagreement (colour-hdri's polynomial extrapolation can go negative).  No
+method's own notion of clipping enters the pixel set.
+
+The split: memorial and the first real_brackets scene of each camera are the **tuning**
+split (the merge may be tuned on them); every other stack is **held out**.
+
+A second table is the memorial comparison of the issue: the default merge and the hat
+merge of all 16 frames against the noise-weighted one (same model), median log ratio and
+p95 |log ratio| (no rescaling; the exposures are the same), over all pixels and over the
+pixels some frame measured.
+
+    python bench/bench_hdr_oddeven.py                 # every stack (about 6 minutes)
+    python bench/bench_hdr_oddeven.py --only memorial --only sony_ilce6400/scene3
+    python bench/bench_hdr_oddeven.py --reduce 4      # every JPEG at 1/4 (quick)
+
+The ntu frames (6000×4000) are always decoded at 1/4 or less (libjpeg DCT scaling,
+``read_image(..., reduce=4)``); the "size" column gives the size merged.  Colour-hdri runs
+with one BLAS thread (threadpoolctl), as does everything else here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import read_frame, real_bracket_scenes, real_stacks, table  # noqa: E402
+
+#: Stacks the merge may be tuned on (memorial and the first scene of each camera).
+TUNING = ("memorial", "fujifilm_xh1/scene1", "sony_ilce6400/scene1")
+#: The 24 MP ntu frames are decoded at 1/NTU_REDUCE at least.
+NTU_REDUCE = 4
+METHODS = ("selfcal default", "selfcal noise", "selfcal hat", "OpenCV", "colour-hdri")
+
+
+# --------------------------------------------------------------------------------------
+# stacks
+# --------------------------------------------------------------------------------------
+
+def stack_list():
+    """name -> (paths, times), in the order the tables print."""
+    stacks = {}
+    base = real_stacks()
+    for name in ("memorial", "piccante", "ntu", "frobisher"):
+        stacks[name] = base[name]
+    stacks.update(real_bracket_scenes())
+    return stacks
+
+
+def exposure_meta(paths):
+    """(f-number, ISO) per frame from EXIF, 1 and 100 where absent (memorial's PNGs)."""
+    from selfcal.io import read_exposure_info
+
+    out = []
+    for p in paths:
+        info = read_exposure_info(p) if p.suffix.lower() in (".jpg", ".jpeg") else None
+        out.append((info.f_number if info and info.f_number else 1.0,
+                    info.iso if info and info.iso else 100.0))
+    return out
+
+
+# --------------------------------------------------------------------------------------
+# scoring
+# --------------------------------------------------------------------------------------
+
+def measured(frames) -> np.ndarray:
+    """HxW bool: some frame has every channel strictly inside selfcal's clip limits."""
+    from selfcal.frames import DEFAULT_CLIP_MARGIN, _clip_limits
+
+    out = np.zeros(frames[0].shape[:2], bool)
+    for im in frames:
+        max_code = 255 if im.dtype == np.uint8 else 65535
+        lo, hi = _clip_limits(max_code, DEFAULT_CLIP_MARGIN, linear=False)
+        out |= np.all((im > lo) & (im < hi), axis=2)
+    return out
+
+
+def agreement(a: np.ndarray, b: np.ndarray, mask: np.ndarray):
+    """(median, p90, bad fraction) of |log(a/b) − s| per channel on ``mask``.
+
+    ``s`` is the median log ratio over the values finite and positive in both maps; the
+    others count as an infinite disagreement (their fraction is returned).
+    """
+    x = a[mask].astype(np.float64).ravel()
+    y = b[mask].astype(np.float64).ravel()
+    ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
+    dev = np.full(x.shape, np.inf)
+    if ok.any():
+        lr = np.log(x[ok]) - np.log(y[ok])
+        dev[ok] = np.abs(lr - np.median(lr))
+    med, p90 = np.percentile(dev, [50, 90], method="higher")
+    return float(med), float(p90), float(1 - ok.mean())
+
+
+# --------------------------------------------------------------------------------------
+# the three merges
+# --------------------------------------------------------------------------------------
+
+def selfcal_merges(frames, times, halves):
+    import selfcal
+
+    model = selfcal.calibrate_response(frames, times)
+    out = {}
+    for label, kwargs in (("selfcal default", {}), ("selfcal noise", {"weighting": "noise"}),
+                          ("selfcal hat", {"weighting": "hat"})):
+        out[label] = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h], model,
+                                        **kwargs).radiance for h in halves]
+    return out, model
+
+
+def opencv_merges(frames, times, halves):
+    import cv2
+
+    bgr = [np.ascontiguousarray(im[:, :, ::-1]) for im in frames]
+    t = np.asarray(times, dtype=np.float32)
+    response = cv2.createCalibrateDebevec().process(bgr, t)
+    merge = cv2.createMergeDebevec()
+    return [merge.process([bgr[k] for k in h], t[list(h)], response)[:, :, ::-1]
+            for h in halves]
+
+
+def colour_hdri_merges(frames, times, meta, halves):
+    from colour_hdri import (Image, ImageStack, Metadata,
+                             camera_response_functions_Debevec1997, image_stack_to_HDRI)
+
+    def stack(indices):
+        s = ImageStack()
+        for k in indices:  # already in increasing exposure
+            n, iso = meta[k]
+            s.append(Image(data=frames[k] / 255.0,
+                           metadata=Metadata(f_number=n, exposure_time=times[k], iso=iso)))
+        return s
+
+    crfs = camera_response_functions_Debevec1997(stack(range(len(frames))))
+    return [image_stack_to_HDRI(stack(h), camera_response_functions=crfs) for h in halves]
+
+
+# --------------------------------------------------------------------------------------
+# one stack
+# --------------------------------------------------------------------------------------
+
+def run_stack(name, paths, times, reduce: int):
+    t0 = time.perf_counter()
+    if name == "ntu":
+        reduce = max(reduce, NTU_REDUCE)
+    order = np.argsort(np.asarray(times, float), kind="stable")
+    paths = [paths[k] for k in order]
+    times = [float(times[k]) for k in order]
+    frames = [read_frame(p, reduce=reduce) for p in paths]
+    if any(f.dtype != np.uint8 for f in frames):
+        sys.exit(f"{name}: 8-bit frames expected")
+    meta = exposure_meta(paths)
+    n = len(frames)
+    even, odd = tuple(range(0, n, 2)), tuple(range(1, n, 2))
+    halves = (odd, even)
+    mask = measured([frames[k] for k in odd]) & measured([frames[k] for k in even])
+
+    maps, model = selfcal_merges(frames, times, halves)
+    maps["OpenCV"] = opencv_merges(frames, times, halves)
+    maps["colour-hdri"] = colour_hdri_merges(frames, times, meta, halves)
+    scores = {m: agreement(maps[m][0], maps[m][1], mask) for m in METHODS}
+    h, w = frames[0].shape[:2]
+    info = {
+        "frames": f"{len(odd)}/{len(even)}",
+        "size": f"{w}×{h}" + (f" (1/{reduce})" if reduce > 1 and paths[0].suffix.lower()
+                              in (".jpg", ".jpeg") else ""),
+        "measured": float(mask.mean()),
+        "seconds": time.perf_counter() - t0,
+    }
+    extra = memorial_comparison(frames, times, model) if name == "memorial" else None
+    return scores, info, extra
+
+
+def memorial_comparison(frames, times, model):
+    """Default and hat merges of all frames against the noise-weighted one."""
+    import selfcal
+
+    ref = selfcal.merge_hdr(frames, times, model, weighting="noise").radiance
+    some = measured(frames)
+    wheres = [("all pixels", np.ones(some.shape, bool))]
+    if not some.all():
+        wheres.append(("measured by some frame", some))
+    rows = []
+    for label, kwargs in (("default", {}), ("hat", {"weighting": "hat"})):
+        r = selfcal.merge_hdr(frames, times, model, **kwargs).radiance
+        for where, mask in wheres:
+            x, y = r[mask].astype(np.float64).ravel(), ref[mask].astype(np.float64).ravel()
+            ok = (x > 0) & (y > 0) & np.isfinite(x) & np.isfinite(y)
+            lr = np.log(x[ok]) - np.log(y[ok])
+            rows.append([f"{label} / noise", where, f"{100 * mask.mean():.1f}%",
+                         f"{np.median(lr):+.3f}", f"{np.percentile(np.abs(lr), 95):.3f}",
+                         f"{100 * (1 - ok.mean()):.2g}%"])
+    return rows
+
+
+# --------------------------------------------------------------------------------------
+# main
+# --------------------------------------------------------------------------------------
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--only", action="append", metavar="NAME",
+                        help="a stack (memorial, piccante, ntu, frobisher, "
+                        "sony_ilce6400/scene1, ...) or a camera folder (sony_ilce6400); "
+                        "repeatable")
+    parser.add_argument("--reduce", type=int, default=1, choices=(1, 2, 4, 8),
+                        help="decode every JPEG at 1/K (DCT scaling; ntu at 1/max(K, 4)); "
+                        "memorial's PNGs are used as they are")
+    args = parser.parse_args(argv)
+
+    import warnings
+
+    from threadpoolctl import threadpool_limits
+
+    # colour-hdri warns for every frame holding a code 0; the tables count what it costs
+    warnings.filterwarnings("ignore", message=".*negative or equal to zero values")
+
+    stacks = stack_list()
+    if args.only:
+        chosen = {k: v for k, v in stacks.items()
+                  if any(k == o or k.startswith(o.rstrip("/") + "/") for o in args.only)}
+        if not chosen:
+            sys.exit(f"no stack matches {args.only}; stacks: {', '.join(stacks)}")
+        stacks = chosen
+
+    t_start = time.perf_counter()
+    results, extra = {}, None
+    with threadpool_limits(limits=1, user_api="blas"):
+        for name, (paths, times) in stacks.items():
+            scores, info, ex = run_stack(name, paths, times, args.reduce)
+            results[name] = (scores, info)
+            extra = ex if ex is not None else extra
+            print(f"[{name}: {info['seconds']:.0f} s]", file=sys.stderr, flush=True)
+    total = time.perf_counter() - t_start
+
+    def split(name):
+        return "tuning" if name in TUNING else "held out"
+
+    for title, idx, fmt in (("median |log ratio|", 0, "{:.3f}"),
+                            ("p90 |log ratio|", 1, "{:.3f}")):
+        rows = []
+        for name, (scores, info) in results.items():
+            vals = [scores[m][idx] for m in METHODS]
+            shown = [fmt.format(v) for v in vals]
+            low = min(float(v) for v in shown)
+            best = ", ".join(m for m, v in zip(METHODS, shown) if float(v) == low)
+            rows.append([name, split(name), info["frames"], info["size"],
+                         f"{100 * info['measured']:.1f}%"]
+                        + shown + [best])
+        print(f"\nOdd/even agreement, {title} after one global scale (per channel, "
+              "pixels measured in both halves):\n")
+        print(table(["stack", "split", "frames odd/even", "size", "measured"]
+                    + list(METHODS) + ["lowest"], rows))
+
+    bad = [f"{name} {m} {100 * scores[m][2]:.2g}%" for name, (scores, _) in results.items()
+           for m in METHODS if scores[m][2] > 0]
+    if bad:
+        print("\nScored values non-finite or ≤ 0, counted as infinite disagreement (colour-hdri: "
+              "its Debevec curve, extrapolated by a polynomial, goes ≤ 0 at low codes): "
+              + "; ".join(bad))
+    if extra is not None:
+        print("\nmemorial, all 16 frames, one model (the one above): the default and the hat "
+              "merge against the noise-weighted one (log ratio per channel, no rescaling):\n")
+        print(table(["merge", "pixels", "fraction", "median log ratio", "p95 |log ratio|",
+                     "non-finite/≤0"], extra))
+    print(f"\n{len(results)} stacks in {total:.0f} s "
+          f"({', '.join('%s %.0f' % (k, v[1]['seconds']) for k, v in results.items())})")
+
+
+if __name__ == "__main__":
+    main()
