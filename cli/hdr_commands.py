@@ -157,9 +157,9 @@ def register(subparsers) -> None:
                         "threshold bitmaps) or homography (ECC)")
     p.add_argument("--deghost", action="store_true",
                    help="exclude frames that disagree with the reference frame (moving things)")
-    p.add_argument("--weighting", choices=("hat", "noise"), default="hat",
-                   help="hat (Debevec) or noise-aware (inverse variance) weights "
-                        "(default %(default)s)")
+    p.add_argument("--weighting", choices=("noise", "hat"), default="noise",
+                   help="noise: inverse variance of each frame's radiance under a noise "
+                        "model (Granados 2010); hat: Debevec's triangle (default %(default)s)")
     p.add_argument("--linear", action="store_true",
                    help="the images are linear already (e.g. from selfcal linearize); "
                         "no response model")

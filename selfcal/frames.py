@@ -239,6 +239,87 @@ def _clip_limits(max_code, clip_margin: float, linear: bool):
     return (0.0 if linear else m), max_code - m
 
 
+#: Two frames whose exposures differ by at least this factor, and a code that moves by less
+#: than ``STUCK_CODES`` (8-bit scale) between them, does not respond to the exposure: the
+#: calibration's stuck-sample test (``selfcal.response.equations._build_pairs``).
+STUCK_RATIO = 1.5
+STUCK_CODES = 1.0
+
+
+def stuck_code_levels(values, log_exposures, *, clip_margin: float = DEFAULT_CLIP_MARGIN,
+                      min_count: int = 3) -> dict:
+    """Per channel, the black floor and the stuck ceiling of a stack's codes.
+
+    The calibration drops a sample pair whose code does not move between two frames whose
+    exposures differ by :data:`STUCK_RATIO` or more (``_build_pairs``, selfcal's addition
+    to the clipping test of Lin et al., ICCV 2011, §5).  This turns the same test into code
+    levels the merge can use: for each frame ``a`` and the next frame ``b`` at least
+    ``STUCK_RATIO`` brighter, the samples are binned by their code in ``a`` (one bin per
+    8-bit code); walking up from the lowest populated bin, every bin whose median move
+    ``I_b − I_a`` is below :data:`STUCK_CODES` is at the **floor**, and the walk stops at
+    the first bin that moves; walking down from the highest unclipped bin, the bins that
+    do not move are at a **ceiling**.  Over the frame pairs, the floor is the highest such
+    code and the ceiling the lowest.  A black floor is the code a scanned film or a camera
+    with a black pedestal writes for no light (memorial's short frames sit at codes
+    12-18); codes at or below it are bounds, not measurements, like clipped codes.
+    Ours, not a paper's.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(F, n, 3)`` codes normalised to [0, 1] (block means of sample locations, as
+        :class:`selfcal.samples.SampleSet` holds them, or subsampled pixels).
+    log_exposures : array_like
+        ``(F,)`` log exposure of each frame (NaN where unknown: such frames are skipped).
+    clip_margin : float
+        Codes (8-bit scale) within this distance of 0 or the maximum are clipped and not
+        looked at.
+    min_count : int
+        Bins with fewer samples are passed over.
+
+    Returns
+    -------
+    dict
+        ``{"floor": [R, G, B], "ceiling": [R, G, B]}`` as normalised codes: the highest
+        code that does not move up (0 when none) and the lowest code that does not move
+        up (1 when none).
+    """
+    v = np.asarray(values, dtype=np.float64) * 255.0
+    le = np.asarray(log_exposures, dtype=np.float64)
+    floor = [0.0, 0.0, 0.0]
+    ceiling = [1.0, 1.0, 1.0]
+    known = np.flatnonzero(np.isfinite(le))
+    order = known[np.argsort(le[known], kind="stable")]
+    for i, a in enumerate(order):
+        later = [b for b in order[i + 1:] if le[b] - le[a] >= math.log(STUCK_RATIO)]
+        if not later:
+            continue
+        b = later[0]
+        for c in range(v.shape[2]):
+            va, vb = v[a, :, c], v[b, :, c]
+            ok = (va > clip_margin) & (va < 255.0 - clip_margin)
+            if not ok.any():
+                continue
+            code = np.floor(va[ok]).astype(int)
+            move = vb[ok] - va[ok]
+            bins = np.unique(code)
+            med = {}
+            for z in bins:
+                m = move[code == z]
+                if m.size >= min_count:
+                    med[int(z)] = float(np.median(m))
+            zs = sorted(med)
+            for z in zs:                           # up from the bottom
+                if med[z] >= STUCK_CODES:
+                    break
+                floor[c] = max(floor[c], (z + 1) / 255.0)
+            for z in reversed(zs):                 # down from the top
+                if med[z] >= STUCK_CODES or (z + 1) / 255.0 <= floor[c]:
+                    break
+                ceiling[c] = min(ceiling[c], z / 255.0)
+    return {"floor": floor, "ceiling": ceiling}
+
+
 # --------------------------------------------------------------------------------------
 # exposures and the reference frame
 # --------------------------------------------------------------------------------------
@@ -376,7 +457,7 @@ def _resolve_exposures(frames: _Frames, exposure_times, model, fresh: bool, warn
         new = est[k] * factor
         if given[k] is not None:
             dev = abs(math.log(new / given[k]))
-            if dev > math.log(1.01):
+            if dev > 1e-6:          # any change is said (issue 13), not only above 1 %
                 changed.append((dev, k, given[k], new))
         out[k] = new
     label = {"given": "given times", "exif": "EXIF exposures"}[source]
@@ -387,8 +468,8 @@ def _resolve_exposures(frames: _Frames, exposure_times, model, fresh: bool, warn
     elif changed:
         dev, k, g, new = max(changed)
         warnings.append(f"using the model's refined exposures instead of the {label} "
-                        f"(largest difference {100 * (math.exp(dev) - 1):.1f}% at "
-                        f"{Path(frames.sources[k]).name})")
+                        f"for {len(changed)} frame(s) (largest difference "
+                        f"{100 * (math.exp(dev) - 1):.2g}% at {Path(frames.sources[k]).name})")
     if any(g is None for g in given) and anchor:
         unknown = [Path(frames.sources[k]).name for k in range(n) if given[k] is None]
         warnings.append(f"no exposure time for {', '.join(unknown)}: using the model's "

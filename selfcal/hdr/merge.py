@@ -59,6 +59,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -73,15 +74,25 @@ from ..frames import (
     _Frames,
     _Lineariser,
     _max_code,
+    _model_frame_index,
     _name_arrays,
     _resolve_exposures,
+    stuck_code_levels,
 )
-from ..io import _cv2, _is_path, read_image
-from ..response.calibrate import calibrate_aligned, calibrate_response
-from .deghost import _ghost_mask, _poor_agreement
+from ..io import JPEG_SUFFIXES, _cv2, _is_path, read_image
+from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
+from ..samples import collect_samples
+from .deghost import _ghost_mask, _luma, _poor_agreement
 from .weights import NoiseModel, _FrameTables
 
 __all__ = ["HDRResult", "merge_hdr", "linearize_images"]
+
+#: Pixels by which a lossy (JPEG) frame's white-clipped region is widened: ringing at a
+#: highlight edge leaves codes a few below white that pass the clip test (ours).
+RINGING_RADIUS = 3
+#: A pixel some shorter frame saw clipped white is clipped in a longer frame where any of
+#: its channels is at least this fraction of the maximum code there (ours).
+WHITE_FOLLOWS = 0.5
 
 #: Coverage mask of a warped frame: value of clipped pixels; 255 is outside the frame, and
 #: interpolated values above _OUTSIDE count as outside (for the fill of unmeasured pixels).
@@ -144,12 +155,12 @@ class HDRResult:
 # the merge
 # --------------------------------------------------------------------------------------
 
-def merge_hdr(images, exposure_times=None, model=None, *, weighting="hat",
+def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
               align=False, deghost: bool = False, reference: int | None = None,
               linear: bool = False, noise: NoiseModel | None = None,
               clip_margin: float = DEFAULT_CLIP_MARGIN, deghost_threshold: float = 3.0,
               deghost_tolerance: float = 0.1, calibrate_options: dict | None = None,
-              progress=None) -> HDRResult:
+              lossy: bool | None = None, stuck_codes=None, progress=None) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -270,16 +281,34 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="hat",
                                      linear=linear, clip_margin=clip_margin,
                                      warnings=warnings, progress=progress)
 
-    sums = _MergeSums(frames.shape, exposures, ref)
-    need_x = deghost and n > 1
+    used = _frames_to_merge(frames, model, fresh, warnings, diagnostics)
+    if ref not in used:
+        ref = used[_default_reference(exposures[used])] if reference is None else ref
+    if ref not in used:
+        raise InputError(f"reference frame {ref} was ignored by the calibration: choose "
+                         "another", frames.sources[ref])
+    stuck = None if linear or stuck_codes is False else _stuck_levels(
+        model, frames, exposures, used, clip_margin, diagnostics, stuck_codes)
+    if lossy is None:
+        lossy = _looks_lossy(frames, linear)
+    diagnostics["ringing_radius"] = RINGING_RADIUS if lossy else 0
+
+    sums = _MergeSums(frames.shape, exposures, ref, used)
+    need_x = deghost and len(used) > 1
     _accumulate_frames(sums, frames, exposures, model, transforms, linear=linear,
                        weighting=weighting, noise=noise, clip_margin=clip_margin,
+                       stuck=stuck, radius=RINGING_RADIUS if lossy else 0,
                        deghost=need_x, deghost_threshold=deghost_threshold,
                        deghost_tolerance=deghost_tolerance, progress=progress)
     diagnostics.update(sums.frame_diagnostics(frames.sources, deghost=need_x))
     poor = _poor_agreement(sums.ghost_stats, frames.sources, ref) if need_x else None
     if poor:
         warnings.append(poor)
+    diagnostics["neighbour_residuals"] = sums.residuals
+    if transforms is None and len(used) > 1:
+        moved = _misalignment_warning(sums.residuals, exposure_source)
+        if moved:
+            warnings.append(moved)
     unmeasured = sums.divide_and_fill()
     n_unmeasured = int(np.count_nonzero(unmeasured))
     if n_unmeasured:
@@ -290,6 +319,80 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="hat",
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
                      frame_count=sums.count, diagnostics=diagnostics, model=model)
+
+
+def _frames_to_merge(frames: _Frames, model, fresh: bool, warnings: list,
+                     diagnostics: dict) -> list:
+    """Indices of the frames to merge: those the calibration used (ours).
+
+    A frame the model's calibration ignored (a duplicate, one clipped almost everywhere,
+    one sharing too few unclipped samples with the rest of the bracket:
+    ``model.diagnostics['frames_used']``) is not merged either, with the calibration's
+    reason in a warning; its exposure was never checked against the pixels.  Frames the
+    model never saw (a model calibrated on other frames) are merged.
+    """
+    n = len(frames)
+    diag = getattr(model, "diagnostics", None) or {}
+    frames_used = diag.get("frames_used")
+    if model is None or frames_used is None:
+        return list(range(n))
+    idx = _model_frame_index(model, frames, fresh)
+    msources = list(getattr(model, "sources", []) or [])
+    used_names = {str(f) for f in frames_used}
+    ignored = [k for k, i in enumerate(idx)
+               if i is not None and i < len(msources) and msources[i] not in used_names]
+    if not ignored or len(ignored) == n:
+        return list(range(n))
+    for k in ignored:
+        name = msources[idx[k]]
+        reason = next((w[len(name) + 2:] for w in diag.get("warnings", [])
+                       if w.startswith(f"{name}: ") and "ignored" in w), "")
+        reason = reason.replace("; ignored", "").strip()
+        warnings.append(f"{frames.sources[k]}: not merged: the calibration ignored it"
+                        + (f" ({reason})" if reason else ""))
+    diagnostics["frames_ignored"] = [frames.sources[k] for k in ignored]
+    return [k for k in range(n) if k not in ignored]
+
+
+def _stuck_levels(model, frames: _Frames, exposures, used, clip_margin: float,
+                  diagnostics: dict, given=None):
+    """Per channel (floor, ceiling) as normalised codes: the calibration's, else measured.
+
+    The model's ``diagnostics['stuck_codes']`` (:func:`selfcal.frames.stuck_code_levels`
+    over the calibration's samples) when it has them -- a floor or ceiling is a property
+    of the camera (or the scan), so a model of another scene's frames carries it -- else
+    the same function over samples of the frames to merge.
+    """
+    levels, source = given, "given"
+    if levels is None:
+        levels = (getattr(model, "diagnostics", None) or {}).get("stuck_codes")
+        source = "model"
+    if levels is None:
+        items = [frames.items[k] for k in used]
+        samples = collect_samples(items, sources=[frames.sources[k] for k in used],
+                                  max_samples=DEFAULT_MAX_SAMPLES)
+        levels = stuck_code_levels(samples.values, np.log(np.asarray(exposures)[used]),
+                                   clip_margin=clip_margin)
+        source = "frames"
+    floor = np.asarray(levels["floor"], dtype=float)
+    ceiling = np.asarray(levels["ceiling"], dtype=float)
+    diagnostics["stuck_codes"] = {"floor": np.round(255 * floor, 2).tolist(),
+                                  "ceiling": np.round(255 * ceiling, 2).tolist(),
+                                  "scale": "8-bit codes", "from": source}
+    return floor, ceiling
+
+
+def _looks_lossy(frames: _Frames, linear: bool) -> bool:
+    """JPEG files, or 8-bit arrays (which may be decoded JPEGs): widen clipped regions."""
+    if linear:
+        return False
+    for item, path in zip(frames.items, frames.paths):
+        if path is not None:
+            if path.suffix.lower() in JPEG_SUFFIXES:
+                return True
+        elif np.asarray(item).dtype == np.uint8:
+            return True
+    return False
 
 
 def _check_options(weighting, align, linear: bool, model):
@@ -370,42 +473,59 @@ class _MergeSums:
 
     ``num`` = Σ_j w_j·f⁻¹(I_j)/e_j and ``den`` = Σ_j w_j per channel (Eq. 6 of Debevec &
     Malik, on linear values), ``count`` the frames each pixel got, ``ghost`` the pixels
-    deghosting took a frame from.  ``kept`` holds the codes (and coverage masks) of the
-    reference, darkest and brightest frames, for deghosting and the fill.
+    deghosting took a frame from, ``white`` the pixels some frame merged so far saw
+    clipped at white (widened for lossy frames: ours).  ``kept`` holds the codes (and
+    coverage masks) of the reference, darkest and brightest frames, for deghosting and the
+    fill; ``residuals`` the misalignment test of each pair of neighbours.
     """
 
-    def __init__(self, shape, exposures, ref: int):
+    def __init__(self, shape, exposures, ref: int, used):
         hh, ww = shape
         n = len(exposures)
         self.num = np.zeros((hh, ww, 3), dtype=np.float32)
         self.den = np.zeros((hh, ww, 3), dtype=np.float32)
         self.count = np.zeros((hh, ww), dtype=np.uint8)
         self.ghost = np.zeros((hh, ww), dtype=bool)
+        self.white = np.zeros((hh, ww), dtype=np.uint8)
         self.width = ww
         self.rows = max(8, _STRIP_PIXELS // max(ww, 1))
         self.strips = [slice(y, min(y + self.rows, hh)) for y in range(0, hh, self.rows)]
         self.ref = ref
-        self.darkest = int(np.argmin(exposures))
-        self.brightest = int(np.argmax(exposures))
+        e = np.asarray(exposures, dtype=float)
+        # shortest first: a pixel clipped in a shorter frame is clipped in every longer one
+        self.order = sorted(used, key=lambda k: (e[k], k))
+        self.darkest = self.order[0]
+        self.brightest = self.order[-1]
         self.kept: dict[int, tuple] = {}          # frame -> (codes, coverage mask or None)
         self.tables: dict[int, _FrameTables] = {}
-        self.hi = None                            # codes at or above it are clipped white
         self.used = [0.0] * n                     # pixels each frame contributed to
         self.excluded = [0.0] * n                 # pixels deghosting took from each frame
         self.ghost_stats: dict[int, dict] = {}    # frame -> agreement with the reference
+        self.residuals: list[dict] = []           # neighbour pairs: misalignment test
         self.cv2 = _cv2()
         self._local = threading.local()
 
-    def add_strip(self, s: slice, img, cover, off, tab: _FrameTables, max_code):
+    def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
         """One strip of one frame into the sums (strips are disjoint: threads may share).
 
-        Returns the number of pixels the frame contributed and that deghosting excluded.
+        A pixel counts when every channel is inside the frame's limits, it is not clipped
+        white in the frame or (``self.white``) in any shorter frame, within the widening
+        of ``own_white``, and deghosting kept it.  Returns the number of pixels the frame
+        contributed and that deghosting excluded.
         """
         cv2 = self.cv2
         codes = img[s]
         valid = tab.valid(codes)
         if cover is not None:
             valid[cover[s] > 0] = 0
+        # clipped white in a shorter frame, or near this frame's clipped pixels: only
+        # where this frame is bright as well (ringing moves clipped codes a few below
+        # white; a dark pixel by a highlight, a frame's padding or a moving object is no
+        # highlight)
+        dim = cv2.inRange(codes, (0, 0, 0), (tab.bright,) * 3)
+        blocked = cv2.bitwise_or(self.white[s], own_white[s])
+        cv2.bitwise_and(blocked, cv2.bitwise_not(dim), dst=blocked)
+        cv2.bitwise_and(valid, cv2.bitwise_not(blocked), dst=valid)
         excluded = 0
         if off is not None:
             o = off[s] > 0
@@ -467,7 +587,7 @@ class _MergeSums:
             if hole_px.any():
                 unmeasured[s] = hole_px
                 fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
-                                   self.ref, self.hi)
+                                   self.ref, self.white)
                 np.copyto(ns, fill, where=hole)
         self.den = None
         return unmeasured
@@ -475,35 +595,50 @@ class _MergeSums:
 
 def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, transforms, *,
                        linear: bool, weighting, noise: NoiseModel, clip_margin: float,
-                       deghost: bool, deghost_threshold: float, deghost_tolerance: float,
-                       progress):
-    """Every frame into ``sums``, the reference frame first (deghosting compares with it).
+                       stuck, radius: int, deghost: bool, deghost_threshold: float,
+                       deghost_tolerance: float, progress):
+    """Every frame into ``sums``, shortest exposure first (the reference first if deghosting).
 
-    Per frame: its tables of weights and radiance (:class:`.weights._FrameTables`); its
-    warp onto the reference grid with a coverage mask (:data:`_CLIPPED` where it was
-    clipped, 255 outside it); its deghosting mask against the reference
-    (:func:`.deghost._ghost_mask`); then its strips -- in parallel threads on the table
-    path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from this
-    thread only.
+    Per frame: its tables of weights and radiance (:class:`.weights._FrameTables`), with
+    the clip limits raised to the black floor and lowered to the stuck ceiling of each
+    channel (``stuck``); its warp onto the reference grid with a coverage mask
+    (:data:`_CLIPPED` where it was clipped, 255 outside it); its own white-clipped pixels,
+    widened by ``radius`` pixels (``cv2.dilate``; JPEG ringing) -- those and every pixel a
+    shorter frame saw clipped white get zero weight (ours: clipping follows exposure, as
+    in the calibration's ``selfcal.samples.frame_masks``); its deghosting mask against the
+    reference (:func:`.deghost._ghost_mask`); the misalignment test against the previous
+    frame (:func:`_neighbour_residual`); then its strips -- in parallel threads on the
+    table path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from
+    this thread only.
     """
-    n = len(frames)
+    cv2 = sums.cv2
     ref = sums.ref
-    order = [ref] + [k for k in range(n) if k != ref]
+    order = sums.order
+    n = len(order)
     lin = None
+    kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
+              if radius > 0 else None)
+    loaded = {}
+    if deghost:
+        loaded[ref] = frames.load(ref)       # deghosting compares every frame with it
+        order = [ref] + [k for k in order if k != ref]
+    prev = None
     pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
     try:
         for done, k in enumerate(order):
-            img = frames.load(k)
+            img = loaded.pop(k) if k in loaded else frames.load(k)
             if lin is None:
                 mc = _max_code(img)
                 lin = _Lineariser(model, linear, mc)
-                lo, hi = _clip_limits(mc, clip_margin, linear)
-                sums.hi = hi
+                lo, hi = _frame_limits(mc, clip_margin, linear, stuck)
             elif _max_code(img) != lin.max_code:
                 raise InputError(f"sample type {img.dtype} differs from the other frames",
                                  frames.sources[k])
             tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
-                               deghost or k == ref, float(np.max(exposures)))
+                               deghost or k == ref, float(np.max(exposures[sums.order])))
+            # codes below this in every channel are not near white (see add_strip)
+            tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
+                          else WHITE_FOLLOWS)
             sums.tables[k] = tab
             cover = None
             if (transforms is not None and k != ref
@@ -516,23 +651,159 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
             if (k in (sums.darkest, sums.brightest)
                     or (k == ref and (deghost or transforms is not None))):
                 sums.kept[k] = (img, cover)
+            own_white = tab.white(img)
+            if kernel is not None:
+                # (the default border of cv2.dilate is +inf: it would widen the edges)
+                own_white = cv2.dilate(own_white, kernel, borderType=cv2.BORDER_CONSTANT,
+                                       borderValue=0)
             off = None
             if deghost and k != ref:
                 off, stats = _ghost_mask(img, cover, sums.kept[ref][0], tab, sums.tables[ref],
                                          sums.strips, deghost_threshold, deghost_tolerance)
                 sums.ghost_stats[k] = stats
+            small = _small_log_luma(img, cover, own_white, tab)
+            if prev is not None and not (deghost and (k == ref or prev[0] == ref)):
+                sums.residuals.append(_neighbour_residual(prev, (k, small), frames.sources))
+            prev = (k, small)
 
-            def accumulate(s, img=img, cover=cover, off=off, tab=tab):
-                return sums.add_strip(s, img, cover, off, tab, lin.max_code)
+            def accumulate(s, img=img, cover=cover, off=off, own_white=own_white, tab=tab):
+                return sums.add_strip(s, img, cover, off, own_white, tab, lin.max_code)
 
             for n_valid, excluded in (pool.map if tab.lut else map)(accumulate, sums.strips):
                 sums.used[k] += float(n_valid)
                 sums.excluded[k] += float(excluded)
-            del img, cover
+            if not (deghost and k == ref):
+                # clipped here -> clipped in every longer frame (the reference, merged
+                # first when deghosting, passes its clipping on to nothing)
+                cv2.bitwise_or(sums.white, own_white, dst=sums.white)
+            else:
+                ref_white = own_white
+            del img, cover, own_white
             if progress is not None:
                 progress("merge", done + 1, n, frames.sources[k])
     finally:
         pool.shutdown()
+    if deghost:
+        cv2.bitwise_or(sums.white, ref_white, dst=sums.white)
+
+
+def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
+    """Per channel (lo, hi): codes at or below lo, at or above hi get zero weight.
+
+    The clip limits of :func:`selfcal.frames._clip_limits`, raised to ``clip_margin``
+    above the black floor and lowered to ``clip_margin`` below the stuck ceiling of each
+    channel (``stuck``: normalised codes, :func:`selfcal.frames.stuck_code_levels`).
+    """
+    lo, hi = _clip_limits(max_code, clip_margin, linear)
+    lo = np.full(3, float(lo))
+    hi = np.full(3, float(hi))
+    if stuck is not None and max_code is not None:
+        floor, ceiling = stuck
+        m = clip_margin * max_code / 255.0
+        lo = np.maximum(lo, np.asarray(floor) * max_code + np.where(
+            np.asarray(floor) > 0, m, 0.0))
+        hi = np.minimum(hi, np.asarray(ceiling) * max_code - np.where(
+            np.asarray(ceiling) < 1, m, 0.0))
+    return lo, hi
+
+
+# --------------------------------------------------------------------------------------
+# the misalignment test (ours)
+# --------------------------------------------------------------------------------------
+
+#: Long sides (pixels) of the luminance images the misalignment test compares: a shift of
+#: a pixel at the finer size finds small misregistrations, at the coarser one large ones.
+_RESIDUAL_SIDES = (512, 128)
+#: Shifts (pixels at that size) the test tries around zero, in each of 8 directions.
+_RESIDUAL_SHIFT = 1
+#: A pair is misaligned when a shift lowers its residual by more than this fraction.
+MISALIGNMENT_GAIN = 0.05
+
+
+def _small_log_luma(img, cover, own_white, tab: _FrameTables):
+    """log luminance of f⁻¹(I)/e at each of :data:`_RESIDUAL_SIDES`, NaN where unmeasured."""
+    cv2 = _cv2()
+    hh, ww = img.shape[:2]
+    valid = tab.valid(img)
+    cv2.bitwise_and(valid, cv2.bitwise_not(own_white), dst=valid)
+    if cover is not None:
+        valid[cover > 0] = 0
+    out = []
+    for side in _RESIDUAL_SIDES:
+        f = min(1.0, side / max(hh, ww))
+        size = (max(1, round(ww * f)), max(1, round(hh * f)))
+        if f < 1.0:
+            codes = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+            ok = cv2.resize(valid, size, interpolation=cv2.INTER_AREA) >= 255
+        else:
+            codes, ok = img, valid >= 255
+        y = _luma(tab.radiance(np.ascontiguousarray(codes)))
+        ok &= y > 0
+        logy = np.full(y.shape, np.nan, dtype=np.float32)
+        logy[ok] = np.log(y[ok])
+        out.append(logy)
+    return out
+
+
+def _neighbour_residual(a, b, sources) -> dict:
+    """:func:`_shift_residual` at each size; the one whose best shift gains most."""
+    (ka, ya), (kb, yb) = a, b
+    tests = [_shift_residual(sa, sb) for sa, sb in zip(ya, yb)]
+    best = max(tests, key=lambda t: t["gain"])
+    best["frames"] = (sources[ka], sources[kb])
+    best["gains"] = [t["gain"] for t in tests]
+    return best
+
+
+def _shift_residual(ya, yb) -> dict:
+    """Residual between two exposure-normalised neighbours, unshifted and at its best shift.
+
+    The mean absolute deviation of ``log Y_b − log Y_a`` from its median over the pixels
+    both measure, at the frames' own registration and shifted by up to
+    :data:`_RESIDUAL_SHIFT` pixel in each of 8 directions.  Noise and errors
+    of the response do not fall when one frame is shifted; misregistration does.
+    """
+    hh, ww = ya.shape
+    r = _RESIDUAL_SHIFT
+    best, at, r0 = np.inf, (0, 0), np.nan
+    sb = yb[r:hh - r, r:ww - r]
+    d0 = sb - ya[r:hh - r, r:ww - r]
+    d0 = d0[np.isfinite(d0)]
+    if d0.size >= 1000:
+        med = np.float32(np.median(d0))     # the exposure mismatch: one for every shift
+        for dy in (-r, 0, r):
+            for dx in (-r, 0, r):
+                d = np.abs(sb - ya[r + dy:hh - r + dy, r + dx:ww - r + dx] - med)
+                ok = np.isfinite(d)
+                if np.count_nonzero(ok) < 1000:
+                    continue
+                res = float(np.mean(d[ok]))
+                if dx == 0 and dy == 0:
+                    r0 = res
+                elif res < best:
+                    best, at = res, (dx, dy)
+    gain = (1.0 - best / r0) if np.isfinite(r0) and np.isfinite(best) and r0 > 0 else 0.0
+    return {"residual": r0,
+            "shifted_residual": best if np.isfinite(best) else None,
+            "shift": at, "gain": gain, "scale": ya.shape}
+
+
+def _misalignment_warning(residuals, exposure_source: str) -> str | None:
+    """The ``--align`` warning when some neighbour pair registers better shifted."""
+    bad = [r for r in residuals if r["gain"] > MISALIGNMENT_GAIN]
+    if not bad:
+        return None
+    worst = max(bad, key=lambda r: r["gain"])
+    a, b = (Path(f).name for f in worst["frames"])
+    msg = (f"the frames look misaligned: {len(bad)} of {len(residuals)} neighbour pairs "
+           f"match better shifted (at {a} vs {b}, a shift of {worst['shift'][0]:+d},"
+           f"{worst['shift'][1]:+d} px at {worst['scale'][1]}x{worst['scale'][0]} lowers "
+           f"the residual by {100 * worst['gain']:.0f}%); merge with --align (align='mtb' "
+           "or 'homography')")
+    if "model" in exposure_source:
+        msg += ("; the exposures the model estimated from these frames may reflect the "
+                "misalignment rather than the shutter")
+    return msg
 
 
 def _thread_buffers(local, rows: int, width: int, dtype) -> dict:
@@ -554,16 +825,16 @@ def _any_channel(mask3: np.ndarray) -> np.ndarray:
     return mask3[..., 0] | mask3[..., 1] | mask3[..., 2]
 
 
-def _fill_strip(s, kept, tables, darkest, brightest, ref, hi):
+def _fill_strip(s, kept, tables, darkest, brightest, ref, white):
     """Values for pixels no frame measured: darkest frame for highlights, else brightest.
 
-    A pixel is a highlight when some channel of the darkest frame is clipped at white
-    there.  Where the chosen frame was warped and does not reach the pixel, the reference
-    frame's value is used.
+    A pixel is a highlight when some channel of the brightest frame is clipped at white
+    there (the darkest frame's codes may be JPEG ringing below white).  Where the chosen
+    frame was warped and does not reach the pixel, the reference frame's value is used.
     """
     dcodes, dcover = kept[darkest]
     bcodes, bcover = kept[brightest]
-    high = _any_channel(dcodes[s] >= hi)
+    high = tables[brightest].white(bcodes[s]) > 0
     fill = np.where(high[..., None], tables[darkest].radiance(dcodes[s]),
                     tables[brightest].radiance(bcodes[s]))
     outside = np.zeros(high.shape, dtype=bool)

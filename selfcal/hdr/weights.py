@@ -137,14 +137,17 @@ class _FrameTables:
         self.e_norm = float(exposure_norm)
         self.weighting = weighting
         self.noise = noise
-        self.lo, self.hi = lo, hi
+        # per channel: a black floor or a stuck ceiling raises lo or lowers hi
+        self.lo = np.broadcast_to(np.asarray(lo, dtype=np.float64), (3,)).copy()
+        self.hi = np.broadcast_to(np.asarray(hi, dtype=np.float64), (3,)).copy()
         self.lut = lin.table is not None and lin.kind != "to_raw"
         if lin.table is None:
             return
         mc = lin.max_code
         z = np.arange(mc + 1) / mc
         x = lin.table
-        ok = ((np.arange(mc + 1) > lo) & (np.arange(mc + 1) < hi))[:, None]
+        codes = np.arange(mc + 1)[:, None]
+        ok = (codes > self.lo[None, :]) & (codes < self.hi[None, :])
         w = self._weights(np.repeat(z[:, None], 3, axis=1), x, lin.slope) * ok
         self.w_table = w.astype(np.float32)
         self.x_table = (x / self.e).astype(np.float32)
@@ -173,12 +176,24 @@ class _FrameTables:
         """uint8 mask, 255 where every channel is unclipped."""
         cv2 = _cv2()
         if codes.dtype == np.uint8 or codes.dtype == np.uint16:
-            lo = math.floor(self.lo) + 1
-            hi = math.ceil(self.hi) - 1
-            return cv2.inRange(codes, (lo, lo, lo), (hi, hi, hi))
-        lo = float(np.nextafter(np.float32(self.lo), np.float32(np.inf)))
-        hi = float(np.nextafter(np.float32(self.hi), np.float32(-np.inf)))
-        return cv2.inRange(np.asarray(codes, dtype=np.float32), (lo,) * 3, (hi,) * 3)
+            lo = tuple(math.floor(v) + 1 for v in self.lo)
+            hi = tuple(math.ceil(v) - 1 for v in self.hi)
+            return cv2.inRange(codes, lo, hi)
+        lo = tuple(float(np.nextafter(np.float32(v), np.float32(np.inf))) for v in self.lo)
+        hi = tuple(float(np.nextafter(np.float32(v), np.float32(-np.inf))) for v in self.hi)
+        return cv2.inRange(np.asarray(codes, dtype=np.float32), lo, hi)
+
+    def white(self, codes):
+        """uint8 mask, 255 where some channel is at or above its white limit (clipped)."""
+        cv2 = _cv2()
+        if codes.dtype == np.uint8 or codes.dtype == np.uint16:
+            hi = tuple(math.ceil(v) - 1 for v in self.hi)
+            below = cv2.inRange(codes, (0, 0, 0), hi)
+        else:
+            hi = tuple(float(np.nextafter(np.float32(v), np.float32(-np.inf)))
+                       for v in self.hi)
+            below = cv2.inRange(np.asarray(codes, dtype=np.float32), (-np.inf,) * 3, hi)
+        return cv2.bitwise_not(below)
 
     def radiance(self, codes) -> np.ndarray:
         """f⁻¹(I)/e on a strip, float32, clipped or not."""

@@ -21,6 +21,7 @@ from ..frames import (
     _name_arrays,
     _resolve_exposures,
 )
+from ..frames import stuck_code_levels
 from ..io import _is_path
 from ..metrics import delta_eq12
 from ..samples import collect_samples, frame_masks
@@ -190,6 +191,10 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         saturation_threshold=saturation_threshold, clip_margin=clip_margin,
         frames_used=used_sources, delta=delta, samples=samples, determinacy=determinacy,
         contradictions=contradictions)
+    # per channel, the black floor and stuck ceiling of the codes (the stuck-sample test
+    # as code levels): the merge gives them zero weight
+    diagnostics["stuck_codes"] = stuck_code_levels(sub.values, result.log_exposures,
+                                                   clip_margin=clip_margin)
     model = ResponseModel(intensity=grid.copy(), inverse=inverse,
                           coefficients=result.coefficients, basis_name=basis.name,
                           exposures=full_exposures, exposure_times=list(times),
