@@ -750,20 +750,18 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
 def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     """Per channel (lo, hi): codes at or below lo, at or above hi get zero weight.
 
-    The clip limits of :func:`selfcal.frames._clip_limits`, raised to ``clip_margin``
-    above the black floor and lowered to ``clip_margin`` below the stuck ceiling of each
-    channel (``stuck``: normalised codes, :func:`selfcal.frames.stuck_code_levels`).
+    The clip limits of :func:`selfcal.frames._clip_limits`, raised to the black floor and
+    lowered to the stuck ceiling of each channel (``stuck``: normalised codes,
+    :func:`selfcal.frames.stuck_code_levels`; the codes below the floor and from the
+    ceiling up do not move with exposure, the floor code itself is the first that does).
     """
     lo, hi = _clip_limits(max_code, clip_margin, linear)
     lo = np.full(3, float(lo))
     hi = np.full(3, float(hi))
     if stuck is not None and max_code is not None:
-        floor, ceiling = stuck
-        m = clip_margin * max_code / 255.0
-        lo = np.maximum(lo, np.asarray(floor) * max_code + np.where(
-            np.asarray(floor) > 0, m, 0.0))
-        hi = np.minimum(hi, np.asarray(ceiling) * max_code - np.where(
-            np.asarray(ceiling) < 1, m, 0.0))
+        floor, ceiling = (np.asarray(v, dtype=float) * max_code for v in stuck)
+        lo = np.maximum(lo, np.where(floor > 0, floor - 0.5, 0.0))
+        hi = np.minimum(hi, np.where(ceiling < max_code, ceiling, max_code))
     return lo, hi
 
 
