@@ -154,23 +154,31 @@ MISALIGNMENT_GAIN = 0.05
 
 
 def _small_log_luma(img, cover, own_white, tab):
-    """log luminance of f⁻¹(I)/e at each of :data:`_RESIDUAL_SIDES`, NaN where unmeasured."""
+    """log luminance of f⁻¹(I)/e at each of :data:`_RESIDUAL_SIDES`, NaN where unmeasured.
+
+    Downscaled by integer factors (``cv2.INTER_AREA``'s fast path; the first from the
+    frame, the next from the first), the clip test made on the downscaled codes.
+    """
     cv2 = _cv2()
-    hh, ww = img.shape[:2]
-    valid = tab.valid(img)
-    cv2.bitwise_and(valid, cv2.bitwise_not(own_white), dst=valid)
-    if cover is not None:
-        valid[cover > 0] = 0
     out = []
+    small = img
+    bad = None
+    if cover is not None:
+        bad = cover
     for side in _RESIDUAL_SIDES:
-        f = min(1.0, side / max(hh, ww))
-        size = (max(1, round(ww * f)), max(1, round(hh * f)))
-        if f < 1.0:
-            codes = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
-            ok = cv2.resize(valid, size, interpolation=cv2.INTER_AREA) >= 255
-        else:
-            codes, ok = img, valid >= 255
-        y = _luma(tab.radiance(np.ascontiguousarray(codes)))
+        hh, ww = small.shape[:2]
+        k = max(1, int(max(hh, ww) // side))
+        if k > 1:
+            # (row-strided views: OpenCV reads them as a region, without a copy)
+            small = cv2.resize(small[:hh // k * k, :ww // k * k], (ww // k, hh // k),
+                               interpolation=cv2.INTER_AREA)
+            if bad is not None:
+                bad = cv2.resize(bad[:hh // k * k, :ww // k * k], (ww // k, hh // k),
+                                 interpolation=cv2.INTER_AREA)
+        ok = tab.valid(small) > 0
+        if bad is not None:
+            ok &= bad == 0
+        y = _luma(tab.radiance(np.ascontiguousarray(small)))
         ok &= y > 0
         logy = np.full(y.shape, np.nan, dtype=np.float32)
         logy[ok] = np.log(y[ok])

@@ -582,10 +582,12 @@ class _MergeSums:
         # where this frame is bright as well (ringing moves clipped codes a few below
         # white; a dark pixel by a highlight, a frame's padding or a moving object is no
         # highlight)
-        dim = cv2.inRange(codes, (0, 0, 0), (tab.bright,) * 3)
         blocked = cv2.bitwise_or(self.white[s], own_white[s])
-        cv2.bitwise_and(blocked, cv2.bitwise_not(dim), dst=blocked)
-        cv2.bitwise_and(valid, cv2.bitwise_not(blocked), dst=valid)
+        if cv2.countNonZero(blocked):
+            # (saturating) blocked & ~dim, then valid & ~blocked
+            cv2.subtract(blocked, cv2.inRange(codes, (0, 0, 0), (tab.bright,) * 3),
+                         dst=blocked)
+            cv2.subtract(valid, blocked, dst=valid)
         excluded = 0
         if off is not None:
             o = off[s] > 0
@@ -676,8 +678,8 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
     order = sums.order
     n = len(order)
     lin = None
-    kernel = (cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
-              if radius > 0 else None)
+    # a square: OpenCV dilates with it in two 1-D passes
+    kernel = np.ones((2 * radius + 1,) * 2, np.uint8) if radius > 0 else None
     loaded = {}
     if deghost:
         loaded[ref] = frames.load(ref)       # deghosting compares every frame with it
@@ -712,7 +714,7 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
                     or (k == ref and (deghost or transforms is not None))):
                 sums.kept[k] = (img, cover)
             own_white = tab.white(img)
-            if kernel is not None:
+            if kernel is not None and cv2.countNonZero(own_white):
                 # (the default border of cv2.dilate is +inf: it would widen the edges)
                 own_white = cv2.dilate(own_white, kernel, borderType=cv2.BORDER_CONSTANT,
                                        borderValue=0)
