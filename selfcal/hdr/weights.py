@@ -140,20 +140,25 @@ class _FrameTables:
     ``weighted`` = w·f⁻¹/e, ``weight`` = w (zero at clipped codes), ``radiance`` = f⁻¹/e,
     ``variance`` = Var[f⁻¹/e] (noise model), each ``(K, 3)`` float32.  For linear float
     data and ``to_raw`` models the same quantities are computed on the strip.  ``lo`` and
-    ``hi`` are scalars or per-channel limits: codes at or below ``lo``, at or above ``hi``
-    are clipped (a black floor or a stuck ceiling moves them per channel).
+    ``hi`` are scalars or per-channel limits: a pixel with a code at or below ``lo`` or at
+    or above ``hi`` in any channel is clipped (:meth:`valid`; a stuck ceiling lowers
+    ``hi``); ``floor`` (per channel, optional) zeroes the weights of a channel's codes at
+    or below it, that channel only (a black floor).
     """
 
     def __init__(self, lin: _Lineariser, exposure: float, weighting, noise: NoiseModel,
-                 lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0):
+                 lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0,
+                 floor=None):
         self.lin = lin
         self.e = float(exposure)
         self.e_norm = float(exposure_norm)
         self.weighting = weighting
         self.noise = noise
-        # per channel: a black floor or a stuck ceiling raises lo or lowers hi
+        # per channel: a stuck ceiling lowers hi (a pixel there is clipped, every channel);
+        # a black floor raises the limit of the weights of its channel only
         self.lo = np.broadcast_to(np.asarray(lo, dtype=np.float64), (3,)).copy()
         self.hi = np.broadcast_to(np.asarray(hi, dtype=np.float64), (3,)).copy()
+        self.wlo = self.lo if floor is None else np.maximum(self.lo, floor)
         self.lut = lin.table is not None and lin.kind != "to_raw"
         if lin.table is None:
             return
@@ -161,7 +166,7 @@ class _FrameTables:
         z = np.arange(mc + 1) / mc
         x = lin.table
         codes = np.arange(mc + 1)[:, None]
-        ok = (codes > self.lo[None, :]) & (codes < self.hi[None, :])
+        ok = (codes > self.wlo[None, :]) & (codes < self.hi[None, :])
         w = self._weights(np.repeat(z[:, None], 3, axis=1), x, lin.slope) * ok
         self.w_table = w.astype(np.float32)
         self.x_table = (x / self.e).astype(np.float32)
@@ -242,7 +247,7 @@ class _FrameTables:
             z = x
             slope = np.ones_like(x)
             w = self._weights(z, x, slope).astype(np.float32)
-            w[~((x > self.lo) & (x < self.hi))] = 0.0
+            w[~((x > self.wlo) & (x < self.hi))] = 0.0
         X = x / np.float32(self.e)
         a = w * X
         if not need_x:
