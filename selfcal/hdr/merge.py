@@ -760,8 +760,8 @@ def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     below the floor and from the ceiling up do not move with exposure, the floor code
     itself is the first that does).  A floor zeroes its channel only: the other channels
     of a dark, coloured pixel are still measured (zeroing every channel of a pixel with one
-    channel at its floor flagged 29 % of ntu's night scene unmeasured and raised its
-    odd/even median |log ratio| from 0.29 to 0.54, ``bench/bench_hdr_oddeven.py``).
+    channel at its floor raised the odd/even median |log ratio| of ntu's night scene,
+    ``bench/bench_hdr_oddeven.py``, from 0.29 to 0.54).
     """
     lo, hi = _clip_limits(max_code, clip_margin, linear)
     lo = np.full(3, float(lo))
