@@ -107,7 +107,7 @@ from .deghost import (
     _poor_agreement,
     _small_log_luma,
 )
-from .weights import NoiseModel, _FrameTables
+from .weights import DEFAULT_NOISE, NoiseModel, _FrameTables
 
 __all__ = ["HDRResult", "merge_hdr", "linearize_images"]
 
@@ -253,7 +253,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     linear : bool
         The frames are linear already (no model; a given model is an error).
     noise : NoiseModel, optional
-        For ``weighting="noise"`` and deghosting.  Default :class:`NoiseModel()`.
+        For ``weighting="noise"`` and deghosting.  Default :data:`.weights.DEFAULT_NOISE`.
     clip_margin : float
         Codes (8-bit scale) within this distance of 0 or the maximum count as clipped
         (default 2, as in calibration).
@@ -292,7 +292,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     (dtype('float32'), (256, 384, 3))
     """
     align = _check_options(weighting, align, linear, model)
-    noise = NoiseModel() if noise is None else noise
+    noise = DEFAULT_NOISE if noise is None else noise
     frames = _Frames(images, linear)
     linear = frames.linear  # raw files are linear
     n = len(frames)
