@@ -30,13 +30,14 @@ merge of all 16 frames against the noise-weighted one (same model), median log r
 p95 |log ratio| (no rescaling; the exposures are the same), over all pixels and over the
 pixels some frame measured.
 
-    python bench/bench_hdr_oddeven.py                 # every stack (about 6 minutes)
+    python bench/bench_hdr_oddeven.py                 # every stack (6 min, 6 GB peak)
     python bench/bench_hdr_oddeven.py --only memorial --only sony_ilce6400/scene3
     python bench/bench_hdr_oddeven.py --reduce 4      # every JPEG at 1/4 (quick)
 
 The ntu frames (6000×4000) are always decoded at 1/4 or less (libjpeg DCT scaling,
 ``read_image(..., reduce=4)``); the "size" column gives the size merged.  Colour-hdri runs
-with one BLAS thread (threadpoolctl), as does everything else here.
+with one BLAS thread (threadpoolctl), as does everything else here; its float64 copies of
+the 6 MP Sony stacks set the peak memory (about 6 GB).
 """
 
 from __future__ import annotations
@@ -125,12 +126,14 @@ def selfcal_merges(frames, times, halves):
     import selfcal
 
     model = selfcal.calibrate_response(frames, times)
-    out = {}
+    out, flagged = {}, {}
     for label, kwargs in (("selfcal default", {}), ("selfcal noise", {"weighting": "noise"}),
                           ("selfcal hat", {"weighting": "hat"})):
-        out[label] = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h], model,
-                                        **kwargs).radiance for h in halves]
-    return out, model
+        results = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h], model,
+                                     **kwargs) for h in halves]
+        out[label] = [r.radiance for r in results]
+        flagged[label] = results[0].unmeasured | results[1].unmeasured
+    return out, flagged, model
 
 
 def opencv_merges(frames, times, halves):
@@ -180,7 +183,7 @@ def run_stack(name, paths, times, reduce: int):
     halves = (odd, even)
     mask = measured([frames[k] for k in odd]) & measured([frames[k] for k in even])
 
-    maps, model = selfcal_merges(frames, times, halves)
+    maps, flagged, model = selfcal_merges(frames, times, halves)
     maps["OpenCV"] = opencv_merges(frames, times, halves)
     maps["colour-hdri"] = colour_hdri_merges(frames, times, meta, halves)
     scores = {m: agreement(maps[m][0], maps[m][1], mask) for m in METHODS}
@@ -190,6 +193,7 @@ def run_stack(name, paths, times, reduce: int):
         "size": f"{w}×{h}" + (f" (1/{reduce})" if reduce > 1 and paths[0].suffix.lower()
                               in (".jpg", ".jpeg") else ""),
         "measured": float(mask.mean()),
+        "flagged": float(flagged["selfcal default"][mask].mean()) if mask.any() else 0.0,
         "seconds": time.perf_counter() - t0,
     }
     extra = memorial_comparison(frames, times, model) if name == "memorial" else None
@@ -283,6 +287,12 @@ def main(argv=None):
         print("\nScored values non-finite or ≤ 0, counted as infinite disagreement (colour-hdri: "
               "its Debevec curve, extrapolated by a polynomial, goes ≤ 0 at low codes): "
               + "; ".join(bad))
+    flagged = [f"{name} {100 * info['flagged']:.2g}%" for name, (_, info) in results.items()
+               if info["flagged"] > 0]
+    if flagged:
+        print("\nScored pixels that selfcal's default merge flags unmeasured in a half (its "
+              "clip rules or frames it leaves out; their values are its fill, a bound): "
+              + "; ".join(flagged))
     if extra is not None:
         print("\nmemorial, all 16 frames, one model (the one above): the default and the hat "
               "merge against the noise-weighted one (log ratio per channel, no rescaling):\n")
