@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import read_frame, real_bracket_scenes, real_stacks, table  # noqa: E402
+from common import real_bracket_scenes, real_stacks, table  # noqa: E402
 
 #: Stacks the merge may be tuned on (memorial and the first scene of each camera).
 TUNING = ("memorial", "fujifilm_xh1/scene1", "sony_ilce6400/scene1")
@@ -168,13 +168,15 @@ def colour_hdri_merges(frames, times, meta, halves):
 # --------------------------------------------------------------------------------------
 
 def run_stack(name, paths, times, reduce: int):
+    from selfcal.io import read_image
+
     t0 = time.perf_counter()
     if name == "ntu":
         reduce = max(reduce, NTU_REDUCE)
     order = np.argsort(np.asarray(times, float), kind="stable")
     paths = [paths[k] for k in order]
     times = [float(times[k]) for k in order]
-    frames = [read_frame(p, reduce=reduce) for p in paths]
+    frames = [read_image(p, reduce=reduce) for p in paths]
     if any(f.dtype != np.uint8 for f in frames):
         sys.exit(f"{name}: 8-bit frames expected")
     meta = exposure_meta(paths)

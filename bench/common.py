@@ -106,27 +106,3 @@ def real_bracket_scenes():
             scenes[f"{folder.parent.name}/{folder.name}"] = (
                 paths, [read_exposure_info(p).exposure_time for p in paths])
     return scenes
-
-
-def read_frame(path, *, reduce: int = 1) -> np.ndarray:
-    """A frame decoded as ``selfcal.io.read_image(path, reduce=reduce)`` decodes it.
-
-    The same OpenCV calls (JPEGs at 1/reduce with libjpeg's DCT scaling; RGB, uint8 or
-    uint16), without read_image's structure check, which refuses the Sony ILCE-6400 JPEGs
-    of real_brackets/: the camera pads each file with up to 30 KB of zeros after the
-    end-of-image marker, beyond the last 4096 bytes the check looks in.
-    """
-    import cv2
-
-    data = np.fromfile(str(path), dtype=np.uint8)
-    flags = cv2.IMREAD_UNCHANGED
-    if reduce > 1 and data[:2].tobytes() == b"\xff\xd8":
-        flags = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
-                 8: cv2.IMREAD_REDUCED_COLOR_8}[reduce]
-    image = cv2.imdecode(data, flags | cv2.IMREAD_IGNORE_ORIENTATION)
-    if image is None:
-        sys.exit(f"{path}: cannot be decoded")
-    if image.ndim == 2:
-        return np.repeat(image[:, :, None], 3, axis=2)
-    code = cv2.COLOR_BGRA2RGB if image.shape[2] == 4 else cv2.COLOR_BGR2RGB
-    return cv2.cvtColor(image, code)

@@ -53,8 +53,9 @@ def _check_structure(path: Path, data: bytes) -> None:
     if len(data) == 0:
         raise InputError("the file is empty", path)
     if data[:2] == b"\xff\xd8":
-        # A complete JPEG ends with the EOI marker; cameras may pad after it.
-        if b"\xff\xd9" not in data[-4096:]:
+        # A complete JPEG ends with the EOI marker; cameras may pad after it, some (the
+        # Sony ILCE-6400) with tens of kilobytes of zeros.
+        if b"\xff\xd9" not in data.rstrip(b"\x00")[-4096:]:
             raise InputError("truncated JPEG (no end-of-image marker)", path)
     elif data[:8] == b"\x89PNG\r\n\x1a\n":
         if b"IEND" not in data[-64:]:

@@ -361,6 +361,19 @@ def test_files_truncated_or_not_images(tmp_path, srgb_stack):
         selfcal.calibrate_response(paths)
 
 
+def test_jpeg_padded_with_zeros_after_its_end_is_read(tmp_path, srgb_stack):
+    # The Sony ILCE-6400 pads its JPEGs with up to ~30 KB of zeros after the EOI marker.
+    from selfcal.io import read_image
+
+    path = srgb_stack.write(tmp_path / "stack")[0]
+    data = path.read_bytes()
+    path.write_bytes(data + bytes(30_000))
+    np.testing.assert_array_equal(read_image(path), srgb_stack.images[0])
+    path.write_bytes(data[: len(data) // 2] + bytes(30_000))   # truncated, then padded
+    with pytest.raises(InputError, match="truncated"):
+        read_image(path)
+
+
 def test_exif_times_are_used_and_missing_exif_warned(tmp_path, srgb_stack):
     paths = srgb_stack.write(tmp_path / "stack")
     model = selfcal.calibrate_response(paths)
