@@ -165,7 +165,10 @@ def register(subparsers) -> None:
                         "no response model")
     p.add_argument("--reference", type=int, metavar="K",
                    help="index of the reference frame (default: the middle exposure)")
-    p.add_argument("--half", action="store_true", help="16-bit half floats (EXR, TIFF)")
+    p.add_argument("--half", action="store_true",
+                   help="16-bit half floats (EXR, TIFF); values beyond half range are "
+                        "stored divided by a power of two, recorded in the file "
+                        "(selfcalRadianceScale) and said in the summary")
     p.add_argument("--preview", metavar="PREVIEW.jpg",
                    help="also write a tone-mapped preview (Reinhard global operator)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
