@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import CalibrationError
+from ..frames import STUCK_CODES, STUCK_RATIO
 
 
 def frame_pairs(order: np.ndarray, max_rank_gap: int):
@@ -51,7 +52,7 @@ def _interpolation_matrix(grid: np.ndarray, x: np.ndarray):
 
 def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
                  values: np.ndarray, log_exposures: np.ndarray,
-                 stuck_ratio: float = 1.5, stuck_codes: float = 1.0 / 255):
+                 stuck_ratio: float = STUCK_RATIO, stuck_codes: float = STUCK_CODES / 255):
     """Frame pairs (a, b), b brighter, and the samples valid in both.
 
     A sample whose code in some channel does not move between two frames whose exposures
