@@ -649,7 +649,7 @@ class _MergeSums:
             if hole_px.any():
                 unmeasured[s] = hole_px
                 fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
-                                   self.ref, self.white)
+                                   self.ref)
                 np.copyto(ns, fill, where=hole)
         self.den = None
         return unmeasured
@@ -793,7 +793,7 @@ def _any_channel(mask3: np.ndarray) -> np.ndarray:
     return mask3[..., 0] | mask3[..., 1] | mask3[..., 2]
 
 
-def _fill_strip(s, kept, tables, darkest, brightest, ref, white):
+def _fill_strip(s, kept, tables, darkest, brightest, ref):
     """Values for pixels no frame measured: darkest frame for highlights, else brightest.
 
     A pixel is a highlight when some channel of the brightest frame is clipped at white
