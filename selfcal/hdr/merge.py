@@ -687,8 +687,7 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
     prev = None
     pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
     try:
-        for done, k in enumerate(order):
-            img = loaded.pop(k) if k in loaded else frames.load(k)
+        for done, (k, img) in enumerate(_read_ahead(frames, order, loaded)):
             if lin is None:
                 mc = _max_code(img)
                 lin = _Lineariser(model, linear, mc)
@@ -748,6 +747,26 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
         pool.shutdown()
     if deghost:
         cv2.bitwise_or(sums.white, ref_white, dst=sums.white)
+
+
+def _read_ahead(frames: _Frames, order, loaded: dict):
+    """``(k, codes)`` for each frame of ``order``, the next one decoded while the caller
+    works on this one.
+
+    Decoders release the GIL, so one reader thread overlaps decoding with the merge
+    arithmetic (ours: from files, the merge otherwise waits on every decode in turn).
+    At most two frames are held beyond ``loaded``: the one yielded and the next.
+    """
+    def load(k):
+        return loaded.pop(k) if k in loaded else frames.load(k)
+
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        ahead = reader.submit(load, order[0]) if order else None
+        for i, k in enumerate(order):
+            img = ahead.result()
+            ahead = reader.submit(load, order[i + 1]) if i + 1 < len(order) else None
+            yield k, img
+            img = None  # noqa: F841 -- the caller's frame is released before the next
 
 
 def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
