@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError, OutputExistsError
+from .errors import InputError, OutputExistsError, SelfcalError
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 JPEG_SUFFIXES = {".jpg", ".jpeg"}
@@ -261,9 +261,83 @@ def _exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", mod
 # writing (atomic, never over an existing file unless asked)
 # --------------------------------------------------------------------------------------
 
+class OutputWriteError(SelfcalError, OSError):
+    """An output file cannot be written (its folder is missing, not a folder, read-only,
+    or the disk refused); the message names the output asked for, never a temporary file."""
+
+
+def _reason(exc: OSError) -> str:
+    """The cause of an OS error in words, without the file name it carries."""
+    return (exc.strerror or str(exc) or type(exc).__name__).rstrip(".").lower()
+
+
+def _hidden_temp_names(text: str, folder: Path, target: Path) -> str:
+    """``text`` with every hidden temporary file of ``folder`` (``/.name.xxxx.ext``)
+    replaced by ``target``: messages name the output asked for."""
+    import re
+
+    return re.sub(re.escape(str(folder)) + r"/\.[^\s:'\"()]+", str(target), text)
+
+
+def _first_blocker(folder: Path):
+    """Walk up from ``folder`` to the first path that exists: ``(existing, missing)``,
+    where ``missing`` are the folders below it to be created (deepest last)."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return folder, missing[::-1]
+
+
+def check_output_path(path, *, force: bool = False, inputs=(), create_folder: bool = False):
+    """Check before any work that ``path`` can be written; raise what writing it would.
+
+    The checks: not one of ``inputs``; not a directory; not an existing file unless
+    ``force``; its folder exists (or, with ``create_folder``, can be created: the nearest
+    existing ancestor is a folder) and a file can really be created in it (a temporary
+    file is made and removed: permissions alone do not tell for root or read-only
+    mounts).  Nothing is left behind.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` is an input, or exists and ``force`` is false.
+    OutputWriteError
+        ``path`` is a directory, its folder is missing or is a file, or cannot be written.
+    """
+    path = Path(path)
+    resolved = path.resolve()
+    for inp in inputs:
+        if Path(inp).resolve() == resolved:
+            raise OutputExistsError(f"{path}: refusing to write over an input file")
+    if path.is_dir():
+        raise OutputWriteError(f"{path}: cannot be written (it is a directory)")
+    if path.exists() and not force:
+        raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
+    folder = path.parent
+    existing, missing = _first_blocker(folder)
+    if not existing.is_dir():
+        raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
+                               "folder)")
+    if missing and not create_folder:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {missing[0]} does "
+                               "not exist)")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".selfcal-check.", dir=existing)
+    except OSError as exc:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {existing}: "
+                               f"{_reason(exc)})") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
 @contextlib.contextmanager
 def atomic_output(path, *, force: bool = False, inputs=()):
     """Context manager giving a temporary path that is renamed onto ``path`` on success.
+
+    The temporary file sits in the same folder (a rename, never a copy); on any failure it
+    is removed and errors name ``path``, not the temporary file.  Missing folders are
+    created.
 
     Parameters
     ----------
@@ -278,6 +352,9 @@ def atomic_output(path, *, force: bool = False, inputs=()):
     ------
     OutputExistsError
         When ``path`` exists and ``force`` is false, or when it is one of the inputs.
+    OutputWriteError
+        When the folder cannot be created or written, or the rename fails (the message
+        names ``path`` and the cause).
     """
     path = Path(path)
     resolved = path.resolve()
@@ -286,9 +363,17 @@ def atomic_output(path, *, force: bool = False, inputs=()):
             raise OutputExistsError(f"{path}: refusing to write over an input file")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
-                               dir=path.parent)
+    existing, _ = _first_blocker(path.parent)
+    if not existing.is_dir():
+        raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
+                               "folder)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                                   dir=path.parent)
+    except OSError as exc:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
+                               f"{_reason(exc)})") from None
     os.close(fd)
     # mkstemp creates 0600; give the output the permissions an ordinary file would get
     umask = os.umask(0)
@@ -297,10 +382,130 @@ def atomic_output(path, *, force: bool = False, inputs=()):
     try:
         yield Path(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        if isinstance(exc, SelfcalError) and str(tmp) in str(exc):
+            # a writer's own error about the temporary file: the same error, named right
+            raise type(exc)(_hidden_temp_names(str(exc), path.parent, path)) from None
+        if isinstance(exc, OSError) and not isinstance(exc, SelfcalError):
+            raise OutputWriteError(f"{path}: cannot be written ({_reason(exc)})") from None
         raise
+
+
+class StagedOutputs:
+    """Several output files written so that they all appear at the end, or none does.
+
+    Each output is written to a temporary file beside it (:meth:`write`); :meth:`commit`
+    renames them all onto their targets, and :meth:`discard` (or leaving the ``with``
+    block by an exception) removes the temporary files and the folders this object
+    created.  If a rename fails in :meth:`commit`, the outputs already renamed that did
+    not exist before are removed again.  Errors name the output, not the temporary file.
+
+    Parameters
+    ----------
+    force : bool
+        Allow replacing existing files.
+    inputs : iterable of paths
+        Never written over.
+
+    Examples
+    --------
+    >>> with StagedOutputs(force=False) as out:                 # doctest: +SKIP
+    ...     out.write("model.json", lambda tmp: model.save(tmp, force=True))
+    ...     out.write("plot.png", lambda tmp: plot_response(model, tmp, force=True))
+    """
+
+    def __init__(self, *, force: bool = False, inputs=()):
+        self.force = force
+        self.inputs = [Path(p) for p in inputs]
+        self._staged: list[tuple[Path, Path]] = []
+        self._created_dirs: list[Path] = []
+        self.written: list[Path] = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        if kind is None:
+            self.commit()
+        else:
+            self.discard()
+        return False
+
+    def _stage(self, target: Path) -> Path:
+        check_output_path(target, force=self.force, inputs=self.inputs, create_folder=True)
+        _, missing = _first_blocker(target.parent)
+        try:
+            for folder in missing:
+                folder.mkdir()
+                self._created_dirs.append(folder)
+            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.",
+                                       suffix=target.suffix or ".tmp", dir=target.parent)
+        except OSError as exc:
+            raise OutputWriteError(f"{target}: cannot be written (the folder "
+                                   f"{target.parent}: {_reason(exc)})") from None
+        os.close(fd)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
+        self._staged.append((Path(tmp), target))
+        return Path(tmp)
+
+    def write(self, target, writer):
+        """Call ``writer(tmp)`` to write ``target``'s content to a temporary file (the
+        writer must be allowed to replace ``tmp``, e.g. ``force=True``); returns what the
+        writer returns."""
+        target = Path(target)
+        tmp = self._stage(target)
+        try:
+            return writer(tmp)
+        except SelfcalError as exc:
+            if str(tmp.parent) in str(exc):
+                raise type(exc)(_hidden_temp_names(str(exc), tmp.parent, target)) from None
+            raise
+        except OSError as exc:
+            raise OutputWriteError(f"{target}: cannot be written ({_reason(exc)})") from None
+
+    def commit(self) -> list[Path]:
+        """Rename every staged file onto its target; returns the targets."""
+        done: list[tuple[Path, bool]] = []
+        try:
+            for tmp, target in self._staged:
+                if target.exists() and not self.force:
+                    raise OutputExistsError(
+                        f"{target}: exists already (use --force to overwrite)")
+                existed = target.exists()
+                try:
+                    os.replace(tmp, target)
+                except OSError as exc:
+                    raise OutputWriteError(f"{target}: cannot be written "
+                                           f"({_reason(exc)})") from None
+                done.append((target, existed))
+        except BaseException:
+            for target, existed in done:
+                if not existed:
+                    with contextlib.suppress(OSError):
+                        os.unlink(target)
+            self._staged = [(t, g) for t, g in self._staged
+                            if g not in {d for d, _ in done}]
+            self.discard()
+            raise
+        self.written = [target for _, target in self._staged]
+        self._staged = []
+        self._created_dirs = []
+        return self.written
+
+    def discard(self) -> None:
+        """Remove every staged file and the (now empty) folders created for them."""
+        for tmp, _ in self._staged:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        self._staged = []
+        for folder in reversed(self._created_dirs):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        self._created_dirs = []
 
 
 def write_bytes_atomic(path, data: bytes, *, force: bool = False, inputs=()) -> Path:
