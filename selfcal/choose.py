@@ -31,19 +31,17 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import CalibrationError, InputError, SelfcalWarning
-from .io import (IMAGE_SUFFIXES, ExposureInfo, effective_exposure_times, read_exposure_info,
-                 read_image, read_image_size)
+from .choose_groups import InputGroups, group_inputs, linear_evidence
+from .io import (ExposureInfo, effective_exposure_times, read_exposure_info, read_image,
+                 read_image_size)
 from .pairs import collect_pair_samples, raw_exposure_ratios
 from .pipeline import fit_pipeline
-from .raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff, read_raw_exposure_info
+from .raw import read_raw_exposure_info
 from .response.calibrate import calibrate_response
 
 __all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
            "calibrate_pipeline"]
 
-RENDERED_SUFFIXES = frozenset(IMAGE_SUFFIXES)
-#: Preference among rendered files of one name when pairing with a raw.
-_RENDERED_PREFERENCE = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 #: Two exposures count as distinct when they differ by more than this factor.
 DISTINCT_EXPOSURE_FACTOR = 1.05
 #: Median code change (of 255) that counts as a visible exposure change between frames
@@ -52,135 +50,6 @@ BRIGHTNESS_CHANGE_CODES = 2.0
 #: Fewest samples for the pipeline fit, and per pair before a pair is reported as unusable.
 MIN_PIPELINE_SAMPLES = 200
 MIN_PAIR_SAMPLES = 50
-
-
-# ---- grouping ------------------------------------------------------------------------
-
-@dataclass
-class InputGroups:
-    """The inputs sorted by role.
-
-    Attributes
-    ----------
-    rendered : list of pathlib.Path
-        Every rendered frame (JPEG, PNG, TIFF that is not taken as a raw), in input order,
-        including those paired with a raw.
-    pairs : list of (pathlib.Path, pathlib.Path)
-        ``(raw, rendered)`` pairs: same folder, same name up to case and suffix.
-    unpaired_raws : list of pathlib.Path
-        Raw files without a rendered file of the same name.
-    ignored : list of (pathlib.Path, str)
-        Files not used, with the reason (duplicates, a second raw of one name).
-    """
-
-    rendered: list = field(default_factory=list)
-    pairs: list = field(default_factory=list)
-    unpaired_raws: list = field(default_factory=list)
-    ignored: list = field(default_factory=list)
-
-    @property
-    def raw_of(self) -> dict:
-        """Map rendered path → its raw path."""
-        return {j: r for r, j in self.pairs}
-
-
-def _expand(paths) -> list[Path]:
-    if isinstance(paths, (str, os.PathLike)):
-        paths = [paths]
-    out: list[Path] = []
-    for p in paths:
-        if not isinstance(p, (str, os.PathLike)):
-            raise InputError(f"calibrate takes file paths; got {type(p).__name__} "
-                             "(use calibrate_response / calibrate_pipeline for arrays)")
-        p = Path(p)
-        if p.is_dir():
-            out.extend(sorted(q for q in p.iterdir() if q.is_file() and (
-                q.suffix.lower() in RAW_SUFFIXES or q.suffix.lower() in RENDERED_SUFFIXES)))
-        elif not p.exists():
-            raise InputError("no such file", p)
-        else:
-            out.append(p)
-    return out
-
-
-def group_inputs(paths) -> InputGroups:
-    """Sort input files into rendered frames, RAW+rendered pairs and unpaired raws.
-
-    A raw file (suffix in :data:`selfcal.raw.RAW_SUFFIXES`) pairs with the rendered file
-    (``.jpg``/``.jpeg``/``.png``/``.tif``/``.tiff``) of the same name -- case-insensitive,
-    same folder; JPEG is preferred when several exist.  A 16-bit (or float) TIFF is taken as
-    the raw of a pair when a rendered file of the same name is given and no camera raw is
-    (``pair.tiff`` + ``pair.jpg``); otherwise a TIFF is a rendered frame.  Directories are
-    expanded to their image and raw files (not recursively).  A file given twice is used
-    once.
-
-    Parameters
-    ----------
-    paths : str, os.PathLike or sequence of them
-
-    Returns
-    -------
-    InputGroups
-
-    Raises
-    ------
-    InputError
-        For a missing file or a file that is neither an image nor a raw file.
-    """
-    files = _expand(paths)
-    groups = InputGroups()
-    seen: dict[Path, Path] = {}
-    unique: list[Path] = []
-    for p in files:
-        key = p.resolve()
-        if key in seen:
-            groups.ignored.append((p, f"given twice (same file as {seen[key]})"))
-            continue
-        seen[key] = p
-        suffix = p.suffix.lower()
-        if suffix not in RAW_SUFFIXES and suffix not in RENDERED_SUFFIXES:
-            raise InputError(
-                "not an image or raw file selfcal reads (JPEG, PNG, TIFF, or a camera raw: "
-                + ", ".join(sorted(s.lstrip(".").upper() for s in RAW_SUFFIXES)) + ")", p)
-        unique.append(p)
-
-    by_stem: dict[tuple, list[Path]] = {}
-    for p in unique:
-        # the folder as given (a symlink is not followed: its name is what pairs)
-        by_stem.setdefault((Path(os.path.abspath(p)).parent, p.stem.lower()), []).append(p)
-
-    raw_of: dict[Path, Path] = {}
-    is_raw: set[Path] = set()
-    for members in by_stem.values():
-        raws = [p for p in members if p.suffix.lower() in RAW_SUFFIXES]
-        others = [p for p in members if p.suffix.lower() not in RAW_SUFFIXES]
-        if not raws and len(others) >= 2:
-            tiffs = [p for p in others if p.suffix.lower() in TIFF_SUFFIXES
-                     and is_linear_tiff(p)]
-            if tiffs and len(tiffs) < len(others):
-                raws = tiffs[:1]
-                others = [p for p in others if p != raws[0]]
-        for extra in raws[1:]:
-            groups.ignored.append((extra, f"a second raw file named like {raws[0].name}; "
-                                          f"only {raws[0].name} is used"))
-        if raws:
-            is_raw.update(raws)
-            if others:
-                partner = min(others, key=lambda q: (
-                    _RENDERED_PREFERENCE.index(q.suffix.lower()), unique.index(q)))
-                raw_of[partner] = raws[0]
-            else:
-                groups.unpaired_raws.append(raws[0])
-    for p in unique:
-        if p in is_raw:
-            continue
-        groups.rendered.append(p)
-        if p in raw_of:
-            groups.pairs.append((raw_of[p], p))
-    ignored_raws = {p for p, _ in groups.ignored}
-    groups.unpaired_raws = [p for p in unique if p in groups.unpaired_raws
-                            and p not in ignored_raws]
-    return groups
 
 
 # ---- the result ----------------------------------------------------------------------
@@ -436,11 +305,14 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
     ------
     InputError
         A missing or unreadable file (named), a raw LibRaw cannot read (named), a JPEG that
-        does not match its raw (both named).
+        does not match its raw (both named), a folder with no images (named), a frame
+        named one by one whose size differs from the calibrated frames' (named, with both
+        sizes; frames of another size found in a folder are left out with a warning).
     CalibrationError
         When the inputs support neither path; the message says what is missing, e.g.
         ``"3 JPEGs all at 1/60 s and no raw files: need frames at ≥ 2 exposures, or a
-        RAW+JPEG pair"``.
+        RAW+JPEG pair"``.  Also for a bracket of linear TIFFs (raw converter output,
+        :func:`selfcal.choose_groups.linear_evidence`), which has no response.
     """
     if exposure_source not in ("auto", "raw", "exif", "unknown"):
         raise InputError(f"exposure_source must be auto, raw, exif or unknown, got "
@@ -455,9 +327,12 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
         report.warn(f"{raw}: raw file without a rendered image of the same name "
                     f"({raw.stem}.jpg) in its folder; not used")
 
+    _check_folders(groups, report)
     given_times = _given_times(exposure_times, groups.rendered)
     candidates, infos, eff = _size_groups(groups, given_times, exposure_source)
-    chosen = _response_group(candidates, report)
+    chosen = _response_group(candidates, groups, report)
+    if chosen is not None and not groups.pairs:
+        _refuse_linear(chosen.frames, eff)
     want_pipeline = bool(groups.pairs)
     if chosen is None and not want_pipeline:
         raise CalibrationError(_missing_message(groups, candidates))
@@ -551,16 +426,61 @@ def _size_groups(groups: InputGroups, given_times, exposure_source):
     return candidates, infos, eff
 
 
-def _response_group(candidates, report: _Report) -> _SizeGroup | None:
+def _response_group(candidates, groups: InputGroups, report: _Report) -> _SizeGroup | None:
     """The size group the response path calibrates: the usable one with most frames (one
-    scene per calibration; the other usable ones are reported as not used)."""
+    scene per calibration).
+
+    Rendered frames of another size, without a raw (the pipeline path uses paired frames
+    of any size), would be left out: a file named one by one is refused
+    (:class:`~selfcal.errors.InputError` naming it and both sizes), as the merge refuses
+    it; files found in a folder are left out with a warning naming each.
+    """
     usable = [c for c in candidates if c.status in ("ok", "raw?")]
     usable.sort(key=lambda c: -len(c.frames))
-    for c in usable[1:]:
-        report.warn(f"{_noun(c.frames)} of another size ({c.size[1]}x{c.size[0]}: "
-                    f"{_names(c.frames)}) not used by the response path (one scene per "
-                    "calibration)")
-    return usable[0] if usable else None
+    if not usable:
+        return None
+    chosen = usable[0]
+    size = f"{chosen.size[1]}x{chosen.size[0]}"
+    paired, from_folder = groups.raw_of, groups.from_folder
+    for c in candidates:
+        if c is chosen:
+            continue
+        for p in c.frames:
+            if p in paired:
+                continue
+            if p not in from_folder:
+                raise InputError(
+                    f"frame size {c.size[1]}x{c.size[0]} differs from the other frames' "
+                    f"{size} ({_names(chosen.frames, 2)}): one scene per calibration; "
+                    "leave it out or give frames of one size", p)
+            report.warn(f"{p}: left out ({c.size[1]}x{c.size[0]}, the calibrated frames "
+                        f"are {size}: one scene per calibration)")
+    return chosen
+
+
+def _check_folders(groups: InputGroups, report: _Report) -> None:
+    """An empty folder: an error naming it when nothing else is given, else a warning."""
+    empty = [folder for folder, files in groups.folders.items() if not files]
+    if not empty:
+        return
+    what = ("no image or raw files (JPEG, PNG, TIFF or camera raws; folders are not "
+            "searched recursively)")
+    if not groups.rendered and not groups.unpaired_raws:
+        raise InputError(f"the folder holds {what}", empty[0])
+    for folder in empty:
+        report.warn(f"{folder}: the folder holds {what}")
+
+
+def _refuse_linear(frames, eff) -> None:
+    """Linear TIFFs (raw converter output) are not rendered frames: refuse them."""
+    why = linear_evidence(frames, [eff.get(p) for p in frames])
+    if why:
+        raise CalibrationError(
+            f"{_names(frames)} are linear data, not rendered frames: {why}; linear data "
+            "have no response to calibrate: merge them as linear (selfcal merge --linear; "
+            "merge_hdr(..., linear=True)), put each raw beside the camera's JPEG of the "
+            "same name for the RAW path, or, if they are rendered frames after all, give "
+            "their exposure times")
 
 
 def _read_pairs(groups: InputGroups, *, seed, max_samples, half_size, block, progress,
