@@ -9,10 +9,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import EPILOG, EXIT_OK, fmt_time, parse_time, progress_bar, say
+from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, float_range,
+                     fmt_time, int_range, parse_time, progress_bar, say, say_verdict,
+                     verdict_of, warn)
 
 
-def _print_response_summary(model, out_path=None) -> None:
+def _print_response_summary(model) -> None:
     d = model.diagnostics
     say(f"frames: {len(model.sources)}  (times from {d['exposure_source']})")
     say(f"{'frame':<32} {'given':>10} {'estimated':>10}")
@@ -25,11 +27,10 @@ def _print_response_summary(model, out_path=None) -> None:
          f"down-weighted as outliers; rejected pairs: {rej}")
     delta = ", ".join(f"{c} {v:.4f}" for c, v in zip("RGB", d["delta_eq12"]))
     say(f"fit: residual {d['residual_rms_log']:.4f} (log units), δ (Eq. 12): {delta}")
-    say(f"verdict: {d['verdict']}")
+    _, reasons = verdict_of(d)
     for w in d["warnings"]:
-        say(f"warning: {w}")
-    if out_path is not None:
-        say(f"wrote {out_path}")
+        if w not in reasons and not (reasons and all(r in w for r in reasons)):
+            warn(w)       # the verdict's reasons are said with it
 
 
 # ------------------------------------------------------------------------- commands
@@ -38,44 +39,70 @@ def _pipeline_output_path(out: Path) -> Path:
     return out.with_name(out.stem + ".pipeline" + (out.suffix or ".json"))
 
 
-def cmd_calibrate(args) -> int:
+def _basis_for(args):
+    """The --basis file, loaded (so a bad file is refused before any work), with
+    --components checked against its size; None for the built-in basis."""
     import selfcal
 
-    images = [Path(p) for p in args.images]
-    times = args.times
-    if args.unknown_exposures and times is not None:
-        raise selfcal.InputError("--times and --unknown-exposures contradict each other")
+    if args.basis is None:
+        return None
+    from selfcal.response.basis import load_basis_file
+
+    basis = load_basis_file(args.basis)
+    if args.components > basis.n_components:
+        raise selfcal.InputError(f"has {basis.n_components} components; --components "
+                                 f"{args.components} asks for more", args.basis)
+    return basis
+
+
+def _calibrate_outputs(args, groups, images):
+    """The outputs (model, plot, RAW-path model) and the inputs they must not replace."""
     out = Path(args.output)
-    pipeline_out = Path(args.pipeline_output) if args.pipeline_output else \
-        _pipeline_output_path(out)
-    for target in (out, pipeline_out):
-        if any(target.resolve() == p.resolve() for p in images):
-            raise selfcal.OutputExistsError(f"{target}: refusing to write over an input file")
-    if out.exists() and not args.force:
-        raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
+    plot = Path(args.plot) if args.plot else None
+    pipeline_out = Path(args.pipeline_output) if args.pipeline_output else None
+    if pipeline_out is None and groups.pairs and len(groups.rendered) >= 2:
+        pipeline_out = _pipeline_output_path(out)    # both paths may be taken
+    inputs = list(images) + sorted(groups.from_folder) + [p for p, _ in groups.pairs] + \
+        list(groups.unpaired_raws) + ([Path(args.basis)] if args.basis else [])
+    return out, plot, pipeline_out, inputs
+
+
+def cmd_calibrate(args) -> int:
+    import selfcal
+    from selfcal.choose import group_inputs
+    from selfcal.io import StagedOutputs
+
+    images = [Path(p) for p in args.images]
+    groups = group_inputs(images)
+    out, plot, pipeline_out, inputs = _calibrate_outputs(args, groups, images)
+    if plot is not None and plot.suffix.lower() != ".png":
+        raise selfcal.InputError(f"{plot}: the plot is a .png file")
+    check_outputs([out, plot, pipeline_out], inputs, args.force)
+    basis = _basis_for(args)
     result = selfcal.calibrate(
-        images, exposure_times=times, progress=progress_bar("calibrate"),
+        images, exposure_times=args.times, progress=progress_bar("calibrate"),
         exposure_source="unknown" if args.unknown_exposures else "auto",
         refine_exposures=args.refine_exposures, n_components=args.components,
-        saturation_threshold=args.saturation_threshold, basis=args.basis,
+        saturation_threshold=args.saturation_threshold, basis=basis,
         **({"align": args.align} if args.align else {}))
     for line in result.summary_lines():
         say(line)
-    written = []
     if result.response is not None:
-        result.response.save(out, force=args.force)
-        written.append(out)
-        if args.plot:
-            from selfcal.report import plot_response
-
-            plot_response(result.response, args.plot, force=args.force)
-            written.append(Path(args.plot))
         _print_response_summary(result.response)
-    if result.pipeline is not None:
-        target = out if result.response is None else pipeline_out
-        result.pipeline.save(target, force=args.force)
-        written.append(target)
-    for path in written:
+        say_verdict(result.response.diagnostics, args.force)
+    with StagedOutputs(force=args.force, inputs=inputs) as staged:
+        if result.response is not None:
+            staged.write(out, lambda tmp: result.response.save(tmp, force=True))
+            if plot is not None:
+                from selfcal.report import plot_response
+
+                staged.write(plot, lambda tmp: plot_response(result.response, tmp,
+                                                              force=True))
+        if result.pipeline is not None:
+            target = out if result.response is None else \
+                (pipeline_out or _pipeline_output_path(out))
+            staged.write(target, lambda tmp: result.pipeline.save(tmp, force=True))
+    for path in staged.written:
         say(f"wrote {path}")
     return EXIT_OK
 
@@ -85,29 +112,47 @@ def cmd_demo(args) -> int:
 
     import selfcal
     from selfcal import synth
+    from selfcal.report import plot_response
 
     out = Path(args.output)
+    check_output_folder(out)
     if out.exists() and any(out.iterdir()) and not args.force:
         raise selfcal.OutputExistsError(
             f"{out}: exists and is not empty (use --force to overwrite its files)")
-    stack = synth.demo_stack(seed=args.seed)
-    paths = stack.write(out, force=args.force)
-    say(f"simulated a {len(paths)}-frame bracketed JPEG stack "
-         f"({', '.join(fmt_time(t) for t in stack.exposure_times)} s, ±3% shutter jitter) "
-         f"-> {out}/")
-    model = selfcal.calibrate_response(paths, progress=progress_bar("calibrate"))
-    model_path = out / "model.json"
-    model.save(model_path, force=args.force)
-    truth = stack.inverse_response()
+    check_outputs([out / "model.json", out / "response.png"], [], args.force,
+                  create_folder=True)
+    created = not out.exists()
+    before = set(out.iterdir()) if out.exists() else set()
+    try:
+        stack = synth.demo_stack(seed=args.seed)
+        paths = stack.write(out, force=args.force)
+        say(f"simulated a {len(paths)}-frame bracketed JPEG stack "
+            f"({', '.join(fmt_time(t) for t in stack.exposure_times)} s, ±3% shutter "
+            f"jitter) -> {out}/")
+        model = selfcal.calibrate_response(paths, progress=progress_bar("calibrate"))
+        model_path = out / "model.json"
+        plot_path = out / "response.png"
+        truth = stack.inverse_response()
+        from selfcal.io import StagedOutputs
+
+        with StagedOutputs(force=args.force, inputs=paths) as staged:
+            staged.write(model_path, lambda tmp: model.save(tmp, force=True))
+            staged.write(plot_path, lambda tmp: plot_response(model, tmp, truth=truth,
+                                                              force=True))
+    except BaseException:
+        # nothing new left behind: the frames written, and the folder if it was made here
+        for p in (set(out.iterdir()) if out.exists() else set()) - before:
+            p.unlink(missing_ok=True)
+        if created and out.exists() and not any(out.iterdir()):
+            out.rmdir()
+        raise
+    _print_response_summary(model)
+    say_verdict(model.diagnostics, True)
+    say(f"wrote {model_path}")
+    say(f"wrote {plot_path}")
     est = model.inverse_response()
     codes = slice(1, stack.max_code)
     rmse = np.sqrt(np.mean((est[codes] - truth[codes]) ** 2, axis=0))
-    from selfcal.report import plot_response
-
-    plot_path = out / "response.png"
-    plot_response(model, plot_path, truth=truth, force=args.force)
-    _print_response_summary(model, model_path)
-    say(f"wrote {plot_path}")
     say("error against the simulator's truth, RMSE of f⁻¹ over codes 1..254: "
          + ", ".join(f"{c} {v:.4f}" for c, v in zip("RGB", rmse)))
     exp_err = np.abs(model.exposures / stack.true_exposures - 1)
@@ -117,6 +162,13 @@ def cmd_demo(args) -> int:
 
 
 # ------------------------------------------------------------------------- parser
+
+def _max_components() -> int:
+    """The built-in basis's size (a --basis file is checked against its own)."""
+    from selfcal.response.basis import builtin_basis
+
+    return builtin_basis().n_components
+
 
 def register(sub) -> None:
     """Add the ``demo`` and ``calibrate`` commands to the main parser's subparsers."""
@@ -147,21 +199,25 @@ def register(sub) -> None:
                         "stem), or folders")
     p.add_argument("-o", "--output", required=True, metavar="MODEL.json",
                    help="model file to write")
-    p.add_argument("--times", nargs="+", type=parse_time, metavar="T",
-                   help="exposure time per image (1/250, 0.004, or ? for unknown); "
-                        "default: EXIF")
-    p.add_argument("--unknown-exposures", action="store_true",
-                   help="ignore EXIF; solve the exposures jointly with the curves")
+    times = p.add_mutually_exclusive_group()
+    times.add_argument("--times", nargs="+", type=parse_time, metavar="T",
+                       help="exposure time per image (1/250, 0.004, or ? for unknown); "
+                            "default: EXIF")
+    times.add_argument("--unknown-exposures", action="store_true",
+                       help="ignore EXIF; solve the exposures jointly with the curves")
     p.add_argument("--refine-exposures", action="store_true",
                    help="treat the given times as a prior and re-estimate them")
     p.add_argument("--align", choices=("mtb", "homography"),
                    help="align handheld frames before calibrating the response: "
                         "translation (median threshold bitmaps) or homography (ECC)")
-    p.add_argument("--saturation-threshold", type=float,
-                   default=DEFAULT_SATURATION_THRESHOLD, metavar="B",
-                   help="reject samples with HSV saturation above B (default %(default)s)")
-    p.add_argument("--components", type=int, default=DEFAULT_N_COMPONENTS, metavar="N",
-                   help="PCA basis functions per channel (default %(default)s)")
+    p.add_argument("--saturation-threshold", default=DEFAULT_SATURATION_THRESHOLD,
+                   type=float_range(0.0, 1.0, "the saturation threshold"), metavar="B",
+                   help="reject samples with HSV saturation above B, 0 to 1 "
+                        "(default %(default)s)")
+    p.add_argument("--components", default=DEFAULT_N_COMPONENTS, metavar="N",
+                   type=int_range(1, _max_components, "the number of components"),
+                   help="PCA basis functions per channel, 1 to the basis's size (25 for "
+                        "the built-in basis; default %(default)s)")
     p.add_argument("--basis", metavar="FILE",
                    help="response basis: invemor.txt (Grossberg-Nayar) or a selfcal .npz")
     p.add_argument("--plot", metavar="PNG", help="write curves and a BTF scatter here")

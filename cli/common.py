@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 import sys
 from fractions import Fraction
 from pathlib import Path
@@ -74,23 +75,164 @@ def progress_bar(desc: str):
     return callback
 
 
-def check_outputs(outputs, inputs, force: bool) -> None:
-    """Refuse before any work: outputs over inputs, existing outputs without --force."""
-    import selfcal
+def check_outputs(outputs, inputs, force: bool, *, create_folder: bool = False) -> None:
+    """Refuse before any work what writing the outputs would refuse at the end.
 
-    resolved_inputs = {Path(p).resolve() for p in inputs}
+    Each output (None ones are skipped) is checked by :func:`selfcal.io.check_output_path`:
+    not an input, not a directory, not an existing file without ``--force``, its folder
+    exists (or, with ``create_folder``, can be created) and a file can really be created
+    in it.  Two outputs naming one file are refused too.
+    """
+    import selfcal
+    from selfcal.io import check_output_path
+
+    inputs = [Path(p) for p in inputs]
     seen = set()
     for out in outputs:
         if out is None:
             continue
         out = Path(out)
         r = out.resolve()
-        if r in resolved_inputs:
-            raise selfcal.OutputExistsError(f"{out}: refusing to write over an input file")
         if r in seen:
             raise selfcal.InputError(f"{out}: named as two different outputs")
         seen.add(r)
-        if out.is_dir():
-            raise selfcal.OutputExistsError(f"{out}: is a directory")
-        if out.exists() and not force:
-            raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
+        check_output_path(out, force=force, inputs=inputs, create_folder=create_folder)
+
+
+def check_output_folder(folder) -> None:
+    """An output folder (``-o DIR``) may be missing (it is created at the end), not a file."""
+    from selfcal.io import OutputWriteError
+
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputWriteError(f"{folder}: cannot be the output folder (it is a file)")
+
+
+# ------------------------------------------------------------------------- argument types
+
+def int_range(lo: int, hi, what: str):
+    """An argparse type: an integer from ``lo`` to ``hi`` (``hi`` may be a callable giving
+    it, looked up only when the option is used)."""
+
+    def parse(text: str) -> int:
+        top = hi() if callable(hi) else hi
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or not lo <= value <= top:
+            raise argparse.ArgumentTypeError(
+                f"{what} must be a whole number from {lo} to {top}, not {text!r}")
+        return value
+
+    return parse
+
+
+def float_range(lo: float, hi: float, what: str):
+    """An argparse type: a number from ``lo`` to ``hi``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(
+                f"{what} must be a number from {lo:g} to {hi:g}, not {text!r}")
+        return value
+
+    return parse
+
+
+_NUMBER_LIKE = re.compile(r"^-(\d|\.\d|inf|nan)", re.IGNORECASE)
+
+
+def negative_times(argv) -> str | None:
+    """A value like ``-1/60`` after ``--times``, which argparse would read as an option.
+
+    argparse takes ``-1`` and ``-0.5`` as values (then :func:`parse_time` refuses them),
+    but ``-1/60`` for an unknown option; this finds it so that the error names it.
+    """
+    in_times = False
+    for tok in argv:
+        if tok == "--":
+            return None
+        if tok.startswith("--"):
+            in_times = len(tok) > 3 and "--times".startswith(tok)
+        elif in_times and _NUMBER_LIKE.match(tok):
+            return tok
+        elif tok.startswith("-") and len(tok) > 1:
+            in_times = False
+    return None
+
+
+# ------------------------------------------------------------------------- verdicts
+
+VERDICT_LEVELS = ("ok", "doubtful", "unusable")
+
+
+def verdict_of(diagnostics) -> tuple[str | None, list[str]]:
+    """A model's verdict level and reasons, from ``diagnostics["verdict"]`` and
+    ``diagnostics["verdict_reasons"]``.
+
+    Levels are ``ok``, ``doubtful`` and ``unusable``; any other verdict string (an older
+    model's ``"poorly determined: a; b"``) is ``doubtful``, its reasons the text after
+    the colon.  ``(None, [])`` when there is no verdict (RAW-path models).
+    """
+    raw = (diagnostics or {}).get("verdict")
+    reasons = [str(r) for r in (diagnostics or {}).get("verdict_reasons") or []]
+    if raw is None:
+        return None, reasons
+    text = str(raw).strip()
+    if text in VERDICT_LEVELS:
+        return text, reasons
+    if not reasons:
+        detail = text.split(":", 1)[1] if ":" in text else text
+        reasons = [r.strip() for r in detail.split(";") if r.strip()] or [text]
+    return "doubtful", reasons
+
+
+def say_verdict(diagnostics, force: bool, what: str = "the calibration") -> None:
+    """Print ``verdict: <level>`` and its reasons; refuse an unusable one without --force.
+
+    ``ok``: the line only.  ``doubtful``: each reason as a warning (the command goes on,
+    exit 0).  ``unusable``: each reason, then :class:`~selfcal.errors.CalibrationError`
+    (exit 4, nothing written) unless ``force``, when it is a warning and the work goes on.
+    """
+    import selfcal
+
+    level, reasons = verdict_of(diagnostics)
+    if level is None:
+        return
+    say(f"verdict: {level}")
+    if level == "ok":
+        for r in reasons:
+            say(f"  - {r}")
+    elif level == "doubtful":
+        for r in reasons:
+            warn(r)
+    else:
+        for r in reasons:
+            say(f"  - {r}")
+        why = (reasons[0] if reasons else "no reason given") + (
+            f" (and {len(reasons) - 1} more reason(s) above)" if len(reasons) > 1 else "")
+        if not force:
+            raise selfcal.CalibrationError(
+                f"{what} is unusable: {why}; nothing written (--force writes it anyway)")
+        warn(f"{what} is unusable: {why}; written anyway (--force)")
+
+
+_said_warnings: set = set()
+
+
+def warn(msg: str) -> None:
+    """Say a warning once (the front end skips library warnings already said)."""
+    if msg in _said_warnings:
+        return
+    _said_warnings.add(msg)
+    say(f"warning: {msg}")
+
+
+def reset_warnings() -> None:
+    """Forget the warnings said (one command per call of the front end)."""
+    _said_warnings.clear()

@@ -10,12 +10,32 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import EPILOG, EXIT_OK, EXIT_OUTPUT, check_outputs, parse_time, progress_bar, say
+from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, parse_time,
+                     progress_bar, say, say_verdict, warn)
 
 RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
 
 
 # ------------------------------------------------------------------------- merge
+
+def _refuse_linear_frames(images, times) -> None:
+    """Linear TIFFs merged as rendered frames would be calibrated on the fly: refuse,
+    naming them and the option (:func:`selfcal.choose_groups.linear_evidence`)."""
+    import selfcal
+    from selfcal.choose_groups import linear_evidence
+    from selfcal.io import effective_exposure_times, read_exposure_info
+
+    if not all(p.suffix.lower() in (".tif", ".tiff") for p in images):
+        return
+    if times is None:
+        times = effective_exposure_times([read_exposure_info(p) for p in images])
+    why = linear_evidence(images, times)
+    if why:
+        names = ", ".join(p.name for p in images[:4]) + (", …" if len(images) > 4 else "")
+        raise selfcal.InputError(
+            f"{names} are linear data: {why}; merge them with --linear (or, if they are "
+            "rendered frames after all, give --model or their --times)")
+
 
 def cmd_merge(args) -> int:
     import numpy as np
@@ -23,6 +43,7 @@ def cmd_merge(args) -> int:
     import selfcal
     from selfcal.hdr import merge_hdr
     from selfcal.hdr.io import RADIANCE_SUFFIXES, write_preview, write_radiance
+    from selfcal.io import StagedOutputs
 
     images = [Path(p) for p in args.images]
     out = Path(args.output)
@@ -34,25 +55,29 @@ def cmd_merge(args) -> int:
     if args.times is not None and len(args.times) != len(images):
         raise selfcal.InputError(f"--times gives {len(args.times)} values for "
                                  f"{len(images)} images")
-    check_outputs([out, args.preview], images + ([Path(args.model)] if args.model else []),
-                   args.force)
-    model = selfcal.load_model(args.model) if args.model else None
+    inputs = images + ([Path(args.model)] if args.model else [])
+    check_outputs([out, args.preview], inputs, args.force)
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
+    model = selfcal.load_model(args.model) if args.model else None
+    if not args.linear and model is None:
+        _refuse_linear_frames(images, args.times)
 
-    if args.linear and model is not None:
-        raise selfcal.InputError("--linear and --model contradict each other (linear images "
-                                 "need no response model)")
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost,
                        reference=args.reference, linear=args.linear,
                        progress=progress_bar("merge"))
-    written = write_radiance(out, result.radiance, force=args.force, half=args.half,
-                             inputs=images)
-    if args.preview:
-        write_preview(args.preview, result.radiance, force=args.force, inputs=images,
-                      mask=~result.unmeasured)
+    if model is None and not args.linear:
+        say_verdict(getattr(result.model, "diagnostics", None) or
+                    {"verdict": result.diagnostics.get("model_verdict")},
+                    args.force, "the response calibrated on the fly")
+    with StagedOutputs(force=args.force, inputs=inputs) as staged:
+        written = staged.write(out, lambda tmp: write_radiance(
+            tmp, result.radiance, force=True, half=args.half))
+        if args.preview:
+            staged.write(args.preview, lambda tmp: write_preview(
+                tmp, result.radiance, force=True, mask=~result.unmeasured))
 
     # summary
     how = ("linear input" if args.linear else
@@ -84,7 +109,7 @@ def cmd_merge(args) -> int:
     say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
     for w in result.warnings:
-        say(f"warning: {w}")
+        warn(w)
     say(f"wrote {out}" + ("" if written.scale == 1 else
                           f" (half floats scaled into range: stored values x {written.scale:g}"
                           " = radiance; the factor is recorded in the file as"
@@ -100,12 +125,11 @@ def cmd_linearize(args) -> int:
     import selfcal
     from selfcal.hdr import linearize_images
     from selfcal.hdr.io import write_linear
-    from selfcal.io import read_exposure_info
+    from selfcal.io import StagedOutputs, read_exposure_info
 
     images = [Path(p) for p in args.images]
     folder = Path(args.output)
-    if folder.exists() and not folder.is_dir():
-        raise selfcal.OutputExistsError(f"{folder}: exists and is not a directory")
+    check_output_folder(folder)
     outputs = [folder / (p.stem + ".tif") for p in images]
     names = {}
     for p, o in zip(images, outputs):
@@ -113,19 +137,21 @@ def cmd_linearize(args) -> int:
             raise selfcal.InputError(f"{p}: would be written to the same file as {names[o.name]}"
                                      f" ({o})")
         names[o.name] = p
-    check_outputs(outputs, images + [Path(args.model)], args.force)
+    inputs = images + [Path(args.model)]
+    check_outputs(outputs, inputs, args.force, create_folder=True)
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
     model = selfcal.load_model(args.model)
     bar = progress_bar("linearize")
-    written = []
-    for (src, linear), o in zip(linearize_images(images, model, progress=bar), outputs):
-        info = read_exposure_info(src)
-        write_linear(o, linear, float32=args.float, force=args.force, inputs=images,
-                     exposure_time=info.exposure_time, f_number=info.f_number, iso=info.iso)
-        written.append(o)
-        del linear
+    with StagedOutputs(force=args.force, inputs=inputs) as staged:
+        for (src, linear), o in zip(linearize_images(images, model, progress=bar), outputs):
+            info = read_exposure_info(src)
+            staged.write(o, lambda tmp, linear=linear: write_linear(
+                tmp, linear, float32=args.float, force=True,
+                exposure_time=info.exposure_time, f_number=info.f_number, iso=info.iso))
+            del linear
+    written = staged.written
     kind = "float32" if args.float else "16-bit"
     say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "
          "f⁻¹(max code) = 1, EXIF exposure tags kept) -> " + f"{folder}/")
@@ -147,8 +173,9 @@ def register(subparsers) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="frames of one scene")
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr",
                    help="radiance map to write (.exr, .hdr or .tif)")
-    p.add_argument("--model", metavar="MODEL.json",
-                   help="response model (default: calibrate on these frames)")
+    kind = p.add_mutually_exclusive_group()
+    kind.add_argument("--model", metavar="MODEL.json",
+                      help="response model (default: calibrate on these frames)")
     p.add_argument("--times", nargs="+", type=parse_time, metavar="T",
                    help="exposure time per image (1/250, 0.004, or ? for unknown); "
                         "default: EXIF (time, f-number and ISO)")
@@ -160,9 +187,9 @@ def register(subparsers) -> None:
     p.add_argument("--weighting", choices=("noise", "hat"), default="noise",
                    help="noise: inverse variance of each frame's radiance under a noise "
                         "model (Granados 2010); hat: Debevec's triangle (default %(default)s)")
-    p.add_argument("--linear", action="store_true",
-                   help="the images are linear already (e.g. from selfcal linearize); "
-                        "no response model")
+    kind.add_argument("--linear", action="store_true",
+                      help="the images are linear already (e.g. from selfcal linearize or "
+                           "a raw converter); no response model")
     p.add_argument("--reference", type=int, metavar="K",
                    help="index of the reference frame (default: the middle exposure)")
     p.add_argument("--half", action="store_true",
@@ -172,7 +199,7 @@ def register(subparsers) -> None:
     p.add_argument("--preview", metavar="PREVIEW.jpg",
                    help="also write a tone-mapped preview (Reinhard global operator)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=_guarded(cmd_merge))
+    p.set_defaults(func=cmd_merge)
 
     p = subparsers.add_parser(
         "linearize", help="write linearised (f⁻¹) images with a response model",
@@ -185,20 +212,5 @@ def register(subparsers) -> None:
                    help="folder for the linear TIFFs (created if missing)")
     p.add_argument("--float", action="store_true", help="float32 TIFF instead of 16-bit")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=_guarded(cmd_linearize))
+    p.set_defaults(func=cmd_linearize)
 
-
-def _guarded(command):
-    """Map write failures (not caught by the main front end) to the output exit code."""
-
-    def run(args) -> int:
-        from selfcal.hdr.io import OutputWriteError
-
-        try:
-            return command(args)
-        except (OutputWriteError, PermissionError, IsADirectoryError) as exc:
-            say(f"selfcal: error: {exc}")
-            return EXIT_OUTPUT
-
-    run.__name__ = command.__name__
-    return run

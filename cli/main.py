@@ -13,7 +13,8 @@ import sys
 import warnings
 
 from . import calibrate_commands, hdr_commands, pipeline_commands
-from .common import EPILOG, EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, say
+from .common import (EPILOG, EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, negative_times,
+                     reset_warnings, say, warn)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,23 +31,44 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate_commands.register(sub)
     hdr_commands.register(sub)
     pipeline_commands.register(sub)
+    parser.set_defaults(commands=sub.choices)
     return parser
+
+
+def _parse(parser, argv):
+    """``parser.parse_args``, but a value like ``-1/60`` after ``--times`` is a usage error
+    naming it (argparse would take it for an unknown option)."""
+    argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
+    bad = negative_times(argv)
+    if bad is not None:
+        commands = parser.get_default("commands")
+        command = next((a for a in argv if a in commands), None)
+        (commands[command] if command else parser).error(
+            f"argument --times: exposure time {bad!r} must be positive (seconds, e.g. "
+            "1/60 or 0.004, or ? for unknown)")
+    return parser.parse_args(argv)
 
 
 def main(argv=None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = _parse(parser, argv)
     import selfcal
+    from selfcal.hdr.io import OutputWriteError as RadianceWriteError
+    from selfcal.io import OutputWriteError
 
+    reset_warnings()
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", selfcal.SelfcalWarning)
-            code = args.func(args)
-        for w in caught:
-            if issubclass(w.category, selfcal.SelfcalWarning):
-                say(f"warning: {w.message}")
+            try:
+                code = args.func(args)
+            finally:
+                for w in caught:
+                    if issubclass(w.category, selfcal.SelfcalWarning):
+                        warn(str(w.message))
+                caught.clear()
         return code
-    except selfcal.OutputExistsError as exc:
+    except (selfcal.OutputExistsError, OutputWriteError, RadianceWriteError) as exc:
         say(f"selfcal: error: {exc}")
         return EXIT_OUTPUT
     except selfcal.InputError as exc:

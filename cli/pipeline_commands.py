@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import EPILOG, EXIT_OK, say
+from .common import EPILOG, EXIT_OK, check_output_folder, check_outputs, int_range, say
 
 
 def _load_pipeline(path):
@@ -23,30 +23,38 @@ def _load_pipeline(path):
     return model
 
 
-def _outputs(inputs, folder: Path, suffix: str, force: bool):
+def _outputs(inputs, folder: Path, suffix: str, force: bool, model_path):
     """Output path per input (same stem), checked before any work starts."""
     import selfcal
 
+    check_output_folder(folder)
     outs = [folder / (Path(p).stem + suffix) for p in inputs]
     seen = {}
     for src, out in zip(inputs, outs):
         if out in seen:
             raise selfcal.InputError(f"{src} and {seen[out]} would both be written to {out}")
         seen[out] = src
-        if out.exists() and not force:
-            raise selfcal.OutputExistsError(f"{out}: exists already (use --force to overwrite)")
+    check_outputs(outs, [*inputs, model_path], force, create_folder=True)
+    for src in inputs:
+        if not Path(src).is_file():
+            raise selfcal.InputError("no such file" if not Path(src).exists() else
+                                     "not a file", src)
     return outs
 
 
 def _convert_files(args, inputs, suffix: str, desc: str, convert) -> list:
-    """Load the model, check every output, then ``convert(model, src, out)`` per file."""
+    """Check every output, load the model, then ``convert(model, src, tmp)`` per file into
+    temporary files that become the outputs together at the end (none on a failure)."""
     from tqdm import tqdm
 
+    from selfcal.io import StagedOutputs
+
+    outs = _outputs(inputs, Path(args.output), suffix, args.force, args.model)
     model = _load_pipeline(args.model)
-    outs = _outputs(inputs, Path(args.output), suffix, args.force)
-    for src, out in tqdm(list(zip(inputs, outs)), desc=desc, unit="image", disable=None,
-                         leave=False):
-        convert(model, src, out)
+    with StagedOutputs(force=args.force, inputs=[*inputs, args.model]) as staged:
+        for src, out in tqdm(list(zip(inputs, outs)), desc=desc, unit="image",
+                             disable=None, leave=False):
+            staged.write(out, lambda tmp, src=src: convert(model, src, tmp))
     return outs
 
 
@@ -55,8 +63,7 @@ def cmd_to_raw(args) -> int:
     from selfcal.io import read_image
 
     def convert(model, src, out):
-        write_linear(out, model.to_raw(read_image(src)), float32=args.float,
-                     force=args.force, inputs=args.images)
+        write_linear(out, model.to_raw(read_image(src)), float32=args.float, force=True)
 
     outs = _convert_files(args, args.images, ".tiff", "to-raw", convert)
     say(f"wrote {len(outs)} linear camera-raw TIFF{'s' if len(outs) != 1 else ''} "
@@ -73,8 +80,7 @@ def cmd_render(args) -> int:
     def convert(model, src, out):
         rendered = model.render(read_raw_linear(src).rgb)
         codes = np.clip(np.round(rendered * 255.0), 0, 255).astype(np.uint8)
-        write_image(out, codes, jpeg_quality=args.quality, force=args.force,
-                    inputs=args.raws)
+        write_image(out, codes, jpeg_quality=args.quality, force=True)
 
     outs = _convert_files(args, args.raws, ".jpg", "render", convert)
     say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to "
@@ -106,6 +112,7 @@ def register(sub) -> None:
     p.add_argument("--model", required=True, metavar="PIPELINE.json")
     p.add_argument("raws", nargs="+", metavar="RAW")
     p.add_argument("-o", "--output", required=True, metavar="DIR")
-    p.add_argument("--quality", type=int, default=95, help="JPEG quality (default 95)")
+    p.add_argument("--quality", type=int_range(1, 100, "the JPEG quality"), default=95,
+                   help="JPEG quality, 1 to 100 (default 95)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=cmd_render)
