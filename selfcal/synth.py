@@ -47,6 +47,8 @@ __all__ = [
     "CameraPipeline",
     "random_color_matrix",
     "default_pipeline",
+    "UnsharpMask",
+    "CHROMA_SUBSAMPLINGS",
     "make_scene",
     "SensorModel",
     "SyntheticStack",
@@ -62,6 +64,9 @@ DEMO_EXPOSURE_TIMES = (1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8)
 # Rec. 709 luma weights: the achromatic coordinate of the gamut mapping (output is sRGB-like).
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 _GAMUTS = ("smooth", "clip", "none")
+
+#: JPEG chroma subsamplings :func:`simulate_stack` can write (OpenCV's default is 4:2:0).
+CHROMA_SUBSAMPLINGS = ("4:2:0", "4:2:2", "4:4:4")
 
 
 # --------------------------------------------------------------------------------------
@@ -456,12 +461,17 @@ class CameraPipeline:
     """An in-camera rendering pipeline ``P = f(Γ(M ρ))``.
 
     Gong et al., rank-based radiometric calibration, Eq. 1a: a 3×3 colour matrix ``M``,
-    a gamut mapping ``Γ`` and per-channel tone curves ``f``.
+    a gamut mapping ``Γ`` and per-channel tone curves ``f``.  With ``white_balance``
+    gains ``g`` the colour step is ``M min(g ρ, 1)``: white balance, then the highlight
+    clip of raw converters (dcraw's default), so a grey whose green raw channel clipped
+    stays white instead of turning magenta; ``M`` is then the colour correction of a
+    white-balanced raw.
 
     Attributes
     ----------
     matrix : numpy.ndarray
-        3×3 colour matrix ``M`` (camera RGB -> output RGB); rows summing to 1 keep white.
+        3×3 colour matrix ``M`` (camera RGB, or white-balanced camera RGB when
+        ``white_balance`` is set -> output RGB); rows summing to 1 keep white.
     curves : tuple of ToneCurve
         Tone curves for R, G, B (a single curve is used for all three).
     gamut : str
@@ -470,6 +480,9 @@ class CameraPipeline:
         so the result equals ``"clip"`` -- kept for symmetry with the papers' models).
     knee, strength : float
         Parameters of the smooth gamut mapping.
+    white_balance : numpy.ndarray or None
+        Per-channel gains ``g`` (3 positive numbers) applied to the raw, then clipped at 1,
+        before ``M``; None (default): no white-balance step.
     """
 
     matrix: np.ndarray
@@ -477,6 +490,7 @@ class CameraPipeline:
     gamut: str = "smooth"
     knee: float = 0.8
     strength: float = 1.0
+    white_balance: np.ndarray | None = None
 
     def __post_init__(self):
         m = np.array(self.matrix, dtype=np.float64)
@@ -489,6 +503,19 @@ class CameraPipeline:
         self.knee = float(self.knee)
         self.strength = float(self.strength)
         gamut_compress(np.zeros(3), knee=self.knee, strength=self.strength)  # validates
+        if self.white_balance is not None:
+            g = np.array(self.white_balance, dtype=np.float64).ravel()
+            if g.shape != (3,) or not np.all(np.isfinite(g)) or np.any(g <= 0):
+                raise InputError("white_balance must be three positive gains, got "
+                                 f"{self.white_balance!r}")
+            self.white_balance = g
+
+    def colour_correct(self, raw) -> np.ndarray:
+        """``M ρ``, or ``M min(g ρ, 1)`` with white-balance gains ``g``: the input of Γ."""
+        raw = np.asarray(raw, dtype=np.float64)
+        if self.white_balance is not None:
+            raw = np.minimum(raw * self.white_balance, 1.0)
+        return raw @ self.matrix.T
 
     def apply_gamut(self, x) -> np.ndarray:
         """Apply Γ to colour-corrected RGB ``x = M ρ`` (shape ``(..., 3)``)."""
@@ -514,7 +541,7 @@ class CameraPipeline:
         raw = np.asarray(raw, dtype=np.float64)
         if raw.shape[-1:] != (3,):
             raise InputError(f"expected RGB data with a last axis of 3, got shape {raw.shape}")
-        mapped = self.apply_gamut(raw @ self.matrix.T)
+        mapped = self.apply_gamut(self.colour_correct(raw))
         out = np.empty_like(mapped)
         for ch, curve in enumerate(self.curves):
             out[..., ch] = curve.forward(mapped[..., ch])
@@ -536,7 +563,7 @@ class CameraPipeline:
 
     def to_dict(self) -> dict:
         """JSON-serialisable description (see :meth:`from_dict`)."""
-        return {
+        d = {
             "model": "P = f(Gamma(M rho))",
             "matrix": self.matrix.tolist(),
             "curves": [c.to_dict() for c in self.curves],
@@ -544,6 +571,9 @@ class CameraPipeline:
             "knee": self.knee,
             "strength": self.strength,
         }
+        if self.white_balance is not None:
+            d["white_balance"] = self.white_balance.tolist()
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "CameraPipeline":
@@ -552,7 +582,8 @@ class CameraPipeline:
             return cls(matrix=np.asarray(d["matrix"], dtype=np.float64),
                        curves=tuple(ToneCurve.from_dict(c) for c in d["curves"]),
                        gamut=d.get("gamut", "smooth"), knee=d.get("knee", 0.8),
-                       strength=d.get("strength", 1.0))
+                       strength=d.get("strength", 1.0),
+                       white_balance=d.get("white_balance"))
         except (KeyError, TypeError) as exc:
             raise InputError(f"not a valid camera pipeline description ({exc!r})") from None
 
@@ -808,11 +839,68 @@ def _decode_jpeg(data: bytes) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def _jpeg_round_trip(codes: np.ndarray, quality: int) -> tuple[np.ndarray, bytes]:
-    from .io import encode_image
+def _jpeg_round_trip(codes: np.ndarray, quality: int,
+                     chroma_subsampling: str = "4:2:0") -> tuple[np.ndarray, bytes]:
+    """JPEG-encode ``codes`` with OpenCV (libjpeg) and decode them again.
 
-    data = encode_image(codes, ".jpg", jpeg_quality=int(quality))
+    4:2:0 is OpenCV's default (``selfcal.io.encode_image``); the other subsamplings set
+    ``IMWRITE_JPEG_SAMPLING_FACTOR``.
+    """
+    if chroma_subsampling == "4:2:0":
+        from .io import encode_image
+
+        data = encode_image(codes, ".jpg", jpeg_quality=int(quality))
+        return _decode_jpeg(data), data
+    cv2 = _cv2()
+    factor = {"4:2:2": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
+              "4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}[chroma_subsampling]
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(codes[:, :, ::-1]),
+                           [cv2.IMWRITE_JPEG_QUALITY, int(quality),
+                            cv2.IMWRITE_JPEG_SAMPLING_FACTOR, int(factor)])
+    if not ok:
+        raise InputError("OpenCV could not encode the frame as JPEG")
+    data = buf.tobytes()
     return _decode_jpeg(data), data
+
+
+@dataclass(frozen=True)
+class UnsharpMask:
+    """In-camera sharpening: an unsharp mask on the luma of the rendered image.
+
+    ``Y = w · P`` (Rec. 709 weights) of the rendered, gamma-encoded image ``P`` in
+    ``[0, 1]``; ``P' = clip(P + amount (Y - G_σ * Y), 0, 1)`` with ``G_σ`` a Gaussian
+    blur -- the same detail added to R, G and B, i.e. sharpening of the luma channel
+    only, as cameras do before JPEG (ours: the simulator's stand-in for them; there is
+    no threshold).  It overshoots at edges, and its halos are not a per-pixel function
+    of exposure: a per-pixel response model cannot explain them.
+
+    Attributes
+    ----------
+    amount : float
+        ``>= 0`` (0: off; 0.5-1 is a typical camera setting).
+    sigma : float
+        Blur radius in pixels, ``> 0``.
+    """
+
+    amount: float = 0.8
+    sigma: float = 1.0
+
+    def __post_init__(self):
+        if not (np.isfinite(self.amount) and self.amount >= 0):
+            raise InputError(f"sharpening amount must be >= 0, got {self.amount!r}")
+        if not (np.isfinite(self.sigma) and self.sigma > 0):
+            raise InputError(f"sharpening sigma must be > 0, got {self.sigma!r}")
+
+    def apply(self, rendered: np.ndarray) -> np.ndarray:
+        """Sharpen ``HxWx3`` rendered values in ``[0, 1]``; float64, clipped to ``[0, 1]``."""
+        from scipy.ndimage import gaussian_filter
+
+        p = np.asarray(rendered, dtype=np.float64)
+        if p.ndim != 3 or p.shape[2] != 3:
+            raise InputError(f"sharpening needs an HxWx3 image, got shape {p.shape}")
+        y = p @ _LUMA
+        detail = self.amount * (y - gaussian_filter(y, self.sigma, mode="reflect"))
+        return np.clip(p + detail[..., None], 0.0, 1.0)
 
 
 def _png_with_exif(png: bytes, exif: bytes) -> bytes:
@@ -877,6 +965,15 @@ class SyntheticStack:
         Relative shutter jitter used.
     f_number, iso : float
         Written to EXIF by :meth:`write`.
+    chroma_subsampling : str or None
+        JPEG chroma subsampling of the frames (None: no JPEG).
+    sharpening : UnsharpMask or None
+        In-camera sharpening applied before quantisation and JPEG.
+    condition : str or None
+        Name of the benchmark condition that made the stack
+        (:mod:`selfcal.synth_conditions`), else None.
+    params : dict
+        What a condition drew from its seed (JPEG quality, gains, ...), for reports.
     """
 
     images: list
@@ -893,6 +990,10 @@ class SyntheticStack:
     f_number: float = 8.0
     iso: float = 100.0
     _encoded: list | None = field(default=None, repr=False)
+    chroma_subsampling: str | None = None
+    sharpening: UnsharpMask | None = None
+    condition: str | None = None
+    params: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.images)
@@ -998,23 +1099,53 @@ def _check_scene(scene) -> np.ndarray:
     return scene
 
 
+def _check_stack_args(pipeline, exposure_times, jitter, repeats, bit_depth, jpeg_quality,
+                      chroma_subsampling, sharpening) -> np.ndarray:
+    """Validate :func:`simulate_stack`'s arguments; return the sorted nominal times."""
+    if not (callable(getattr(pipeline, "render", None))
+            and callable(getattr(pipeline, "inverse_response", None))):
+        raise InputError("pipeline must be a CameraPipeline (see default_pipeline), or an "
+                         "object with render(raw) and inverse_response(codes, max_code)")
+    times = np.asarray(exposure_times, dtype=np.float64).ravel()
+    if times.size == 0 or not np.all(np.isfinite(times)) or np.any(times <= 0):
+        raise InputError("exposure_times must be a non-empty sequence of positive numbers")
+    if not (0.0 <= float(jitter) < 1.0):
+        raise InputError(f"jitter must be in [0, 1), got {jitter!r}")
+    if int(repeats) != repeats or repeats < 1:
+        raise InputError(f"repeats must be a positive integer, got {repeats!r}")
+    if bit_depth not in (8, 16):
+        raise InputError(f"bit_depth must be 8 or 16, got {bit_depth!r}")
+    if jpeg_quality is not None and not (0 <= int(jpeg_quality) <= 100):
+        raise InputError(f"jpeg_quality must be in [0, 100], got {jpeg_quality!r}")
+    if chroma_subsampling not in CHROMA_SUBSAMPLINGS:
+        raise InputError(f"chroma_subsampling must be one of {CHROMA_SUBSAMPLINGS}, got "
+                         f"{chroma_subsampling!r}")
+    if sharpening is not None and not isinstance(sharpening, UnsharpMask):
+        raise InputError("sharpening must be an UnsharpMask or None")
+    return np.repeat(np.sort(times), int(repeats))
+
+
 def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, repeats: int = 1,
                    sensor: SensorModel | None = None, jpeg_quality: int | None = 90,
                    bit_depth: int = 8, exposure_scale: float | None = None,
-                   seed: int = 0) -> SyntheticStack:
+                   seed: int = 0, chroma_subsampling: str = "4:2:0",
+                   sharpening: UnsharpMask | None = None) -> SyntheticStack:
     """Simulate a bracketed exposure stack through ``P = f(Γ(M ρ))``.
 
     Per frame: ``ρ = sensor.expose(scene, exposure_scale * true_time)`` (noise, black and
-    white clipping), ``P = pipeline.render(ρ)`` (Gong et al., Eq. 1a), codes
-    ``round(P * max_code)``, then (8-bit only) a JPEG round trip through OpenCV.  The
-    shutter jitter and the unknown exposure ratios it causes are those discussed by
-    Lin et al. ICCV 2011 §4-5.
+    white clipping), ``P = pipeline.render(ρ)`` (Gong et al., Eq. 1a), optionally
+    in-camera sharpening of ``P``, codes ``round(P * max_code)``, then (8-bit only) a JPEG
+    round trip through OpenCV.  The shutter jitter and the unknown exposure ratios it
+    causes are those discussed by Lin et al. ICCV 2011 §4-5.
 
     Parameters
     ----------
     scene : array_like
         ``HxWx3`` linear radiance in camera RGB (e.g. :func:`make_scene`).
     pipeline : CameraPipeline
+        Or any object with ``render(raw)`` (linear camera RGB -> rendered ``[0, 1]``) and
+        ``inverse_response(codes, max_code)`` (the truth, ``(n, 3)``), e.g. a real
+        camera's model read from files.
     exposure_times : sequence of float
         Nominal shutter times in seconds; frames are ordered by time (ascending).
     jitter : float
@@ -1036,28 +1167,21 @@ def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, rep
         shadows deep in noise in the shortest.
     seed : int
         Everything random derives from ``numpy.random.SeedSequence(seed)``.
+    chroma_subsampling : str
+        JPEG chroma subsampling, one of :data:`CHROMA_SUBSAMPLINGS` (default 4:2:0,
+        OpenCV's default and most cameras' at everyday qualities).
+    sharpening : UnsharpMask, optional
+        In-camera sharpening of the rendered frame before quantisation and JPEG.
 
     Returns
     -------
     SyntheticStack
     """
     scene = _check_scene(scene)
-    if not isinstance(pipeline, CameraPipeline):
-        raise InputError("pipeline must be a CameraPipeline (see default_pipeline)")
-    times = np.asarray(exposure_times, dtype=np.float64).ravel()
-    if times.size == 0 or not np.all(np.isfinite(times)) or np.any(times <= 0):
-        raise InputError("exposure_times must be a non-empty sequence of positive numbers")
+    nominal = _check_stack_args(pipeline, exposure_times, jitter, repeats, bit_depth,
+                                jpeg_quality, chroma_subsampling, sharpening)
     jitter = float(jitter)
-    if not (0.0 <= jitter < 1.0):
-        raise InputError(f"jitter must be in [0, 1), got {jitter!r}")
-    if int(repeats) != repeats or repeats < 1:
-        raise InputError(f"repeats must be a positive integer, got {repeats!r}")
-    if bit_depth not in (8, 16):
-        raise InputError(f"bit_depth must be 8 or 16, got {bit_depth!r}")
-    if jpeg_quality is not None and not (0 <= int(jpeg_quality) <= 100):
-        raise InputError(f"jpeg_quality must be in [0, 100], got {jpeg_quality!r}")
     sensor = SensorModel() if sensor is None else sensor
-    nominal = np.repeat(np.sort(times), int(repeats))
     if exposure_scale is None:
         median = float(np.median(scene.mean(axis=2, dtype=np.float64)))
         if median <= 0:
@@ -1077,9 +1201,12 @@ def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, rep
     images, raws, encoded = [], [], []
     for i, t in enumerate(true):
         raw = sensor.expose(scene, exposure_scale * float(t), np.random.default_rng(seqs[1 + i]))
-        codes = np.round(pipeline.render(raw) * max_code).astype(dtype)
+        rendered = pipeline.render(raw)
+        if sharpening is not None:
+            rendered = sharpening.apply(rendered)
+        codes = np.round(rendered * max_code).astype(dtype)
         if use_jpeg:
-            codes, data = _jpeg_round_trip(codes, jpeg_quality)
+            codes, data = _jpeg_round_trip(codes, jpeg_quality, chroma_subsampling)
             encoded.append(data)
         raws.append(raw)
         images.append(codes)
@@ -1087,7 +1214,9 @@ def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, rep
                           radiance=scene, raws=raws, pipeline=pipeline, bit_depth=bit_depth,
                           exposure_scale=exposure_scale, seed=seed,
                           jpeg_quality=int(jpeg_quality) if use_jpeg else None,
-                          jitter=jitter, _encoded=encoded if use_jpeg else None)
+                          jitter=jitter, _encoded=encoded if use_jpeg else None,
+                          chroma_subsampling=chroma_subsampling if use_jpeg else None,
+                          sharpening=sharpening)
 
 
 def simulate_raw_jpeg_pair(scene=None, pipeline=None, *, exposure: float = 1.0, sensor=None,
