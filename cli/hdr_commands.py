@@ -60,8 +60,15 @@ def cmd_merge(args) -> int:
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
+    if args.reference is not None and not 0 <= args.reference < len(images):
+        raise selfcal.InputError(f"--reference {args.reference} is out of range for "
+                                 f"{len(images)} images (0 to {len(images) - 1})")
     model = selfcal.load_model(args.model) if args.model else None
     if not args.linear and model is None:
+        if len(images) == 1:
+            raise selfcal.CalibrationError(
+                f"{images[0]}: one frame and no model: give --model (a response needs at "
+                "least two frames to calibrate), or --linear for a linear image")
         _refuse_linear_frames(images, args.times)
 
     result = merge_hdr(images, args.times, model, weighting=args.weighting,

@@ -131,7 +131,15 @@ def read_image_size(path) -> tuple[int, int]:
             width, height = im.size
     except FileNotFoundError:
         raise InputError("no such file", path) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not an image", path) from None
     except Exception as exc:  # Pillow raises several types for bad headers
+        try:       # the cause in words when it is plain: empty, truncated, not an image
+            _check_structure(path, path.read_bytes())
+        except InputError as plain:
+            raise plain from None
+        except OSError:
+            pass
         raise InputError(f"not an image file selfcal reads ({exc})", path) from None
     return height, width
 
