@@ -204,3 +204,217 @@ def test_calibrate_align_handheld_files(capsys, tmp_path):
     model = selfcal.load_model(out)
     moves = [t[0][2] for t in model.diagnostics["alignment"]["transforms"]]
     assert moves == pytest.approx([-4, 0, 5])
+
+
+# ------------------------------------------------------------------ issue 14
+
+def _bracket(folder, times, *, seed=1, size=(48, 64)):
+    """A simulated JPEG bracket with EXIF times (the simulator's default camera)."""
+    from selfcal import synth
+
+    scene = synth.make_scene(*size, dynamic_range_stops=8, saturation=0.3, seed=seed)
+    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=seed), list(times),
+                                 jitter=0.0, seed=seed)
+    return stack, stack.write(folder, prefix="f")
+
+
+def test_write_failure_names_the_output_not_the_temporary_file(tmp_path):
+    """Point 1: a write that fails says which output, and leaves nothing behind."""
+    import errno
+
+    from selfcal.io import OutputWriteError, StagedOutputs, atomic_output
+
+    target = tmp_path / "r.hdr"
+    with pytest.raises(OutputWriteError) as info:
+        with atomic_output(target) as tmp:
+            raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+    assert str(info.value) == f"{target}: cannot be written (no space left on device)"
+    assert list(tmp_path.iterdir()) == []
+
+    # a writer's own error about its temporary file is renamed to the output
+    from selfcal.hdr.io import OutputWriteError as RadianceWriteError
+
+    def failing_writer(tmp):
+        raise RadianceWriteError(f"{tmp}: OpenCV could not write it (no .hdr encoder?)")
+
+    staged = StagedOutputs()
+    staged.write(tmp_path / "a.json", lambda tmp: Path(tmp).write_text("{}"))
+    with pytest.raises(RadianceWriteError) as info:
+        with staged:
+            staged.write(tmp_path / "sub" / "r.hdr", failing_writer)
+    assert str(info.value) == f"{tmp_path / 'sub' / 'r.hdr'}: OpenCV could not write it " \
+                              "(no .hdr encoder?)"
+    assert list(tmp_path.iterdir()) == []        # neither a.json nor sub/ nor a temp file
+
+
+def test_outputs_appear_together_or_not_at_all(tmp_path):
+    """Point 2: StagedOutputs renames every output at the end; nothing before."""
+    from selfcal.io import StagedOutputs
+
+    (tmp_path / "old.txt").write_text("old")
+    with StagedOutputs(force=True) as staged:
+        staged.write(tmp_path / "new" / "a.txt", lambda tmp: Path(tmp).write_text("a"))
+        staged.write(tmp_path / "old.txt", lambda tmp: Path(tmp).write_text("b"))
+        assert (tmp_path / "old.txt").read_text() == "old"
+        assert not (tmp_path / "new" / "a.txt").exists()
+    assert (tmp_path / "new" / "a.txt").read_text() == "a"
+    assert (tmp_path / "old.txt").read_text() == "b"
+    assert staged.written == [tmp_path / "new" / "a.txt", tmp_path / "old.txt"]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a.txt", "new", "old.txt"]
+
+
+def test_plot_that_exists_is_refused_before_calibrating(capsys, tmp_path):
+    """Point 2: calibrate -o new.json --plot existing.png wrote new.json, then failed."""
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))[:3]
+    (tmp_path / "old.png").write_bytes(b"old")
+    code, text = run(["calibrate", *frames, "-o", tmp_path / "new.json",
+                      "--plot", tmp_path / "old.png"], capsys)
+    assert code == EXIT_OUTPUT and "old.png: exists already" in text
+    assert "paths taken" not in text                  # refused before any work
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.png"]
+
+
+def test_frame_of_another_size(capsys, tmp_path):
+    """Point 3: named one by one it is refused (named, both sizes); in a folder it is left
+    out with a warning naming it -- never dropped without a word."""
+    import cv2
+
+    _, frames = _bracket(tmp_path / "stack", (1 / 60, 1 / 15, 1 / 4))
+    big = tmp_path / "stack" / "zz_big.jpg"
+    cv2.imwrite(str(big), cv2.resize(cv2.imread(str(frames[1])), (80, 60)))
+    code, text = run(["calibrate", *frames, big, "-o", tmp_path / "m.json"], capsys)
+    assert code == EXIT_INPUT
+    assert "zz_big.jpg: frame size 80x60 differs from the other frames' 64x48" in text
+    assert not (tmp_path / "m.json").exists()
+    code, text = run(["calibrate", tmp_path / "stack", "-o", tmp_path / "m.json"], capsys)
+    assert code == 0, text
+    assert "zz_big.jpg: left out (80x60, the calibrated frames are 64x48" in text
+    assert "warning:" in text
+
+
+def test_empty_folder_is_named(capsys, tmp_path):
+    """Point 5: 'no input images' did not say where it looked."""
+    (tmp_path / "shoot").mkdir()
+    code, text = run(["calibrate", tmp_path / "shoot", "-o", tmp_path / "m.json"], capsys)
+    assert code == EXIT_INPUT
+    assert f"{tmp_path / 'shoot'}: the folder holds no image or raw files" in text
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--components", "0", "from 1 to 25"), ("--components", "50", "from 1 to 25"),
+    ("--saturation-threshold", "-1", "from 0 to 1"), ("--times", "-1/60", "must be positive"),
+])
+def test_options_are_checked_by_the_parser(capsys, tmp_path, option, value, expected):
+    """Point 6: --components 0 was a traceback, 50 silently 25, β = -1 'cannot calibrate',
+    and --times -1/60 an unknown option."""
+    frames = sorted((FIXTURES / "stack").glob("*.jpg"))[:3]
+    values = ["1/60", value, "1/4"] if option == "--times" else [value]
+    with pytest.raises(SystemExit) as info:
+        main(["calibrate", *map(str, frames), "-o", str(tmp_path / "m.json"), option, *values])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {option}:" in err and repr(value) in err and expected in err
+
+
+def test_verdict_doubtful_is_said_with_its_reasons(capsys, tmp_path):
+    """A 2-frame, one-stop stack: the library doubts it; the CLI says why, exit 0."""
+    import selfcal
+    from selfcal_cli.common import verdict_of
+
+    _, frames = _bracket(tmp_path / "two", (1 / 60, 1 / 30))
+    out = tmp_path / "m.json"
+    code, text = run(["calibrate", *frames, "-o", out], capsys)
+    assert code == 0, text
+    level, reasons = verdict_of(selfcal.load_model(out).diagnostics)
+    assert level == "doubtful" and reasons
+    assert "verdict: doubtful" in text
+    for r in reasons:
+        assert f"warning: {r}" in text
+
+
+def test_verdict_unusable_writes_nothing_unless_forced(capsys, tmp_path):
+    """Exposures 1.1x apart cannot determine a curve: exit 4 and nothing written; with
+    --force it is written, with a warning."""
+    pytest.importorskip("selfcal.response.verdict", reason="the library's verdict levels")
+    _, frames = _bracket(tmp_path / "close", (1 / 60, 1.1 / 60))
+    out, plot = tmp_path / "m.json", tmp_path / "m.png"
+    code, text = run(["calibrate", *frames, "-o", out, "--plot", plot], capsys)
+    assert code == EXIT_CALIBRATION, text
+    assert "verdict: unusable" in text and "1.10×" in text
+    assert "selfcal: cannot calibrate: the calibration is unusable" in text
+    assert not out.exists() and not plot.exists()
+    code, text = run(["calibrate", *frames, "-o", out, "--plot", plot, "--force"], capsys)
+    assert code == 0, text
+    assert out.exists() and plot.exists()
+    assert "warning: the calibration is unusable" in text and "--force" in text
+
+
+def _linear_bracket(folder, times, *, with_times: bool):
+    """16-bit linear TIFFs of a simulated bracket (the raws, as a raw converter writes
+    them), with or without ExposureTime tags; and the true relative exposures."""
+    import numpy as np
+    import tifffile
+
+    from selfcal import synth
+
+    scene = synth.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
+    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=3), list(times),
+                                 jitter=0.0, seed=3)
+    folder.mkdir()
+    paths = []
+    for k, (raw, t) in enumerate(zip(stack.raws, times)):
+        tags = []
+        if with_times:
+            from fractions import Fraction
+
+            fr = Fraction(t).limit_denominator(100_000)
+            tags = [(33434, 5, 1, (fr.numerator, fr.denominator), False)]
+        path = folder / f"raw_{k}.tif"
+        tifffile.imwrite(path, np.round(np.clip(raw, 0, 1) * 65535).astype(np.uint16),
+                         photometric="rgb", extratags=tags)
+        paths.append(path)
+    return paths, stack
+
+
+def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
+    """Point 9: 16-bit linear TIFFs (no JPEGs) were calibrated as rendered frames."""
+    import numpy as np
+
+    import selfcal
+    from selfcal.choose_groups import linear_evidence
+    from selfcal.hdr.io import read_radiance
+
+    times = (1 / 60, 1 / 15, 1 / 4)
+    paths, stack = _linear_bracket(tmp_path / "raws", times, with_times=False)
+    # what the response path made of them (the old behaviour): a bent curve, ratios wrong
+    model = selfcal.calibrate_response(paths)
+    inv = model.inverse_response()
+    assert abs(inv[len(inv) // 8].mean() - 0.125) > 0.03
+    ratios = model.exposures / model.exposures[0]
+    assert abs(ratios[2] / 15 - 1) > 0.5
+    # now: refused, saying what they are and what to do
+    code, text = run(["calibrate", tmp_path / "raws", "-o", tmp_path / "m.json"], capsys)
+    assert code == EXIT_CALIBRATION
+    assert "raw_0.tif, raw_1.tif, raw_2.tif are linear data" in text and "--linear" in text
+    assert not (tmp_path / "m.json").exists()
+    code, text = run(["merge", *paths, "-o", tmp_path / "r.exr"], capsys)
+    assert code == EXIT_INPUT and "--linear" in text
+    code, text = run(["merge", *paths, "--linear", "--times", *map(str, times),
+                      "-o", tmp_path / "r.exr"], capsys)
+    assert code == 0, text
+    radiance = read_radiance(tmp_path / "r.exr")
+    truth = stack.radiance
+    ok = (truth > 1e-3).all(axis=2)
+    scale = np.median(radiance[ok] / truth[ok])
+    assert np.median(np.abs(radiance[ok] / (scale * truth[ok]) - 1)) < 0.05
+    # with times the test is decisive; rendered 16-bit TIFFs are not taken for linear
+    timed, _ = _linear_bracket(tmp_path / "timed", times, with_times=True)
+    assert "follow the exposure times" in linear_evidence(timed, list(times))
+    from selfcal import synth
+
+    scene = synth.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
+    rendered = synth.simulate_stack(scene, synth.default_pipeline(seed=3), list(times),
+                                    jitter=0.0, seed=3, bit_depth=16, jpeg_quality=None)
+    files = rendered.write(tmp_path / "rendered16", fmt="tif")
+    assert linear_evidence(files, list(times)) is None
+    assert linear_evidence(files, [None] * 3) is None
