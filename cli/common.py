@@ -21,7 +21,9 @@ EXIT_CALIBRATION = 4    # the data cannot determine what was asked
 EXIT_OUTPUT = 5         # an output exists (use --force) or cannot be written
 
 EPILOG = """exit codes: 0 success, 2 bad arguments, 3 bad input (file or value),
-4 the data cannot be calibrated, 5 output exists or cannot be written."""
+4 the data cannot be calibrated (or the verdict is unusable; --force writes it anyway),
+5 an output exists (use --force) or cannot be written. Every output is checked before
+the work starts and written at the end, all or nothing."""
 
 
 def say(msg: str = "") -> None:

@@ -312,7 +312,8 @@ CASES = [
     _c("calibrate-align-unknown", calib("--align", "sift"), EXIT_USAGE,
        lambda e: ["--align", "'sift'"], "invalid choice"),
     _c("calibrate-basis-garbage", calib("--basis", "IN/basis.txt"), EXIT_INPUT,
-       lambda e: ["basis.txt"], ".", setup=write("basis.txt", GARBAGE)),
+       lambda e: ["basis.txt"], "neither a selfcal .npz basis nor an inverse-EMoR",
+       setup=write("basis.txt", GARBAGE)),
     _c("calibrate-basis-missing", calib("--basis", "IN/nobasis.npz"), EXIT_INPUT,
        lambda e: ["nobasis.npz"], "no such"),
     # ---- calibrate: outputs
