@@ -62,7 +62,7 @@ def _calibrate_outputs(args, groups, images):
     pipeline_out = Path(args.pipeline_output) if args.pipeline_output else None
     if pipeline_out is None and groups.pairs and len(groups.rendered) >= 2:
         pipeline_out = _pipeline_output_path(out)    # both paths may be taken
-    inputs = list(images) + sorted(groups.from_folder) + [p for p, _ in groups.pairs] + \
+    inputs = [p for p in images if not p.is_dir()] + sorted(groups.from_folder) + [p for p, _ in groups.pairs] + \
         list(groups.unpaired_raws) + ([Path(args.basis)] if args.basis else [])
     return out, plot, pipeline_out, inputs
 
@@ -121,7 +121,7 @@ def cmd_demo(args) -> int:
             f"{out}: exists and is not empty (use --force to overwrite its files)")
     check_outputs([out / "model.json", out / "response.png"], [], args.force,
                   create_folder=True)
-    created = not out.exists()
+    created = [d for d in (out, *out.parents) if not d.exists()]   # made here, deepest first
     before = set(out.iterdir()) if out.exists() else set()
     try:
         stack = synth.demo_stack(seed=args.seed)
@@ -143,8 +143,9 @@ def cmd_demo(args) -> int:
         # nothing new left behind: the frames written, and the folder if it was made here
         for p in (set(out.iterdir()) if out.exists() else set()) - before:
             p.unlink(missing_ok=True)
-        if created and out.exists() and not any(out.iterdir()):
-            out.rmdir()
+        for folder in created:
+            if folder.is_dir() and not any(folder.iterdir()):
+                folder.rmdir()
         raise
     _print_response_summary(model)
     say_verdict(model.diagnostics, True)
