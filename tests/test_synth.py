@@ -232,6 +232,69 @@ def test_pipeline_keeps_white_and_round_trips_through_json():
         default_pipeline(curves=[ToneCurve.srgb()] * 2)
 
 
+def test_pipeline_white_balance_then_highlight_clip_then_matrix():
+    m = random_color_matrix(3)
+    gains = np.array([2.0, 1.0, 1.5])
+    p = CameraPipeline(matrix=m, curves=ToneCurve.srgb(), gamut="clip", white_balance=gains)
+    raw = np.array([[0.1, 0.2, 0.3], [0.4, 0.9, 0.5], [0.6, 1.0, 0.9]])
+    expected = np.minimum(raw * gains, 1.0) @ m.T
+    np.testing.assert_allclose(p.colour_correct(raw), expected, atol=1e-15)
+    # a grey whose green raw clipped: white after the highlight clip (without it, magenta)
+    np.testing.assert_allclose(p.render(np.array([0.7, 1.0, 0.9])), 1.0)
+    plain = CameraPipeline(matrix=m @ np.diag(gains), curves=ToneCurve.srgb(), gamut="clip")
+    assert plain.render(np.array([0.7, 1.0, 0.9]))[1] < 0.99
+    np.testing.assert_allclose(plain.render(raw[:2]), p.render(raw[:2]), atol=1e-12)
+    back = CameraPipeline.from_dict(json.loads(json.dumps(p.to_dict())))
+    np.testing.assert_array_equal(back.white_balance, gains)
+    assert "white_balance" not in default_pipeline().to_dict()
+    for bad in ([1.0, 2.0], [1.0, 0.0, 1.0], [1.0, np.nan, 1.0]):
+        with pytest.raises(InputError, match="white_balance"):
+            CameraPipeline(matrix=m, curves=ToneCurve.srgb(), white_balance=bad)
+
+
+def test_unsharp_mask_sharpens_luma_edges_only():
+    usm = synth.UnsharpMask(amount=1.0, sigma=1.0)
+    flat = np.full((16, 16, 3), 0.4)
+    np.testing.assert_allclose(usm.apply(flat), flat, atol=1e-12)
+    edge = np.zeros((16, 16, 3)) + np.array([0.2, 0.3, 0.1])
+    edge[:, 8:] += 0.3
+    out = usm.apply(edge)
+    assert out[0, 8, 1] > edge[0, 8, 1] + 0.05 and out[0, 7, 1] < edge[0, 7, 1] - 0.05
+    # the same detail is added to the three channels (luma sharpening: chroma unchanged)
+    d = out - edge
+    np.testing.assert_allclose(d[..., 0], d[..., 1], atol=1e-12)
+    np.testing.assert_allclose(d[..., 2], d[..., 1], atol=1e-12)
+    assert out.min() >= 0 and out.max() <= 1
+    with pytest.raises(InputError, match="amount"):
+        synth.UnsharpMask(amount=-1.0)
+    with pytest.raises(InputError, match="sigma"):
+        synth.UnsharpMask(sigma=0.0)
+
+
+def test_stack_sharpening_and_chroma_subsampling():
+    scene = make_scene(32, 48, seed=2)
+    p = default_pipeline()
+    usm = synth.UnsharpMask(0.7, 1.2)
+    times = [1 / 60, 1 / 15]
+    a = simulate_stack(scene, p, times, jitter=0.0, sensor=SensorModel.ideal(),
+                       jpeg_quality=None, sharpening=usm)
+    for image, raw in zip(a.images, a.raws):
+        expected = np.round(usm.apply(p.render(raw)) * 255).astype(np.uint8)
+        np.testing.assert_array_equal(image, expected)
+    assert a.sharpening is usm and a.chroma_subsampling is None
+    default = simulate_stack(scene, p, times, jpeg_quality=90, seed=1)
+    assert default.chroma_subsampling == "4:2:0"
+    assert default._encoded[0] == io.encode_image(
+        np.round(p.render(default.raws[0]) * 255).astype(np.uint8), ".jpg", jpeg_quality=90)
+    full = simulate_stack(scene, p, times, jpeg_quality=90, seed=1, chroma_subsampling="4:4:4")
+    assert full.chroma_subsampling == "4:4:4" and full._encoded[0] != default._encoded[0]
+    np.testing.assert_array_equal(full.raws[0], default.raws[0])
+    with pytest.raises(InputError, match="chroma_subsampling"):
+        simulate_stack(scene, p, times, chroma_subsampling="4:1:1")
+    with pytest.raises(InputError, match="UnsharpMask"):
+        simulate_stack(scene, p, times, sharpening=0.5)
+
+
 def test_default_curves_differ_between_channels():
     inv = default_pipeline().inverse_response([64, 128, 192])
     assert np.all(np.ptp(inv, axis=1) > 0.005)
