@@ -1,0 +1,358 @@
+"""Issue 15: the response curve on a matrix of conditions, held out from tuning, against peers.
+
+Stacks (``selfcal.synth_conditions.CONDITIONS``, one stack per cell, DoRF curve and seed):
+a procedural outdoor scene (colour chart, foliage, sky with the sun, skin-toned spheres, a
+long shadow ramp; shading and texture) -- neutral, colourful or saturated; a random colour
+matrix with white balance and highlight clip; the smooth or the clip gamut map; one DoRF
+curve for all channels or different ones per channel; in-camera sharpening or not; shot
+and read noise; six shots 1/250 … 1/8 s with ±3 % shutter jitter; OpenCV JPEG 4:2:0 or
+4:4:4 at a quality drawn from the seed in 75 … 95.  Every method gets the nominal times.
+
+Curves: the forward tables of ``../shared/data/dorf_emor/201_CRF_data.mat``.  Split:
+*tuning* = even-indexed curves and seeds < 1000; *held-out* = odd-indexed curves and
+seeds ≥ 1000 (cell k, stack j: seed ``50 k + j``, plus 1000 held out; curve number
+``j · cells + k`` of the split's list, so no two stacks of a run share a curve while
+there are enough).  Choose parameters on the tuning split only; report the held-out one.
+
+Methods: ``selfcal.calibrate_response`` (defaults); colour-hdri's
+``camera_response_functions_Debevec1997`` (its default Grossberg 2003 histogram sampling;
+an ``ImageStack`` of code/255 frames, shortest first, BLAS on one thread); OpenCV
+``CalibrateDebevec`` and ``CalibrateRobertson`` (``bench/common.py``).
+
+Metric, per channel: RMSE of f⁻¹ over codes 1 … 254 after the least-squares scale
+(``selfcal.metrics.best_scale_rmse``, one scale per channel); for selfcal also the
+absolute RMSE (its f⁻¹(255) = 1, as the truth's).  Median and p90 are over the
+(stack, channel) values of a cell; a method that fails scores +inf.  Time: wall time of
+each method's call, per stack.
+
+D7000 rows: the NUS Nikon D7000 in-camera model (``../shared/data/nus_model_nikon_d7000``,
+``selfcal.pipeline.nus``, white-balance setting 14) renders each raw of
+``../shared/data/raw`` (``selfcal.raw.read_raw_linear``, half size, block-averaged to at
+most 384 px, white-balanced with its as-shot gains, clipped at 1, divided by the model's
+gains) as the middle of a six-shot bracket 1/250 … 1/8 s: the raw scaled by
+``t / sqrt(t_min t_max)``, shot and read noise (``SensorModel()``), clipped at white, ±2 %
+jitter, JPEG q92 4:2:0.  Truth: the model's own tone curve (its ``raw2jpg_respFcns``
+f⁻¹).  Reported per raw: best-scale and absolute RMSE over the three channels (each
+channel with its own scale).  Skipped, with a message, when the data are absent.
+
+    python bench/bench_response_matrix.py [--split heldout|tuning] [--curves 6]
+        [--cells saturated/base,neutral] [--size 256x384] [--jobs 2] [--no-d7000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+import warnings
+from multiprocessing import Pool
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import SHARED_DATA, opencv_inverse_response, table  # noqa: E402
+
+from selfcal.metrics import best_scale_rmse, rmse  # noqa: E402
+from selfcal.synth import DEMO_EXPOSURE_TIMES  # noqa: E402
+from selfcal.synth_conditions import CONDITIONS  # noqa: E402
+
+TIMES = list(DEMO_EXPOSURE_TIMES)
+METHODS = ("selfcal", "colour", "debevec", "robertson")
+LABELS = {"selfcal": "selfcal", "colour": "colour-hdri Debevec",
+          "debevec": "OpenCV Debevec", "robertson": "OpenCV Robertson"}
+INNER = slice(1, 255)
+DORF = SHARED_DATA / "dorf_emor" / "201_CRF_data.mat"
+NUS = SHARED_DATA / "nus_model_nikon_d7000"
+RAWS = ("colorchart_canon550d.dng", "blackmagic_cinema.dng")
+D7000_WB = 14
+SEED_STRIDE = 50
+_DORF_CACHE = {}
+
+
+def _init_worker():
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    cv2.setNumThreads(1)
+    threadpool_limits(limits=1)
+    warnings.filterwarnings("ignore")
+
+
+def colour_hdri_inverse_response(images, times) -> np.ndarray:
+    """colour-hdri's Debevec 1997 curves (Grossberg sampling) as f⁻¹, (256, 3), max 1."""
+    from colour_hdri import ImageStack, camera_response_functions_Debevec1997
+    from colour_hdri.utilities import Image, Metadata
+
+    stack = ImageStack()
+    for k in np.argsort(times, kind="stable"):          # shortest exposure first
+        im = Image()
+        im.data = images[k].astype(np.float64) / 255.0
+        im.metadata = Metadata(f_number=8.0, exposure_time=float(times[k]), iso=100.0)
+        stack.append(im)
+    return np.asarray(camera_response_functions_Debevec1997(stack), dtype=np.float64)
+
+
+def calibrate_all(images, times) -> dict:
+    """method -> (f⁻¹ table (256, 3) or None when the method failed, seconds)."""
+    import selfcal
+
+    calls = {
+        "selfcal": lambda: selfcal.calibrate_response(images, list(times)).inverse_response(),
+        "colour": lambda: colour_hdri_inverse_response(images, times),
+        "debevec": lambda: opencv_inverse_response(images, times, "debevec"),
+        "robertson": lambda: opencv_inverse_response(images, times, "robertson"),
+    }
+    out = {}
+    for method, call in calls.items():
+        t0 = time.perf_counter()
+        try:
+            lut = np.asarray(call(), dtype=np.float64)
+            if lut.shape != (256, 3) or not np.all(np.isfinite(lut)):
+                lut = None
+        except Exception:       # a peer (or selfcal) failing on a stack scores +inf
+            lut = None
+        out[method] = (lut, time.perf_counter() - t0)
+    return out
+
+
+def score(luts: dict, truth: np.ndarray) -> dict:
+    """Per method: best-scale RMSE per channel, seconds, monotone channels; selfcal: absolute."""
+    res = {}
+    for method, (lut, seconds) in luts.items():
+        if lut is None:
+            res[method] = {"best": [math.inf] * 3, "seconds": seconds, "monotone": [False] * 3}
+            if method == "selfcal":
+                res[method]["abs"] = [math.inf] * 3
+            continue
+        res[method] = {
+            "best": [best_scale_rmse(lut[INNER, c], truth[INNER, c]) for c in range(3)],
+            "seconds": seconds,
+            "monotone": [bool(np.all(np.diff(lut[:, c]) >= 0)) for c in range(3)]}
+        if method == "selfcal":
+            res[method]["abs"] = [rmse(lut[INNER, c], truth[INNER, c]) for c in range(3)]
+    return res
+
+
+def dorf_curve(index: int):
+    import scipy.io as sio
+
+    from selfcal import synth
+
+    if "mat" not in _DORF_CACHE:
+        _DORF_CACHE["mat"] = sio.loadmat(DORF)
+    mat = _DORF_CACHE["mat"]
+    return synth.ToneCurve.from_table(mat["I"][index], mat["B"][index], name=f"dorf{index}")
+
+
+def one_cell_stack(task):
+    _, cell, index, seed, size = task
+    t0 = time.perf_counter()
+    stack = CONDITIONS[cell].simulate(dorf_curve(index), seed, size=size)
+    simulate_seconds = time.perf_counter() - t0
+    res = score(calibrate_all(stack.images, TIMES), stack.inverse_response())
+    return {"kind": "cell", "cell": cell, "index": index, "seed": seed,
+            "quality": stack.params["jpeg_quality"], "simulate": simulate_seconds,
+            "methods": res}
+
+
+def d7000_scene(fname: str, cam, max_side: int = 384):
+    """A raw of ../shared/data/raw as the D7000 model's input: (camera RGB, render)."""
+    from selfcal.raw import read_raw_linear
+
+    raw = read_raw_linear(SHARED_DATA / "raw" / fname, half_size=True)
+    rgb = raw.rgb.astype(np.float64)
+    f = max(1, math.ceil(max(rgb.shape[:2]) / max_side))
+    h, w = rgb.shape[0] // f, rgb.shape[1] // f
+    rgb = rgb[:h * f, :w * f].reshape(h, f, w, f, 3).mean(axis=(1, 3))
+    wb = np.asarray(raw.camera_wb if raw.camera_wb is not None else (1, 1, 1), np.float64)
+
+    def render(x):
+        return cam.render(np.clip(np.asarray(x, np.float64) * wb, 0.0, 1.0) / cam.gains)
+
+    return rgb, render
+
+
+def one_d7000_stack(task):
+    _, fname, seed = task
+    from selfcal import synth
+    from selfcal.pipeline.nus import read_nus_model
+    from selfcal.synth_conditions import ModelCamera
+
+    t0 = time.perf_counter()
+    cam = read_nus_model(NUS, wb_code=D7000_WB)
+    rgb, render = d7000_scene(fname, cam)
+    model = ModelCamera(render, cam.inverse_response, name=f"NUS D7000 on {fname}")
+    stack = synth.simulate_stack(rgb, model, TIMES, jitter=0.02, jpeg_quality=92, seed=seed,
+                                 exposure_scale=1.0 / math.sqrt(TIMES[0] * TIMES[-1]))
+    simulate_seconds = time.perf_counter() - t0
+    res = score(calibrate_all(stack.images, TIMES), stack.inverse_response())
+    return {"kind": "d7000", "raw": fname, "seed": seed, "size": rgb.shape[:2],
+            "simulate": simulate_seconds, "methods": res}
+
+
+def run_task(task):
+    return one_cell_stack(task) if task[0] == "cell" else one_d7000_stack(task)
+
+
+def split_tasks(split: str, n_curves: int, cells, size, d7000: bool) -> list:
+    """The split's stacks: (kind, cell, curve index, seed, size) and the D7000 ones."""
+    tuning = split == "tuning"
+    curves = list(range(0 if tuning else 1, 201, 2))
+    base = 0 if tuning else 1000
+    names = list(CONDITIONS)
+    tasks = []
+    if d7000 and NUS.is_dir() and all((SHARED_DATA / "raw" / f).exists() for f in RAWS):
+        tasks += [("d7000", f, base + 7) for f in RAWS]      # longest first
+    for k, name in enumerate(names):
+        if name not in cells:
+            continue
+        for j in range(n_curves):
+            tasks.append(("cell", name, curves[(j * len(names) + k) % len(curves)],
+                          base + SEED_STRIDE * k + j, size))
+    return tasks
+
+
+# --------------------------------------------------------------------------------------
+# report
+# --------------------------------------------------------------------------------------
+
+def _values(results, method, key="best"):
+    return np.array([v for r in results for v in r["methods"][method][key]], dtype=float)
+
+
+def _fmt(v):
+    return "inf" if not np.isfinite(v) else f"{v:.4f}"
+
+
+def cell_table(results, cells):
+    rows, stats = [], {}
+    for cell in cells:
+        rs = [r for r in results if r.get("cell") == cell]
+        if not rs:
+            continue
+        s = {m: (np.median(_values(rs, m)), np.percentile(_values(rs, m), 90)) for m in METHODS}
+        s["abs"] = np.median(_values(rs, "selfcal", "abs"))
+        best_cv = min(s["debevec"][0], s["robertson"][0])
+        s["vs_colour"] = s["selfcal"][0] / s["colour"][0]
+        s["vs_opencv"] = s["selfcal"][0] / best_cv
+        stats[cell] = s
+        rows.append([cell, len(rs)] + [_fmt(s["selfcal"][0]), _fmt(s["selfcal"][1]),
+                                       _fmt(s["abs"])]
+                    + [x for m in METHODS[1:] for x in (_fmt(s[m][0]), _fmt(s[m][1]))]
+                    + [f"{s['vs_colour']:.2f}", f"{s['vs_opencv']:.2f}"])
+    headers = (["cell", "stacks", "selfcal median", "p90", "abs median"]
+               + [x for m in METHODS[1:] for x in (f"{LABELS[m]} median", "p90")]
+               + ["selfcal / colour-hdri", "selfcal / best OpenCV"])
+    return table(headers, rows), stats
+
+
+def acceptance_lines(stats) -> list:
+    def line(text, ok_by_cell, worst):
+        ok = sum(ok_by_cell.values())
+        mark = "met" if ok == len(ok_by_cell) else "NOT met"
+        return f"- {text}: {mark} ({ok}/{len(ok_by_cell)} cells; worst {worst})"
+
+    def worst(key, idx=None):
+        cell = max(stats, key=lambda c: stats[c][key] if idx is None else stats[c][key][idx])
+        v = stats[cell][key] if idx is None else stats[cell][key][idx]
+        return f"{cell} {v:.4f}" if key in ("selfcal", "abs") else f"{cell} {v:.2f}"
+
+    return [
+        line("selfcal median best-scale RMSE ≤ 0.005 in every cell",
+             {c: s["selfcal"][0] <= 0.005 for c, s in stats.items()}, worst("selfcal", 0)),
+        line("selfcal p90 ≤ 0.010 in every cell",
+             {c: s["selfcal"][1] <= 0.010 for c, s in stats.items()}, worst("selfcal", 1)),
+        line("selfcal median below colour-hdri's Debevec in every cell (aim ≤ 0.5×)",
+             {c: s["vs_colour"] < 1.0 for c, s in stats.items()}, worst("vs_colour")),
+        line("selfcal median ≤ 1/4 of OpenCV's better method in every cell",
+             {c: s["vs_opencv"] <= 0.25 for c, s in stats.items()}, worst("vs_opencv")),
+        line("selfcal absolute (f⁻¹(255) = 1) median ≤ 0.008 in every cell",
+             {c: s["abs"] <= 0.008 for c, s in stats.items()}, worst("abs")),
+    ]
+
+
+def d7000_report(results) -> list:
+    rs = [r for r in results if r["kind"] == "d7000"]
+    if not rs:
+        return []
+
+    def pooled(r, m, key="best"):
+        v = np.array(r["methods"][m][key])
+        return float(np.sqrt(np.mean(v * v)))
+
+    rows, ok = [], True
+    for r in rs:
+        best, absolute = pooled(r, "selfcal"), pooled(r, "selfcal", "abs")
+        ok &= best <= 0.006 and absolute <= 0.012
+        rows.append([r["raw"], f"{r['size'][0]}x{r['size'][1]}", _fmt(best), _fmt(absolute)]
+                    + [_fmt(pooled(r, m)) for m in METHODS[1:]])
+    out = ["", "D7000 in-camera model on the shared raws (6 shots 1/250 … 1/8 s, ±2 % jitter, "
+           "noise, JPEG q92 4:2:0); RMSE over the three channels' codes 1 … 254", "",
+           table(["raw", "frame", "selfcal best-scale", "selfcal absolute"]
+                 + [LABELS[m] for m in METHODS[1:]], rows), "",
+           f"- D7000: best-scale ≤ 0.006 and absolute ≤ 0.012 on each raw: "
+           f"{'met' if ok else 'NOT met'}"]
+    return out
+
+
+def report(results, split, args, wall) -> str:
+    cells = [c for c in CONDITIONS if c in args.cells]
+    cell_results = [r for r in results if r["kind"] == "cell"]
+    title = ("held-out split (odd DoRF curves, seeds ≥ 1000)" if split == "heldout"
+             else "tuning split (even DoRF curves, seeds < 1000)")
+    lines = [f"### {title}", ""]
+    if cell_results:
+        tab, stats = cell_table(cell_results, cells)
+        lines += [f"{len(cell_results)} stacks {args.size}, {args.curves} per cell; "
+                  "RMSE of f⁻¹ over codes 1 … 254 after the best scale per channel, "
+                  "median and p90 over (stack, channel); ratios of the medians", "", tab,
+                  "", "Acceptance (issue 15, synthetic matrix):"] + acceptance_lines(stats)
+        n = len(cell_results) * 3
+        mono = ", ".join(f"{LABELS[m]} {n - int(_values(cell_results, m, 'monotone').sum())}"
+                         for m in METHODS)
+        secs = ", ".join(f"{LABELS[m]} {np.median([r['methods'][m]['seconds'] for r in cell_results]):.2f} s"
+                         for m in METHODS)
+        sim = np.median([r["simulate"] for r in cell_results])
+        lines += ["", f"Non-monotone channels (of {n}): {mono}",
+                  f"Time per stack (median): {secs}; simulating a stack {sim:.2f} s"]
+    lines += d7000_report(results)
+    lines += ["", f"wall {wall:.0f} s with {args.jobs} jobs"]
+    return "\n".join(lines)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--split", choices=("heldout", "tuning"), default="heldout")
+    parser.add_argument("--curves", type=int, default=6,
+                        help="stacks (DoRF curves) per cell (default %(default)s, ≤ 50)")
+    parser.add_argument("--cells", default="",
+                        help="comma-separated cell names or scene prefixes (default: all)")
+    parser.add_argument("--size", default="256x384", help="frame HxW (default %(default)s)")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
+    parser.add_argument("--no-d7000", action="store_true", help="leave out the D7000 rows")
+    args = parser.parse_args()
+    if not 1 <= args.curves <= SEED_STRIDE:
+        parser.error(f"--curves must be in 1 … {SEED_STRIDE}")
+    wanted = [w.strip() for w in args.cells.split(",") if w.strip()]
+    args.cells = [c for c in CONDITIONS
+                  if not wanted or any(c == w or c.startswith(w + "/") for w in wanted)]
+    if not args.cells:
+        parser.error(f"no cell matches --cells; cells: {', '.join(CONDITIONS)}")
+    if not DORF.exists():
+        sys.exit(f"benchmark data not found: {DORF} (the benchmarks read ../shared/data)")
+    if not args.no_d7000 and not (NUS.is_dir() and all((SHARED_DATA / "raw" / f).exists()
+                                                       for f in RAWS)):
+        print(f"D7000 rows skipped: {NUS} or the raws in {SHARED_DATA / 'raw'} are absent")
+    h, w = (int(v) for v in args.size.lower().split("x"))
+    tasks = split_tasks(args.split, args.curves, set(args.cells), (h, w), not args.no_d7000)
+    t0 = time.perf_counter()
+    with Pool(args.jobs, initializer=_init_worker) as pool:
+        results = list(pool.imap_unordered(run_task, tasks))
+    print(report(results, args.split, args, time.perf_counter() - t0))
+
+
+if __name__ == "__main__":
+    main()
