@@ -71,6 +71,8 @@ _CHART_SRGB = np.array([
     [160, 160, 160], [122, 122, 121], [85, 85, 85], [52, 52, 52]], dtype=np.float64)
 _SKIN = np.array([[0.540, 0.305, 0.223], [0.352, 0.155, 0.091], [0.171, 0.084, 0.058]])
 _LEAVES = np.array([[0.060, 0.160, 0.025], [0.180, 0.260, 0.030], [0.025, 0.090, 0.050]])
+_FLOWERS = np.array([[0.55, 0.04, 0.04], [0.75, 0.55, 0.03], [0.50, 0.05, 0.35],
+                     [0.70, 0.20, 0.02], [0.80, 0.80, 0.78], [0.20, 0.06, 0.45]])
 _STRIPES = np.array([[0.35, 0.12, 0.06], [0.45, 0.32, 0.08], [0.10, 0.14, 0.25],
                      [0.10, 0.16, 0.05], [0.85, 0.85, 0.85], [0.30, 0.08, 0.20]])
 
@@ -101,7 +103,8 @@ def _sky(yy, xx, aspect, rng, k):
 
 
 def _foliage(shape, rng, k):
-    """Leaves: three greens mixed by smooth noise, leaf-scale texture and shade blobs."""
+    """Leaves: three greens mixed by smooth noise, leaf-scale texture and shade blobs;
+    flowers (small discs, 1.5-4.5 px, of six colours) on about 12 % of it."""
     mix = np.stack([_unit_noise(rng, shape, 4.0) for _ in range(3)], axis=-1)
     weights = np.exp(2.0 * mix)
     weights /= weights.sum(axis=-1, keepdims=True)
@@ -109,6 +112,17 @@ def _foliage(shape, rng, k):
     shade = 1.0 / (1.0 + np.exp(-3.0 * (_unit_noise(rng, shape, max(shape) / 6) - 0.3)))
     light = (0.4 + 1.1 * _unit_noise(rng, shape, 2.5) + 0.4 * _unit_noise(rng, shape, 0.8)
              - 4.0 * shade)
+    h, w = shape
+    flowers = _palette(_FLOWERS, k)
+    for _ in range(int(0.12 * h * w / (np.pi * 3.0 ** 2))):
+        r = rng.uniform(1.5, 4.5)
+        cy, cx, which = rng.uniform(0, h), rng.uniform(0, w), rng.integers(len(_FLOWERS))
+        y0, y1 = max(0, int(cy - r)), min(h, int(cy + r) + 1)
+        x0, x1 = max(0, int(cx - r)), min(w, int(cx + r) + 1)
+        yy, xx = np.mgrid[y0:y1, x0:x1]
+        disc = (yy + 0.5 - cy) ** 2 + (xx + 0.5 - cx) ** 2 <= r * r
+        colour[y0:y1, x0:x1][disc] = flowers[which]
+        light[y0:y1, x0:x1][disc] += 1.0
     return colour, light
 
 
@@ -177,7 +191,7 @@ def natural_scene(height: int = 256, width: int = 384, *, palette: str = "colour
     Layout (fractions of the image): sky (top 30 %: a blue zenith-to-horizon gradient,
     clouds, the sun -- clipped in every frame -- and its glow, a smooth ramp to the
     highest codes); foliage (left third: three greens, leaf-scale texture, shade blobs
-    4 stops down); a ColorChecker Classic (middle: 24 patches from X-Rite's sRGB values,
+    4 stops down, small flowers of six colours); a ColorChecker Classic (middle: 24 patches from X-Rite's sRGB values,
     light falling off 1-2 stops across it); three skin-toned spheres (right: Lambertian
     shading down to 5 stops, a Phong highlight each) before a tinted wall; painted stripes
     along the bottom (22 %) under a light that falls off log-linearly by
