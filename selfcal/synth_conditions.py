@@ -191,9 +191,10 @@ def natural_scene(height: int = 256, width: int = 384, *, palette: str = "colour
     Layout (fractions of the image): sky (top 30 %: a blue zenith-to-horizon gradient,
     clouds, the sun -- clipped in every frame -- and its glow, a smooth ramp to the
     highest codes); foliage (left third: three greens, leaf-scale texture, shade blobs
-    4 stops down, small flowers of six colours); a ColorChecker Classic (middle: 24 patches from X-Rite's sRGB values,
-    light falling off 1-2 stops across it); three skin-toned spheres (right: Lambertian
-    shading down to 5 stops, a Phong highlight each) before a tinted wall; painted stripes
+    4 stops down, small flowers of six colours); a ColorChecker Classic (middle: 24
+    patches from X-Rite's sRGB values, light falling off 1-2 stops across it); three
+    skin-toned spheres (right: Lambertian shading down to 5 stops, a Phong highlight
+    each) before a tinted wall; painted stripes
     along the bottom (22 %) under a light that falls off log-linearly by
     ``dynamic_range_stops`` from left to right, so every channel of every colour runs
     through the whole range; a lens vignette (0.6 stops at the corners).
