@@ -53,7 +53,6 @@ def main(argv=None) -> int:
     parser = build_parser()
     args = _parse(parser, argv)
     import selfcal
-    from selfcal.hdr.io import OutputWriteError as RadianceWriteError
     from selfcal.io import OutputWriteError
 
     reset_warnings()
@@ -68,7 +67,7 @@ def main(argv=None) -> int:
                         warn(str(w.message))
                 caught.clear()
         return code
-    except (selfcal.OutputExistsError, OutputWriteError, RadianceWriteError) as exc:
+    except (selfcal.OutputExistsError, OutputWriteError) as exc:
         say(f"selfcal: error: {exc}")
         return EXIT_OUTPUT
     except selfcal.InputError as exc:

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, SelfcalError
-from ..io import _cv2, atomic_output, write_image
+from ..errors import InputError
+from ..io import OutputWriteError, _cv2, atomic_output, write_image
 
 __all__ = [
     "OutputWriteError",
@@ -60,10 +60,6 @@ HALF_LIMIT = 2.0 ** 15
 #: Name of the recorded scale: an EXR header attribute (``double``) and a key of the JSON
 #: in a TIFF's ImageDescription tag.  Stored values times it are the radiance.
 SCALE_ATTRIBUTE = "selfcalRadianceScale"
-
-
-class OutputWriteError(SelfcalError, OSError):
-    """An output file could not be written (the encoder failed or the disk refused)."""
 
 
 def _check_radiance(radiance) -> np.ndarray:
