@@ -115,7 +115,8 @@ def read_image(path, *, reduce: int = 1) -> np.ndarray:
     elif image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
     elif image.shape[2] == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+        # in place: a second full-size frame would cost as much memory as the decode
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB, dst=image)
     else:
         raise InputError(f"unsupported channel count {image.shape[2]}", path)
     return image
