@@ -1,0 +1,412 @@
+"""Running a batch: the task graph on Dask distributed (or in process), and the driver.
+
+:func:`run_batch` discovers the sessions (:mod:`.discover`), plans them (:mod:`.run`),
+skips those finished by an earlier run, and submits three kinds of task to a Dask
+cluster -- a :class:`distributed.LocalCluster` by default (one single-threaded worker
+process per core, each with its memory limit), or the scheduler at ``scheduler``:
+
+``prepare-<session>``
+    Every session to do: its own calibration and its pool samples
+    (:func:`.run.prepare_session`).  Tasks get paths; the worker reads the frames.
+``camera-<camera>``
+    Once the candidate sessions of a camera are prepared: the pooled fit
+    (:func:`.run.fit_camera`), which depends on their ``prepare`` futures; their results
+    (a model and ~100 kB of samples each) move worker to worker, never through the
+    scheduler or this process.
+``finish-<session>``
+    The merge and outputs (:func:`.run.finish_session`), depending on the session's
+    ``prepare`` future and its camera's fit.
+
+Priorities order the work: the pool candidates' preparation first (so that the camera
+fits start early), then the camera fits, then merges before further preparation (so that
+prepared sessions do not pile up in memory).  A task never raises for a bad session (it
+returns the error); a task lost with its worker (killed for memory, say) fails its session
+only, and the driver records why.  ``scheduler="serial"`` runs the same tasks in this
+process, one after the other (the benchmark's serial loop).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import uuid
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import OutputExistsError, SelfcalError
+from .discover import DEFAULT_MAX_GAP, discover
+from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_row,
+                  fit_camera, plan_batch, plan_row, prepare_session, reusable_camera_fit,
+                  write_manifest)
+
+DASK_MISSING = ('selfcal batch runs on Dask distributed, which is not installed: '
+                'pip install "selfcal[batch]"')
+
+# task priorities (higher first)
+_PRIORITY = {"candidate": 30, "camera": 40, "finish": 20, "prepare": 10}
+
+
+class ClusterError(SelfcalError):
+    """Dask is missing, or the cluster cannot be reached or started (the message says
+    which and what to do)."""
+
+
+def require_dask():
+    """The ``distributed`` module, or :class:`ClusterError` saying how to install it."""
+    try:
+        import distributed
+    except ImportError:
+        raise ClusterError(DASK_MISSING) from None
+    return distributed
+
+
+# ------------------------------------------------------------------------ executors
+
+class _Thunk:
+    """A deferred call of the serial executor, with the face of a Dask future."""
+
+    def __init__(self, fn, args):
+        self.fn, self.args = fn, args
+        self.status, self.value, self.exc = "pending", None, None
+
+    def run(self):
+        if self.status == "pending":
+            try:
+                args = [a.result() if isinstance(a, _Thunk) else a for a in self.args]
+                self.value, self.status = self.fn(*args), "finished"
+            except Exception as exc:
+                self.exc, self.status = exc, "error"
+            self.fn = self.args = None
+        return self
+
+    def result(self):
+        self.run()
+        if self.status == "error":
+            raise self.exc
+        return self.value
+
+
+class _SerialCompleted:
+    """``as_completed`` of the serial executor: runs each call when its turn comes."""
+
+    def __init__(self, futures):
+        self.queue = deque(futures)
+
+    def add(self, future):
+        self.queue.append(future)
+
+    def __iter__(self):
+        while self.queue:
+            yield self.queue.popleft().run()
+
+
+class SerialExecutor:
+    """The tasks in this process, in submission order (no Dask needed)."""
+
+    name = "serial"
+
+    def submit(self, fn, *args, key="", priority=0):
+        return _Thunk(fn, args)
+
+    def as_completed(self, futures):
+        return _SerialCompleted(futures)
+
+    def close(self):
+        pass
+
+    def worker_memory(self):
+        return {}
+
+
+class DaskExecutor:
+    """The tasks on a Dask cluster: a given client, the scheduler at ``scheduler``, or a
+    new :class:`distributed.LocalCluster` of ``workers`` single-threaded processes."""
+
+    def __init__(self, *, scheduler=None, workers=None, memory_limit="auto",
+                 processes=True, client=None):
+        distributed = require_dask()
+        self._distributed = distributed
+        self._own = []
+        if client is not None:
+            self.client = client
+        elif scheduler:
+            try:
+                self.client = distributed.Client(scheduler, timeout="20s")
+            except (OSError, TimeoutError) as exc:
+                raise ClusterError(f"cannot reach the Dask scheduler at {scheduler} "
+                                   f"({exc})") from None
+            self._own.append(self.client)
+        else:
+            n = int(workers or os.cpu_count() or 1)
+            cluster = distributed.LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=processes,
+                memory_limit=memory_limit, dashboard_address=None,
+                silence_logs=logging.ERROR)
+            self.client = distributed.Client(cluster)
+            self._own += [self.client, cluster]
+        self.name = str(self.client.scheduler.address)
+        self._token = uuid.uuid4().hex[:8]
+
+    def submit(self, fn, *args, key="", priority=0):
+        return self.client.submit(fn, *args, key=f"{key}-{self._token}", priority=priority,
+                                  pure=False)
+
+    def as_completed(self, futures):
+        return self._distributed.as_completed(futures)
+
+    def worker_memory(self):
+        """Peak resident memory of each worker process so far (bytes; Linux ru_maxrss)."""
+        def peak():
+            import resource
+            import sys
+
+            rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            return rss if sys.platform == "darwin" else rss * 1024
+
+        return self.client.run(peak)
+
+    def close(self):
+        for obj in self._own:
+            obj.close()
+        self._own = []
+
+
+# ------------------------------------------------------------------------ the driver
+
+@dataclass
+class BatchResult:
+    """What :func:`run_batch` did.
+
+    Attributes
+    ----------
+    out_dir : pathlib.Path
+    rows : list of dict
+        One manifest row per session (``status`` ok, skipped or failed).
+    cameras : list of dict
+        The per-camera summary.
+    unassigned : list of (pathlib.Path, str)
+    files : list of pathlib.Path
+        The manifest files written.
+    executor : str
+        ``"serial"`` or the scheduler's address.
+    worker_memory : dict
+        Worker → peak resident memory (bytes), for a cluster this run started.
+    """
+
+    out_dir: Path
+    rows: list = field(default_factory=list)
+    cameras: list = field(default_factory=list)
+    unassigned: list = field(default_factory=list)
+    files: list = field(default_factory=list)
+    executor: str = ""
+    worker_memory: dict = field(default_factory=dict)
+
+    @property
+    def failed(self) -> list:
+        return [r for r in self.rows if r["status"] == "failed"]
+
+    def count(self, status: str) -> int:
+        return sum(r["status"] == status for r in self.rows)
+
+
+def _check_out_dir(out_dir: Path, force: bool) -> None:
+    """The batch folder: missing, empty, or one a batch wrote (else refused without
+    ``force``); writable."""
+    from ..io import OutputWriteError, check_output_path
+
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputWriteError(f"{out_dir}: cannot be the batch folder (it is a file)")
+    ours = any((out_dir / n).exists() for n in (MANIFEST, "sessions", "cameras"))
+    if out_dir.is_dir() and any(out_dir.iterdir()) and not ours and not force:
+        raise OutputExistsError(f"{out_dir}: exists, is not empty and holds no batch "
+                                "(use --force to write into it)")
+    check_output_path(out_dir / MANIFEST, force=True, create_folder=True)
+
+
+def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="auto",
+              processes: bool = True, client=None, linearize: bool = False,
+              pool: bool = True, force: bool = False, redo: bool = False,
+              max_gap: float = DEFAULT_MAX_GAP, seed: int = 0, progress=None,
+              options: BatchOptions | None = None) -> BatchResult:
+    """Calibrate and merge every bracketed session under ``roots``, one curve per camera.
+
+    Parameters
+    ----------
+    roots : sequence of path
+        Folders of frames (card dumps), walked recursively.
+    out_dir : path
+        The batch folder (layout in :mod:`selfcal.batch.run`); created if missing.
+    scheduler : str, optional
+        ``None``: a new LocalCluster; ``"tcp://host:port"``: an existing Dask scheduler;
+        ``"serial"``: no Dask, every task in this process.
+    workers : int, optional
+        LocalCluster workers (default: the number of cores); one thread each.
+    memory_limit : str or int
+        Per LocalCluster worker (Dask's ``memory_limit``: ``"auto"`` shares the machine's
+        memory among the workers, ``"4GB"``, bytes, or 0 for none).
+    processes : bool
+        LocalCluster workers as processes (True) or threads of this process.
+    client : distributed.Client, optional
+        Use this client (and its cluster) instead.
+    linearize : bool
+        Also write every frame linearised (16-bit TIFF).
+    pool : bool
+        One curve per camera (else every session alone).
+    force : bool
+        Use models whose verdict is unusable; write into a non-empty folder that is no
+        batch folder.
+    redo : bool
+        Run every session again, finished or not.
+    max_gap : float
+        Seconds between frames that start a new session (:func:`.discover.group_sessions`).
+    seed : int
+    progress : callable, optional
+        ``progress("sessions", done, total, session)`` after each session.
+    options : BatchOptions, optional
+        Overrides ``linearize``, ``pool``, ``force`` and ``seed``.
+
+    Returns
+    -------
+    BatchResult
+
+    Raises
+    ------
+    ClusterError
+        Dask missing (with the install command), the scheduler unreachable.
+    InputError
+        A root that does not exist.
+    OutputExistsError, OutputWriteError
+        The batch folder cannot be used.
+    """
+    out_dir = Path(out_dir).resolve()
+    _check_out_dir(out_dir, force)
+    options = options or BatchOptions(linearize=linearize, pool=pool, force=force, seed=seed)
+    library = discover(roots, exclude=[out_dir], max_gap=max_gap)
+    plans, cameras = plan_batch(library, out_dir, options)
+    fits, rows, todo = _earlier_work(plans, cameras, options, redo)
+    result = BatchResult(out_dir=out_dir, unassigned=library.unassigned)
+    if progress is not None:
+        progress("sessions", len(rows), len(plans), "")
+    executor = None
+    if todo:
+        executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(
+            scheduler=scheduler, workers=workers, memory_limit=memory_limit,
+            processes=processes, client=client))
+    try:
+        if executor is not None:
+            result.executor = executor.name
+            _drive(executor, todo, cameras, fits, options, rows, len(plans), progress)
+            if client is None and scheduler is None:
+                result.worker_memory = executor.worker_memory()
+    finally:
+        if executor is not None:
+            executor.close()
+    result.rows = sorted(rows, key=lambda r: r["session"])
+    result.cameras = camera_rows(cameras, fits, result.rows)
+    inputs = [f for p in plans for f in p.frames]
+    result.files = write_manifest(out_dir, result.rows, result.cameras, library.unassigned,
+                                  inputs=inputs)
+    return result
+
+
+def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
+    """Camera fits to reuse, rows of finished sessions (``skipped``), sessions to do."""
+    fits, rows, todo = {}, [], []
+    by_camera: dict = {}
+    for p in plans:
+        by_camera.setdefault(p.camera, []).append(p)
+    for cam, plan in cameras.items():
+        fit = None if redo else reusable_camera_fit(plan, by_camera[cam])
+        if fit is not None:
+            fits[cam] = fit
+    for p in plans:
+        refit = p.camera in cameras and p.camera not in fits
+        row = None if (redo or refit) else finished_row(
+            p, options, fits[p.camera].model_path if p.camera in fits else "")
+        if row is None:
+            todo.append(p)
+        else:
+            row["status"] = "skipped"
+            rows.append(row)
+    return fits, rows, todo
+
+
+def _drive(executor, todo, cameras, fits, options, rows, total, progress):
+    """Submit the tasks of the sessions to do and collect their rows as they finish.
+
+    Every session's ``prepare`` is submitted at once (the pool candidates' first); a
+    camera's fit when the last of its candidates is prepared, together with the
+    ``finish`` of all its sessions; a session without a fit to wait for is finished as
+    soon as it is prepared.
+    """
+    by_id = {p.id: p for p in todo}
+    waiting = {cam: {p.id for p in todo if p.camera == cam and p.pool_candidate}
+               for cam in cameras if cam not in fits}
+    tags, prep_f, camera_f = {}, {}, {}
+    for p in sorted(todo, key=lambda p: not (p.camera in waiting and p.pool_candidate)):
+        kind = "candidate" if p.camera in waiting and p.pool_candidate else "prepare"
+        fut = executor.submit(prepare_session, p, options, key=f"prepare-{p.id}",
+                              priority=_PRIORITY[kind])
+        prep_f[p.id] = fut
+        tags[fut] = ("prepare", p.id)
+    completed = executor.as_completed(list(prep_f.values()))
+
+    def finish(p, camera):
+        fut = executor.submit(finish_session, p, options, prep_f[p.id], camera,
+                              key=f"finish-{p.id}", priority=_PRIORITY["finish"])
+        tags[fut] = ("finish", p.id)
+        completed.add(fut)
+
+    for fut in completed:
+        kind, name = tags.pop(fut)
+        if kind == "prepare":
+            cam = by_id[name].camera
+            if cam in waiting:
+                waiting[cam].discard(name)
+                if not waiting[cam]:
+                    del waiting[cam]
+                    camera_f[cam] = _submit_camera(executor, cam, cameras[cam], todo,
+                                                   prep_f, options, tags, completed)
+                    for q in todo:
+                        if q.camera == cam:
+                            finish(q, camera_f[cam])
+            elif cam not in camera_f:
+                finish(by_id[name], fits.get(cam))
+        elif kind == "camera":
+            fits[name] = _result_or(fut, None) or fits.get(name)
+        else:
+            rows.append(_result_or(fut, None) or _lost(by_id[name], fut))
+            prep_f.pop(name)       # the scheduler may forget the preparation now
+            if progress is not None:
+                progress("sessions", len(rows), total, name)
+
+
+def _submit_camera(executor, cam, plan, todo, prep_f, options, tags, completed):
+    """The camera's pooled fit, on the prepare futures of its candidates."""
+    deps = [prep_f[p.id] for p in todo if p.camera == cam and p.pool_candidate
+            and getattr(prep_f[p.id], "status", "finished") != "error"]
+    fut = executor.submit(fit_camera, plan, options, *deps, key=f"camera-{cam}",
+                          priority=_PRIORITY["camera"])
+    tags[fut] = ("camera", cam)
+    completed.add(fut)
+    return fut
+
+
+def _result_or(fut, default):
+    try:
+        return fut.result()
+    except Exception:
+        return default
+
+
+def _lost(plan, fut) -> dict:
+    """The row of a session whose task was lost (its worker died, say)."""
+    try:
+        fut.result()
+        why = "no result"
+    except Exception as exc:
+        why = f"{type(exc).__name__}: {exc}"
+    row = plan_row(plan)
+    row.update(status="failed", error=f"the task failed on the cluster ({why})")
+    return row
