@@ -13,6 +13,7 @@ import sys
 import warnings
 
 from . import calibrate_commands, hdr_commands, pipeline_commands
+from . import batch_commands
 from .common import (EPILOG, EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, negative_times,
                      reset_warnings, say, warn)
 
@@ -31,6 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     calibrate_commands.register(sub)
     hdr_commands.register(sub)
     pipeline_commands.register(sub)
+    batch_commands.register(sub)
     parser.set_defaults(commands=sub.choices)
     return parser
 
