@@ -37,6 +37,7 @@ dozen scenes a curve gains little (``bench/bench_batch.py`` measures it).
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -220,6 +221,20 @@ def _pooled_sample_set(sessions):
     return samples, {"clipped": clipped, "saturated": saturated}, log_times, offsets
 
 
+def _log_basis(basis, n_components: int):
+    """The response basis in the log domain of Eq. 7 (default the built-in one), and N
+    capped at its size -- as :func:`selfcal.calibrate_response` takes it."""
+    from ..response.basis import builtin_basis, load_basis_file
+
+    if basis is None:
+        basis = builtin_basis()
+    elif isinstance(basis, (str, os.PathLike)):
+        basis = load_basis_file(basis)
+    if basis.domain != "log":
+        basis = basis.to_log_domain()
+    return basis, int(min(n_components, basis.n_components))
+
+
 def fit_shared_response(sessions, *, n_components: int = DEFAULT_N_COMPONENTS,
                         basis=None, saturation_threshold: float =
                         DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
@@ -246,12 +261,10 @@ def fit_shared_response(sessions, *, n_components: int = DEFAULT_N_COMPONENTS,
     CalibrationError
         No sessions, or too few usable sample pairs.
     """
-    from ..response.calibrate import _log_domain_basis
-
     sessions = list(sessions)
     if not sessions:
         raise CalibrationError("no session to fit a shared response to")
-    basis, N = _log_domain_basis(basis, n_components)
+    basis, N = _log_basis(basis, n_components)
     samples, masks, log_times, _ = _pooled_sample_set(sessions)
     result = solve_exposure_equations(
         samples, basis, log_times, n_components=N, refine_exposures=False,
