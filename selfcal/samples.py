@@ -28,6 +28,33 @@ from .io import _cv2
 
 #: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
 REJECTION_REASONS = ("clipped", "saturated", "not_flat")
+#: Long side (pixels) of the grey thumbnail kept of each frame: the verdict measures the
+#: frames' motion against each other on it (:mod:`selfcal.response.verdict`).
+THUMBNAIL_SIDE = 1024
+
+
+def content_digest(image: np.ndarray) -> str:
+    """Hash of every pixel of ``image`` (with its shape and dtype): equal for identical frames.
+
+    Frames are judged duplicates on their full content, not on a subsample: two frames
+    that are almost entirely white differ in a few dozen pixels only.
+    """
+    h = hashlib.blake2b(digest_size=16)
+    h.update(f"{image.shape}{image.dtype}".encode())
+    h.update(memoryview(np.ascontiguousarray(image)).cast("B"))
+    return h.hexdigest()
+
+
+def _grey_thumbnail(blocks: np.ndarray, max_code: int) -> np.ndarray:
+    """The block means as a grey uint8 image, long side at most :data:`THUMBNAIL_SIDE`."""
+    cv2 = _cv2()
+    h, w = blocks.shape[:2]
+    scale = THUMBNAIL_SIDE / max(h, w)
+    if scale < 1:
+        blocks = cv2.resize(blocks, (max(1, round(w * scale)), max(1, round(h * scale))),
+                            interpolation=cv2.INTER_AREA)
+    grey = cv2.transform(blocks, np.full((1, 3), 255.0 / (3 * max_code)))
+    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
 
 
 @dataclass
@@ -39,8 +66,9 @@ class ReducedFrame:
     block_min: np.ndarray     # (h, w) float32: lowest code of any channel
     max_code: int
     shape: tuple              # full frame (H, W)
-    digest: str               # content hash, to find duplicate frames
+    digest: str               # content hash of every decoded pixel, to find duplicate frames
     source: str               # file name or "array #k"
+    thumbnail: np.ndarray | None = None   # grey uint8, long side <= THUMBNAIL_SIDE blocks
 
 
 def _as_image_array(image, source: str) -> np.ndarray:
@@ -57,7 +85,8 @@ def _as_image_array(image, source: str) -> np.ndarray:
     raise InputError(f"unsupported dtype {arr.dtype} (uint8 or uint16 needed)", source)
 
 
-def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
+def reduce_frame(image, *, block: int, source: str = "array",
+                 digest: str | None = None) -> ReducedFrame:
     """Reduce one frame to ``block``×``block`` means, plus per-block extreme codes.
 
     Parameters
@@ -68,6 +97,8 @@ def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
         Block edge in pixels (1 keeps every pixel).
     source : str
         Name used in error messages.
+    digest : str, optional
+        The frame's :func:`content_digest` when known (computed from ``image`` otherwise).
     """
     cv2 = _cv2()
     arr = _as_image_array(image, source)
@@ -75,8 +106,7 @@ def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
     h, w = arr.shape[:2]
     hb, wb = max(1, h // block), max(1, w // block)
     crop = arr[: hb * block, : wb * block]
-    digest = hashlib.blake2b(np.ascontiguousarray(arr[::7, ::7]).tobytes(),
-                             digest_size=16).hexdigest()
+    digest = content_digest(arr) if digest is None else digest
     if block == 1:
         blocks = crop.astype(np.float32)
         cmax = crop.max(axis=2).astype(np.float32)
@@ -94,9 +124,10 @@ def reduce_frame(image, *, block: int, source: str = "array") -> ReducedFrame:
         cmin = cv2.erode(cv2.min(cv2.min(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
         cmax = cmax.astype(np.float32)
         cmin = cmin.astype(np.float32)
-    return ReducedFrame(blocks=np.ascontiguousarray(blocks, dtype=np.float32),
-                        block_max=cmax, block_min=cmin, max_code=max_code,
-                        shape=(h, w), digest=digest, source=source)
+    blocks = np.ascontiguousarray(blocks, dtype=np.float32)
+    return ReducedFrame(blocks=blocks, block_max=cmax, block_min=cmin, max_code=max_code,
+                        shape=(h, w), digest=digest, source=source,
+                        thumbnail=_grey_thumbnail(blocks, max_code))
 
 
 @dataclass
@@ -116,6 +147,17 @@ class SampleSet:
         Block row and column.
     max_code : int
     sources : list of str
+    block : int
+        Block edge in frame pixels.
+    frame_shape : tuple
+        ``(H, W)`` of the frames.
+    digests : list of str
+        :func:`content_digest` of each frame (every decoded pixel).
+    thumbnails : list of ndarray
+        Per frame, the block means as a grey uint8 image (long side at most
+        :data:`THUMBNAIL_SIDE`), for the motion test of the verdict.
+    thumbnail_pixel : float
+        Frame pixels per thumbnail pixel.
     """
 
     values: np.ndarray
@@ -128,6 +170,8 @@ class SampleSet:
     block: int
     frame_shape: tuple
     digests: list = field(default_factory=list)
+    thumbnails: list = field(default_factory=list)
+    thumbnail_pixel: float = 1.0
 
     @property
     def n_frames(self) -> int:
@@ -280,6 +324,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
             full_shape = None
             factor = 1
         arr = _as_image_array(image, src)
+        digest = content_digest(arr)      # every decoded pixel, before the crop below
         if full_shape is None:
             full_shape = arr.shape[:2]
             if block is None:
@@ -292,7 +337,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         hb, wb = full_shape[0] // block, full_shape[1] // block
         step = max(1, int(round(block / factor)))
         arr = arr[: hb * step, : wb * step]
-        r = reduce_frame(arr, block=step, source=src)
+        r = reduce_frame(arr, block=step, source=src, digest=digest)
         r.shape = tuple(full_shape)
         if reduced and r.max_code != reduced[0].max_code:
             raise InputError("bit depth differs from the first frame's "
@@ -313,7 +358,9 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     return SampleSet(values=values.astype(np.float64), block_max=bmax, block_min=bmin,
                      flatness=flatness, locations=locations, max_code=max_code,
                      sources=list(sources), block=block, frame_shape=reduced[0].shape,
-                     digests=[r.digest for r in reduced])
+                     digests=[r.digest for r in reduced],
+                     thumbnails=[r.thumbnail for r in reduced],
+                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]))
 
 
 def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
