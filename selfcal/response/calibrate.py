@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from ..align import aligned_working_frames, estimate_alignment
-from ..errors import CalibrationError, InputError
+from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..frames import (
     DEFAULT_CLIP_MARGIN,
     _default_reference,
@@ -26,6 +26,7 @@ from ..io import _is_path
 from ..metrics import delta_eq12
 from ..samples import collect_samples, frame_masks
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
+from .verdict import judge_calibration
 
 #: A frame whose given time and pixels disagree by more than this factor is reported.
 CONTRADICTION_FACTOR = 1.25
@@ -45,12 +46,17 @@ DEFAULT_N_COMPONENTS = 5
 DEFAULT_MAX_SAMPLES = 4000
 
 
-def resolve_exposure_times(frames, exposure_times, sources):
-    """Given times per frame (None = unknown), from the caller or from EXIF.
+def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
+    """Given times per frame (None = unknown), from the caller or from EXIF, and their label.
 
     When EXIF gives f-number and ISO that vary over the stack, times are scaled to the
     first frame's aperture and ISO (exposure ∝ t · ISO / N²), so the result stays in seconds
     at the first frame's settings.
+
+    The label (the model's ``diagnostics["exposure_source"]``) says where the times came
+    from: ``times_source`` (default ``"given"``) for times the caller gave, ``"exif"`` when
+    EXIF gave at least one, and ``"unknown"`` when no frame has a time (all given as None,
+    arrays without times, files without EXIF times).
     """
     n = len(frames)
     if exposure_times is not None:
@@ -69,20 +75,22 @@ def resolve_exposure_times(frames, exposure_times, sources):
             if not math.isfinite(tf) or tf <= 0:
                 raise InputError(f"exposure time {t!r} must be a positive number", src)
             out.append(tf)
-        return out, "given"
+        if all(t is None for t in out):
+            return out, "unknown"
+        return out, times_source or "given"
     if not all(_is_path(f) for f in frames):
         return [None] * n, "unknown"
     from ..io import effective_exposure_times, read_exposure_info
 
     out = effective_exposure_times([read_exposure_info(f) for f in frames])
-    return out, "exif"
+    return out, "exif" if any(t is not None for t in out) else "unknown"
 
 
 def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = False,
                        n_components: int = DEFAULT_N_COMPONENTS, saturation_threshold: float =
                        DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
                        basis=None, max_samples: int = DEFAULT_MAX_SAMPLES, seed: int = 0,
-                       align=False, progress=None):
+                       align=False, progress=None, times_source: str | None = None):
     """Estimate each channel's camera response from an exposure stack.
 
     Implements Lin et al., ICCV 2011, §5: log-domain PCA model (Eq. 7) fitted to the
@@ -119,10 +127,24 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         correspondences, which read as contradicted exposure times.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
+    times_source : str, optional
+        Where the given ``exposure_times`` came from, for the model's
+        ``diagnostics["exposure_source"]`` (e.g. ``"raw"`` when the caller took them from
+        raw files); default ``"given"``.  Times all None are ``"unknown"``.
 
     Returns
     -------
     ResponseModel
+        Its ``diagnostics`` hold the fit's evidence and the verdict
+        (:mod:`selfcal.response.verdict`): ``"verdict"`` (``"ok"``, ``"doubtful"`` or
+        ``"unusable"`` -- the model is returned in every case), ``"verdict_reasons"``
+        and ``"verdict_evidence"``.
+
+    Warns
+    -----
+    SelfcalWarning
+        Each of the model's ``diagnostics["warnings"]`` (frames ignored, contradicted
+        times, the exponential ambiguity left to the prior, the verdict's reasons).
 
     Raises
     ------
@@ -133,8 +155,29 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
-    from .model import ResponseModel
+    model = _calibrate_response(
+        images, exposure_times, refine_exposures=refine_exposures,
+        n_components=n_components, saturation_threshold=saturation_threshold,
+        clip_margin=clip_margin, basis=basis, max_samples=max_samples, seed=seed,
+        align=align, progress=progress, times_source=times_source)
+    emit_warnings(model)
+    return model
 
+
+def emit_warnings(model, stacklevel: int = 3) -> None:
+    """Emit each of the model's ``diagnostics["warnings"]`` as a SelfcalWarning."""
+    import warnings as _warnings
+
+    for message in model.diagnostics.get("warnings", []):
+        _warnings.warn(message, SelfcalWarning, stacklevel=stacklevel)
+
+
+def _calibrate_response(images, exposure_times=None, *, refine_exposures=False,
+                        n_components=DEFAULT_N_COMPONENTS,
+                        saturation_threshold=DEFAULT_SATURATION_THRESHOLD, clip_margin=2.0,
+                        basis=None, max_samples=DEFAULT_MAX_SAMPLES, seed=0, align=False,
+                        progress=None, times_source=None):
+    """:func:`calibrate_response` without emitting its warnings (they are in the model)."""
     frames = list(images)
     if len(frames) < 2:
         raise CalibrationError(
@@ -144,12 +187,13 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
             frames, exposure_times, align, refine_exposures=refine_exposures,
             n_components=n_components, saturation_threshold=saturation_threshold,
             clip_margin=clip_margin, basis=basis, max_samples=max_samples, seed=seed,
-            progress=progress)
+            progress=progress, times_source=times_source)
 
     sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
-    times, time_source = resolve_exposure_times(frames, exposure_times, sources)
+    times, time_source = resolve_exposure_times(frames, exposure_times, sources,
+                                                times_source)
     warnings: list[str] = []
-    if time_source == "exif":
+    if exposure_times is None and all(_is_path(f) for f in frames):
         lacking = [src for src, t in zip(sources, times) if t is None]
         for src in lacking:
             warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
@@ -175,33 +219,55 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
             sub, basis, log_times, sub_masks, used_sources, sub_times, warnings,
             n_components=n_components, saturation_threshold=saturation_threshold,
             clip_margin=clip_margin)
-
-    grid, inverse = _inverse_response(basis, result.coefficients, n_components)
-    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
-    pairs = [tuple(p) for p in result.pair_frames]
-    delta = delta_eq12(sub.values, grid, inverse, result.log_exposures, pairs, valid)
-    exposures = np.exp(result.log_exposures)
-    verdict, determinacy = _verdict(valid, sub.values, exposures, len(keep), warnings)
+    if refine_exposures:
+        result.log_exposures = _anchor_refined(result.log_exposures, log_times)
+    fit = _judged_fit(sub, sub_masks, basis, result, log_times, warnings, n_components=n_components,
+                      clip_margin=clip_margin, refine_exposures=refine_exposures,
+                      contradictions=contradictions, used_sources=used_sources,
+                      sub_times=sub_times)
 
     full_exposures = np.full(len(frames), np.nan)
-    full_exposures[keep] = exposures
+    full_exposures[keep] = np.exp(result.log_exposures)
     diagnostics = _diagnostics(
-        result, verdict=verdict, warnings=warnings, exposure_source=time_source,
-        refine_exposures=refine_exposures, n_components=n_components,
-        saturation_threshold=saturation_threshold, clip_margin=clip_margin,
-        frames_used=used_sources, delta=delta, samples=samples, determinacy=determinacy,
-        contradictions=contradictions)
-    # per channel, the black floor and stuck ceiling of the codes (the stuck-sample test
-    # as code levels): the merge gives them zero weight
-    diagnostics["stuck_codes"] = stuck_code_levels(sub.values, result.log_exposures,
-                                                   clip_margin=clip_margin)
-    model = ResponseModel(intensity=grid.copy(), inverse=inverse,
+        result, verdict=fit["verdict"], reasons=fit["reasons"], evidence=fit["evidence"],
+        warnings=warnings, exposure_source=time_source, refine_exposures=refine_exposures,
+        n_components=n_components, saturation_threshold=saturation_threshold,
+        clip_margin=clip_margin, frames_used=used_sources, delta=fit["delta"],
+        samples=samples, contradictions=contradictions)
+    diagnostics["stuck_codes"] = fit["stuck"]
+    from .model import ResponseModel
+
+    model = ResponseModel(intensity=fit["grid"].copy(), inverse=fit["inverse"],
                           coefficients=result.coefficients, basis_name=basis.name,
                           exposures=full_exposures, exposure_times=list(times),
                           sources=sources, max_code=samples.max_code,
                           diagnostics=diagnostics)
     model.fit_data = _btf_data(sub, sub_masks, result, used_sources)
     return model
+
+
+def _judged_fit(sub, sub_masks, basis, result, log_times, warnings, *, n_components,
+                clip_margin, refine_exposures, contradictions, used_sources, sub_times):
+    """The fitted f⁻¹ table, δ of Eq. 12, the stuck code levels and the verdict.
+
+    The verdict's reasons join ``warnings``.  With ``refine_exposures`` the verdict sees the
+    times the pixels corrected (evidence only); otherwise the contradicted ones.
+    """
+    grid, inverse = _inverse_response(basis, result.coefficients, n_components)
+    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
+    pairs = [tuple(p) for p in result.pair_frames]
+    delta = delta_eq12(sub.values, grid, inverse, result.log_exposures, pairs, valid)
+    # per channel, the black floor and stuck ceiling of the codes (the stuck-sample test
+    # as code levels): the merge gives them zero weight, the verdict leaves them out
+    stuck = stuck_code_levels(sub.values, result.log_exposures, clip_margin=clip_margin)
+    corrected = (_corrected_times(result.log_exposures, log_times, used_sources, sub_times)
+                 if refine_exposures else contradictions)
+    verdict, reasons, evidence = judge_calibration(
+        sub, valid, grid, inverse, result.log_exposures, pairs, log_times=log_times,
+        contradictions=corrected, refined=refine_exposures, stuck_codes=stuck)
+    warnings.extend(reasons)
+    return {"grid": grid, "inverse": inverse, "delta": delta, "stuck": stuck,
+            "verdict": verdict, "reasons": reasons, "evidence": evidence}
 
 
 def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, progress,
@@ -215,16 +281,16 @@ def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, pr
     if align not in ("mtb", "homography"):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
     warnings: list[str] = []
-    model, _, _ = calibrate_aligned(
+    model, _, _ = _calibrate_aligned(
         frames, exposure_times, method=align, clip_margin=clip_margin,
         warnings=warnings, progress=progress, **options)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
 
-def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None, clip_margin: float = DEFAULT_CLIP_MARGIN,
-                      warnings: list | None = None, progress=None, max_side: int = 2048,
-                      **options):
+def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
+                      clip_margin: float = DEFAULT_CLIP_MARGIN, warnings: list | None = None,
+                      progress=None, max_side: int = 2048, **options):
     """Align a handheld stack to its reference frame, then calibrate its response.
 
     Misaligned frames give wrong correspondences, and the solve of Lin et al. (ICCV 2011,
@@ -248,6 +314,8 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         Alignment (see :func:`selfcal.align.estimate_alignment`).
     reference : int, optional
         Reference frame; default the middle exposure.
+    warnings : list, optional
+        Receives the alignment's warnings (they are not in the model's).
     options
         Passed on to :func:`calibrate_response`.
 
@@ -259,14 +327,32 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     transforms : list of numpy.ndarray
         Per frame, the 3×3 map from reference to frame pixel coordinates.
     reference : int
+
+    Warns
+    -----
+    SelfcalWarning
+        Each of the model's ``diagnostics["warnings"]``.
     """
+    model, transforms, ref = _calibrate_aligned(
+        images, exposure_times, method=method, reference=reference, clip_margin=clip_margin,
+        warnings=warnings, progress=progress, max_side=max_side, **options)
+    emit_warnings(model)
+    return model, transforms, ref
+
+
+def _calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
+                       clip_margin: float = DEFAULT_CLIP_MARGIN,
+                       warnings: list | None = None, progress=None, max_side: int = 2048,
+                       **options):
+    """:func:`calibrate_aligned` without emitting the model's warnings."""
     frames = images if isinstance(images, _Frames) else _Frames(images, False)
     n = len(frames)
     warnings = [] if warnings is None else warnings
     given, _ = _given_exposures(frames, exposure_times)
     provisional = None
     if any(g is None for g in given):
-        provisional = calibrate_response(frames.items, exposure_times, progress=progress, **options)
+        provisional = _calibrate_response(frames.items, exposure_times, progress=progress,
+                                          **options)
         given = list(_resolve_exposures(frames, exposure_times, provisional, True, [])[0])
     ref = _default_reference(given) if reference is None else int(reference)
     if not 0 <= ref < n:
@@ -276,13 +362,16 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
                                     progress=progress)
     small = aligned_working_frames(frames, transforms, max_side=max_side)
     # the solve gets the frames' own times (seconds, None where unknown), as unaligned
-    times, time_source = resolve_exposure_times(frames.items, exposure_times, list(frames.sources))
+    times, time_source = resolve_exposure_times(frames.items, exposure_times,
+                                                list(frames.sources),
+                                                options.get("times_source"))
     options.setdefault("clip_margin", clip_margin)
-    model = calibrate_response(small, times, progress=progress, **options)
+    model = _calibrate_response(small, times, progress=progress, **options)
     model.diagnostics["exposure_source"] = time_source
     model.sources = list(frames.sources)
     diag = model.diagnostics
-    diag["warnings"] = [_name_arrays(w, frames.sources) for w in diag.get("warnings", [])]
+    for key in ("warnings", "verdict_reasons"):
+        diag[key] = [_name_arrays(w, frames.sources) for w in diag.get(key, [])]
     diag["frames_used"] = [_name_arrays(f, frames.sources)
                            for f in diag.get("frames_used", [])]
     diag["per_pair_rms_log"] = {_name_arrays(k, frames.sources): v
@@ -316,9 +405,12 @@ def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip
                           saturation_threshold, seed, progress):
     """Read the frames' samples and masks; choose the frames the solve can use.
 
-    Dropped, with a warning each: duplicates (identical pixels), frames clipped almost
-    everywhere, and frames sharing fewer than :data:`MIN_SHARED_SAMPLES` unclipped
-    samples with every other frame.
+    Dropped, with a warning each and in this order: frames clipped almost everywhere
+    (said to be white or black when they are), duplicates (identical pixels, every pixel
+    compared) among the frames that remain, and frames sharing fewer than
+    :data:`MIN_SHARED_SAMPLES` unclipped samples with every other frame.  The clipped
+    frames go first: two almost white frames of a long bracket can differ in a few dozen
+    pixels only, and are no duplicates.
 
     Returns
     -------
@@ -335,15 +427,11 @@ def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip
 
     samples = collect_samples(frames, sources=sources, max_samples=max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress)
-    keep = _without_duplicates(samples.digests, times, sources, warnings)
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=saturation_threshold)
-    unclipped_fraction = 1.0 - masks["clipped"].mean(axis=1)
-    for k in list(keep):
-        if unclipped_fraction[k] < 0.01:
-            warnings.append(f"{sources[k]}: clipped almost everywhere "
-                            f"({100 * (1 - unclipped_fraction[k]):.1f}% of samples); ignored")
-            keep.remove(k)
+    keep = _without_clipped_frames(samples, masks, sources, warnings, clip_margin)
+    keep = _without_duplicates([samples.digests[k] for k in keep], [times[k] for k in keep],
+                               [sources[k] for k in keep], warnings, keep)
     # A frame that shares (almost) no unclipped samples with any other frame -- e.g. one
     # long exposure far beyond the rest of the bracket -- adds no usable equations: its few
     # pair rows sit at the clipping limits, and its exposure could be neither estimated nor
@@ -362,12 +450,41 @@ def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip
     return samples, masks, keep
 
 
-def _without_duplicates(digests, times, sources, warnings) -> list[int]:
-    """Indices of the frames that are not a copy of an earlier one.
+def _without_clipped_frames(samples, masks, sources, warnings, clip_margin) -> list[int]:
+    """Indices of the frames not clipped almost everywhere (< 1 % of samples unclipped).
 
-    Identical pixels at different given times contradict each other: an InputError.
+    The warning of a dropped frame says whether it is white (or black) everywhere, or
+    mostly white or black.
     """
-    keep = list(range(len(digests)))
+    margin = clip_margin / 255.0
+    keep = []
+    for k in range(samples.n_frames):
+        clipped = float(masks["clipped"][k].mean())
+        if 1.0 - clipped >= 0.01:
+            keep.append(k)
+            continue
+        white = float(np.mean(samples.block_max[k] >= 1.0 - margin))
+        black = float(np.mean(samples.block_min[k] <= margin))
+        if white >= 0.999 or black >= 0.999:
+            what = "white" if white >= black else "black"
+            share = 100 * max(white, black)
+            warnings.append(f"{sources[k]}: all {what} ({share:.1f}% of samples clipped "
+                            f"{what}); ignored")
+        else:
+            warnings.append(f"{sources[k]}: clipped almost everywhere ({100 * clipped:.1f}% "
+                            f"of samples: {100 * white:.1f}% white, {100 * black:.1f}% "
+                            "black); ignored")
+    return keep
+
+
+def _without_duplicates(digests, times, sources, warnings, indices=None) -> list[int]:
+    """The frames that are not a copy of an earlier one (``indices`` of the ones kept).
+
+    ``digests`` are :func:`selfcal.samples.content_digest` of every pixel.  Identical
+    pixels at different given times contradict each other: an InputError.
+    """
+    indices = list(range(len(digests))) if indices is None else list(indices)
+    keep = list(indices)
     seen: dict[str, int] = {}
     for k, dig in enumerate(digests):
         if dig in seen:
@@ -378,7 +495,7 @@ def _without_duplicates(digests, times, sources, warnings) -> list[int]:
                     f"identical pixels to {sources[j]} but a different exposure time "
                     f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
             warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
-            keep.remove(k)
+            keep.remove(indices[k])
         else:
             seen[dig] = k
     return keep
@@ -437,6 +554,33 @@ def _contradicted_times(sub, basis, log_times, sub_masks, used_sources, sub_time
     return contradictions
 
 
+def _anchor_refined(log_exposures, log_times) -> np.ndarray:
+    """Refined log exposures with their absolute scale set by the times that agree (ours).
+
+    Eq. 8 fixes exposure ratios only; the absolute scale is a free constant.  It is set
+    so that the median over the frames with a given time of ``log t − K`` is zero: the
+    frames whose times agree with the pixels keep them, whatever one wrong time says
+    (shifting every log exposure by one constant leaves the curve unchanged).
+    """
+    K = np.asarray(log_exposures, dtype=float)
+    known = np.isfinite(log_times)
+    if known.sum() < 2:
+        return K
+    return K + float(np.median(log_times[known] - K[known]))
+
+
+def _corrected_times(log_exposures, log_times, used_sources, sub_times) -> list:
+    """Frames whose refined exposure moved from the given time by more than
+    :data:`CONTRADICTION_FACTOR` (what ``refine_exposures`` corrected), as
+    ``contradicting_times`` entries."""
+    out = []
+    for j in np.flatnonzero(np.isfinite(log_times)):
+        if abs(log_exposures[j] - log_times[j]) > math.log(CONTRADICTION_FACTOR):
+            out.append({"frame": used_sources[j], "given": sub_times[j],
+                        "estimated": math.exp(log_exposures[j])})
+    return out
+
+
 def _inverse_response(basis, coefficients, n_components):
     """f⁻¹ on the basis grid from the Eq. 7 coefficients, made non-decreasing.
 
@@ -449,44 +593,9 @@ def _inverse_response(basis, coefficients, n_components):
     return grid, inverse
 
 
-def _verdict(valid, values, exposures, n_frames, warnings):
-    """Can the data determine the curve?  The verdict string and what it rests on.
-
-    Poorly determined when the exposures span less than :data:`MIN_EXPOSURE_RATIO`, fewer
-    than three frames are usable, fewer than 100 sample locations are valid, or the valid
-    samples of a channel cover less than half of 32 bins over the code range (ours: the
-    paper gives no such test).  Adds a warning when poorly determined.
-    """
-    ratio = float(exposures.max() / exposures.min())
-    used_codes = np.where(valid[..., None], values, np.nan)
-    coverage = []
-    for c in range(3):
-        v = used_codes[..., c]
-        v = v[np.isfinite(v)]
-        hist = np.histogram(v, bins=32, range=(0, 1))[0] if v.size else np.zeros(32)
-        coverage.append(float(np.mean(hist > 0)))
-    n_valid_samples = int(valid.any(axis=0).sum())
-    verdict_problems = []
-    if ratio < MIN_EXPOSURE_RATIO:
-        verdict_problems.append(f"exposure ratio only {ratio:.2f}× over the stack")
-    if n_frames < 3:
-        verdict_problems.append(f"only {n_frames} usable exposures")
-    if n_valid_samples < 100:
-        verdict_problems.append(f"only {n_valid_samples} valid samples")
-    if min(coverage) < 0.5:
-        verdict_problems.append(
-            f"valid samples cover only {100 * min(coverage):.0f}% of the code range")
-    verdict = "ok" if not verdict_problems else "poorly determined: " + "; ".join(
-        verdict_problems)
-    if verdict_problems:
-        warnings.append("the data may not determine the curve: " + "; ".join(verdict_problems))
-    return verdict, {"exposure_ratio": ratio, "valid_locations": n_valid_samples,
-                     "code_coverage": coverage}
-
-
-def _diagnostics(result, *, verdict, warnings, exposure_source, refine_exposures,
-                 n_components, saturation_threshold, clip_margin, frames_used, delta,
-                 samples, determinacy, contradictions) -> dict:
+def _diagnostics(result, *, verdict, reasons, evidence, warnings, exposure_source,
+                 refine_exposures, n_components, saturation_threshold, clip_margin,
+                 frames_used, delta, samples, contradictions) -> dict:
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
     ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.metrics.delta_eq12`) per channel over the
@@ -497,6 +606,8 @@ def _diagnostics(result, *, verdict, warnings, exposure_source, refine_exposures
                 for (a, b), v in result.per_pair_rms.items()}
     return {
         "verdict": verdict,
+        "verdict_reasons": list(reasons),
+        "verdict_evidence": evidence,
         "warnings": warnings,
         "exposure_source": exposure_source,
         "refine_exposures": bool(refine_exposures),
@@ -514,12 +625,12 @@ def _diagnostics(result, *, verdict, warnings, exposure_source, refine_exposures
             "pair_rows_used": int(result.rows_used),
             "pair_rows_downweighted": int(result.rows_downweighted),
             "rejected": dict(result.rejections),
-            "valid_locations": determinacy["valid_locations"],
-            "code_coverage": determinacy["code_coverage"],
+            "valid_locations": evidence["valid_locations"],
+            "code_coverage": evidence["code_coverage"],
         },
         "monotone_constrained": bool(result.monotone_constrained),
         "contradicting_times": contradictions,
-        "exposure_ratio": determinacy["exposure_ratio"],
+        "exposure_ratio": evidence["exposure_ratio"],
     }
 
 
@@ -550,4 +661,6 @@ def _subset(samples, keep):
     return replace(samples, values=samples.values[keep], block_max=samples.block_max[keep],
                    block_min=samples.block_min[keep],
                    sources=[samples.sources[k] for k in keep],
-                   digests=[samples.digests[k] for k in keep])
+                   digests=[samples.digests[k] for k in keep],
+                   thumbnails=[samples.thumbnails[k] for k in keep
+                               if k < len(samples.thumbnails)])
