@@ -2,7 +2,8 @@
 
 The response figure follows Lin et al., ICCV 2011, Fig. 3: the recovered inverse response
 curves, and a brightness transfer function scatter of one frame pair with the rejected
-samples marked by reason (clipped; highly saturated, HSV S > β).
+samples marked by reason (clipped; highly saturated, HSV S > β).  The calibration's verdict
+(:mod:`selfcal.response.verdict`) heads the figure, with its reasons.
 """
 
 from __future__ import annotations
@@ -14,6 +15,23 @@ import numpy as np
 from .io import write_bytes_atomic
 
 CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
+VERDICT_COLOURS = {"ok": "tab:green", "doubtful": "tab:orange", "unusable": "tab:red"}
+
+
+def verdict_lines(diagnostics: dict, width: int = 110, max_reasons: int = 4) -> list[str]:
+    """The verdict and its reasons as short lines for a figure (wrapped at ``width``)."""
+    import textwrap
+
+    verdict = str(diagnostics.get("verdict", "not recorded"))
+    reasons = list(diagnostics.get("verdict_reasons", []))
+    lines = [f"verdict: {verdict}" + (f" ({len(reasons)} reason"
+                                      f"{'s' if len(reasons) != 1 else ''})"
+                                      if reasons else "")]
+    for reason in reasons[:max_reasons]:
+        lines += textwrap.wrap(f"- {reason}", width, subsequent_indent="  ")
+    if len(reasons) > max_reasons:
+        lines.append(f"- and {len(reasons) - max_reasons} more (see the model's diagnostics)")
+    return lines
 
 
 def plot_response(model, path, *, truth=None, force: bool = False):
@@ -28,6 +46,9 @@ def plot_response(model, path, *, truth=None, force: bool = False):
         Output PNG, written atomically.
     truth : ndarray, optional
         True f⁻¹ at codes 0…max_code, shape (max_code+1, 3), drawn dashed.
+
+    The verdict (``model.diagnostics["verdict"]``) and its reasons head the figure, in
+    green, orange or red for ok, doubtful and unusable.
     """
     import matplotlib
 
@@ -36,7 +57,10 @@ def plot_response(model, path, *, truth=None, force: bool = False):
 
     fit = getattr(model, "fit_data", None)
     ncols = 2 if fit is not None else 1
-    fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 4.4), squeeze=False)
+    diagnostics = getattr(model, "diagnostics", {}) or {}
+    header = verdict_lines(diagnostics, width=55 * ncols)
+    top = 0.25 + 0.16 * len(header)          # inches above the axes for the verdict
+    fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 4.4 + top), squeeze=False)
     ax = axes[0, 0]
     for c, colour in enumerate(CHANNEL_COLOURS):
         ax.plot(model.intensity, model.inverse[:, c], color=colour, lw=1.6,
@@ -76,7 +100,13 @@ def plot_response(model, path, *, truth=None, force: bool = False):
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - top / (4.4 + top)))
+    colour = VERDICT_COLOURS.get(diagnostics.get("verdict"), "black")
+    fig.text(0.01, 0.995, header[0], ha="left", va="top", fontsize=10, weight="bold",
+             color=colour)
+    if len(header) > 1:
+        fig.text(0.01, 0.995 - 0.17 / (4.4 + top), "\n".join(header[1:]), ha="left",
+                 va="top", fontsize=8, color=colour, linespacing=1.25)
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
