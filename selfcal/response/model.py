@@ -42,7 +42,12 @@ class ResponseModel:
         255 for 8-bit stacks, 65535 for 16-bit.
     diagnostics : dict
         Fit residuals, δ of Eq. 12, per-pair residuals, samples used and rejected by
-        reason, warnings and the verdict.
+        reason, ``warnings``, ``exposure_source`` (``"given"``, ``"exif"``, ``"raw"``,
+        ``"unknown"``: where the times came from) and the verdict
+        (:mod:`selfcal.response.verdict`): ``verdict`` (``"ok"``, ``"doubtful"`` or
+        ``"unusable"``), ``verdict_reasons`` (one sentence each, also among the
+        warnings) and ``verdict_evidence`` (the numbers they rest on).  Saved with the
+        model and read back as they were.
     """
 
     intensity: np.ndarray
