@@ -65,9 +65,11 @@ def read_model_dict(path) -> dict:
         doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ModelFileError(f"not valid JSON (line {exc.lineno}: {exc.msg})", path) from None
-    except (ValueError, RecursionError) as exc:
-        # ValueError: an integer of more than 4300 digits; RecursionError: nesting too deep
-        raise ModelFileError(f"not a model file ({type(exc).__name__}: {exc})", path) from None
+    except ValueError:          # an integer of more digits than Python converts (4300)
+        raise ModelFileError("not a model file: it holds a number thousands of digits long",
+                             path) from None
+    except RecursionError:
+        raise ModelFileError("not a model file: its JSON is nested too deeply", path) from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ModelFileError("not a selfcal model file (no 'format: selfcal-model')", path)
     version = doc.get("version")
@@ -90,6 +92,10 @@ def read_model_dict(path) -> dict:
 MAX_LATTICE_SIZE = 33
 MAX_DEGREE = 31
 MAX_BAKE_SIZE = 129
+#: Largest magnitude of a table entry (curves, LUT nodes, matrices, RBF points; not
+#: exposures): a model's values are of order 1, and the baked backward table and the
+#: Bernstein evaluation must stay finite.
+MAX_MAGNITUDE = 1e6
 
 _ABSENT = object()
 
@@ -189,9 +195,11 @@ class _Checker:
             raise self.error(f"must be between {low} and {high}, not {_short(value)}", key)
         return value
 
-    def array(self, key, shape, *, optional=False, nullable=False, nulls=False):
+    def array(self, key, shape, *, optional=False, nullable=False, nulls=False,
+              bound=MAX_MAGNITUDE):
         """A nested list of finite JSON numbers of ``shape`` (None: any length >= 1), as
-        float64; with ``nulls`` (1-D only), entries may be null (NaN in the array)."""
+        float64, none beyond ``bound`` in magnitude (None: no bound); with ``nulls``
+        (1-D only), entries may be null (NaN in the array)."""
         value = self.get(key, optional, nullable)
         if value is None:
             return None
@@ -222,6 +230,8 @@ class _Checker:
             raise self.error(f"is not a table of numbers ({exc})", key) from None
         if not np.all(np.isfinite(arr) | (np.isnan(arr) & nulls)):
             raise self.error("holds NaN or infinite values", key)
+        if bound is not None and np.any(np.abs(arr) > bound):
+            raise self.error(f"holds values beyond ±{bound:g}", key)
         return arr
 
     def sub(self, key, *, optional=False, nullable=False):
@@ -281,7 +291,7 @@ def check_response_content(doc: dict, path=None) -> None:
     if not sources:
         raise c.error("must name at least one frame", "sources")
     for key in ("exposures", "exposure_times"):
-        values = c.array(key, (len(sources),), nulls=True)
+        values = c.array(key, (len(sources),), nulls=True, bound=None)
         if np.any(values[np.isfinite(values)] <= 0):
             raise c.error("must hold positive numbers (or null where unknown), one per "
                           "source", key)
@@ -360,7 +370,8 @@ def check_pipeline_content(doc: dict, path=None) -> None:
     c = _Checker(doc, "pipeline model", path)
     c.require("matrix", "tone_curves", "forward_lut", "inverse_tone_curves", "backward_lut",
               "backward")
-    c.array("matrix", (3, 3))
+    if np.linalg.cond(c.array("matrix", (3, 3))) > 1e12:
+        raise c.error("is singular (the backward model needs its inverse)", "matrix")
     for key in ("tone_curves", "inverse_tone_curves"):
         _check_polynomial(c.sub(key))
     for key in ("forward_lut", "backward_lut"):

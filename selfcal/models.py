@@ -46,7 +46,9 @@ def load_model(path):
     doc = read_model_dict(path)
     kind = doc.get("kind")
     if not isinstance(kind, str) or kind not in _KINDS:
-        raise ModelFileError(f"unknown model kind {kind!r}"[:80], path)
+        shown = repr(kind) if isinstance(kind, str) and len(kind) <= 40 else "(not a name)"
+        raise ModelFileError(f"unknown model kind {shown} (selfcal writes 'response' and "
+                             "'pipeline')", path)
     check, cls = _KINDS[kind]
     check(doc, path)
     try:

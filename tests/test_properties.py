@@ -447,6 +447,11 @@ def assert_usable(model):
             for corr in model.clipped_corrections.values():
                 if corr is not None:
                     assert corr(np.array([[0.0, 0.5, 1.0], [1.0, 1.0, 1.0]])).shape == (2, 3)
+            # the baked backward table (uint8 input) with the model's data, on 5³ nodes
+            # instead of its bake_size³ (checked: 2..129), which would take 1 s to bake
+            model.bake_size = min(model.bake_size, 5)
+            for variant in ("lut", "rbf") if model.rbf is not None else ("lut",):
+                assert np.all(np.isfinite(model.to_raw(codes, variant=variant)))
     except SelfcalError:
         event("loaded, then a selfcal error in use")
 
