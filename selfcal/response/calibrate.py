@@ -30,8 +30,6 @@ from .verdict import judge_calibration
 
 #: A frame whose given time and pixels disagree by more than this factor is reported.
 CONTRADICTION_FACTOR = 1.25
-#: Smallest ratio between the longest and shortest exposure that can determine a curve.
-MIN_EXPOSURE_RATIO = 1.5
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
