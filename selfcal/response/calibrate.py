@@ -219,10 +219,10 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures=False,
             clip_margin=clip_margin)
     if refine_exposures:
         result.log_exposures = _anchor_refined(result.log_exposures, log_times)
-    fit = _judged_fit(sub, sub_masks, basis, result, log_times, warnings, n_components=n_components,
-                      clip_margin=clip_margin, refine_exposures=refine_exposures,
-                      contradictions=contradictions, used_sources=used_sources,
-                      sub_times=sub_times)
+    fit = _judged_fit(sub, sub_masks, basis, result, log_times, warnings,
+                      n_components=n_components, clip_margin=clip_margin,
+                      refine_exposures=refine_exposures, contradictions=contradictions,
+                      used_sources=used_sources, sub_times=sub_times)
 
     full_exposures = np.full(len(frames), np.nan)
     full_exposures[keep] = np.exp(result.log_exposures)
