@@ -364,8 +364,9 @@ def check_pipeline_content(doc: dict, path=None) -> None:
     What :class:`selfcal.pipeline.PipelineModel` relies on: a finite 3x3 colour matrix,
     the tone curves and their inverses (Gong et al. Eq. 9: Bernstein coefficients and
     domains), the forward and backward lattice LUTs (§3.4-3.5), the RBF h⁻¹ of Lin et al.
-    Eq. 10 when the backward variant needs it, the clipped-pixel corrections, and a
-    bounded size of the baked backward table.  Ours: the model file format is selfcal's.
+    Eq. 10 when the backward variant needs it, the clipped-pixel corrections, the training
+    colours kept for the trust test (if any), and a bounded size of the baked backward
+    table.  Ours: the model file format is selfcal's.
     """
     c = _Checker(doc, "pipeline model", path)
     c.require("matrix", "tone_curves", "forward_lut", "inverse_tone_curves", "backward_lut",
@@ -396,6 +397,11 @@ def check_pipeline_content(doc: dict, path=None) -> None:
             corr.number("bandwidth", low=0, low_open=True, words=("inf",))
             corr.number("prior_weight", low=0, low_open=True)
             corr.scores("validation", number_keys=False)
+    trust = c.sub("training_colours", optional=True, nullable=True)
+    if trust is not None:       # the training colours kept for the "outside" test
+        _check_points(trust, "raw", "rendered", 1)
+        trust.number("raw_scale", low=1e-6, high=MAX_MAGNITUDE)
+        trust.number("radius", low=0, low_open=True, high=MAX_MAGNITUDE)
     diag = c.sub("diagnostics", optional=True, nullable=True)
     if diag is not None:        # the model's repr shows it
         diag.number("forward_train_rmse", optional=True, nullable=True)

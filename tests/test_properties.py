@@ -447,6 +447,10 @@ def assert_usable(model):
             for corr in model.clipped_corrections.values():
                 if corr is not None:
                     assert corr(np.array([[0.0, 0.5, 1.0], [1.0, 1.0, 1.0]])).shape == (2, 3)
+            trust = getattr(model, "training_colours", None)     # kept by newer fits
+            if trust is not None:
+                trust.distance(codes / 255.0, "rendered")
+                trust.distance(np.array([[0.0, 0.2, 1.0]]), "raw")
             # the baked backward table (uint8 input) with the model's data, on 5³ nodes
             # instead of its bake_size³ (checked: 2..129), which would take 1 s to bake
             model.bake_size = min(model.bake_size, 5)
