@@ -112,15 +112,20 @@ def _load() -> str:
     return "/".join(f"{x:.1f}" for x in os.getloadavg())
 
 
-def run_cluster(root: Path, out: Path, workers: int) -> dict:
+def run_cluster(root: Path, out: Path, workers: int, trim: bool = False) -> dict:
     import distributed
 
     from selfcal.batch import run_batch
 
+    import dask
+
+    from selfcal.batch.cluster import NO_MALLOC_TRIM
+
     t0 = time.perf_counter()
-    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
-                                       processes=True, dashboard_address=None,
-                                       silence_logs=logging.ERROR)
+    with dask.config.set({NO_MALLOC_TRIM: None} if not trim else {}):
+        cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1,
+                                           processes=True, dashboard_address=None,
+                                           silence_logs=logging.ERROR)
     client = distributed.Client(cluster)
     client.run(_warm)         # imports before the clock, as in the serial child
     start = time.perf_counter() - t0

@@ -243,15 +243,25 @@ def test_a_rerun_skips_finished_sessions_and_retries_the_failed(batch, library, 
 
 
 def test_cli_batch_on_a_running_scheduler(library, client, tmp_path, capsys):
+    """--scheduler ADDRESS, --linearize, an output folder inside the root it walks."""
     root = tmp_path / "card"
     shutil.copytree(library["root"] / "DCIM", root / "DCIM")
     (root / "DCIM" / "100SIMCM" / BROKEN).unlink()        # its session now has 4 frames
-    code = main(["batch", str(root), "-o", str(tmp_path / "out"),
-                 "--scheduler", client.scheduler.address, "--no-pool"])
+    out = root / "batch"
+    argv = ["batch", str(root), "-o", str(out), "--scheduler", client.scheduler.address,
+            "--no-pool", "--linearize"]
+    code = main(argv)
     text = capsys.readouterr().err
     assert code == 0, text
     assert "sessions: 6 (6 done, 0 skipped" in text
-    assert "wrote " + str(tmp_path / "out" / "manifest.csv") in text
+    assert "wrote " + str(out / "manifest.csv") in text
+    rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    for r in rows:
+        linear = sorted(p.name for p in (out / "sessions" / r["session"] / "linear").iterdir())
+        assert linear == sorted(Path(f).stem + ".tif" for f in r["frames"])
+    assert main(argv) == 0                  # again: all skipped, its own outputs not found
+    assert "sessions: 6 (0 done, 6 skipped" in capsys.readouterr().err
+    assert str(out) not in (out / "unassigned.csv").read_text()
 
 
 def test_cli_says_how_to_install_dask_when_it_is_missing(library, tmp_path, capsys,

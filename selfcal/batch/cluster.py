@@ -43,6 +43,9 @@ from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_
 DASK_MISSING = ('selfcal batch runs on Dask distributed, which is not installed: '
                 'pip install "selfcal[batch]"')
 
+#: The Dask setting unset for the local cluster's workers (see DaskExecutor).
+NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
+
 # task priorities (higher first)
 _PRIORITY = {"candidate": 30, "camera": 40, "finish": 20, "prepare": 10}
 
@@ -138,11 +141,17 @@ class DaskExecutor:
                                    f"({exc})") from None
             self._own.append(self.client)
         else:
+            import dask
+
             n = int(workers or os.cpu_count() or 1)
-            cluster = distributed.LocalCluster(
-                n_workers=n, threads_per_worker=1, processes=processes,
-                memory_limit=memory_limit, dashboard_address=None,
-                silence_logs=logging.ERROR)
+            # Dask's nannies export MALLOC_TRIM_THRESHOLD_=65536 to their workers, which
+            # turns every large numpy allocation into an mmap/munmap round trip: the
+            # calibration then spends 6-15x more system time (bench/bench_batch.py).
+            with dask.config.set({NO_MALLOC_TRIM: None}):
+                cluster = distributed.LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=processes,
+                    memory_limit=memory_limit, dashboard_address=None,
+                    silence_logs=logging.ERROR)
             self.client = distributed.Client(cluster)
             self._own += [self.client, cluster]
         self.name = str(self.client.scheduler.address)

@@ -280,8 +280,8 @@ def fit_camera(plan: CameraPlan, options: BatchOptions, *preps) -> CameraFit:
     """The camera's shared curve from its candidate sessions' samples (never raises).
 
     Writes ``cameras/<camera>/model.json`` (a response model file any selfcal command
-    reads) and ``camera.json`` (this record) together.  A fit with fewer than two
-    agreeing sessions writes nothing: every session is fitted alone.
+    reads) and ``camera.json`` (this record) together.  With fewer than two agreeing
+    sessions there is no model, only the record: every session is fitted alone.
     """
     from ..io import StagedOutputs
 
@@ -295,6 +295,7 @@ def fit_camera(plan: CameraPlan, options: BatchOptions, *preps) -> CameraFit:
             pooled = pooled_calibration(samples)
         fit.flagged, fit.pooled = list(pooled.flagged), list(pooled.pooled)
         fit.agreement = pooled.agreement
+        model = None
         if pooled.fit is None:
             fit.error = (f"fewer than two of its {len(samples)} sampled sessions agree: no "
                          "shared curve")
@@ -302,11 +303,13 @@ def fit_camera(plan: CameraPlan, options: BatchOptions, *preps) -> CameraFit:
             model = shared_model(pooled, samples, camera=plan.camera)
             fit.residual_rms_log = pooled.fit.residual_rms
             fit.model_path = str(plan.model_path)
-            fit.seconds = time.perf_counter() - t0
-            with StagedOutputs(force=True) as staged:
+        fit.seconds = time.perf_counter() - t0
+        # the record is written without a model too: a rerun then reuses the verdict
+        with StagedOutputs(force=True) as staged:
+            if model is not None:
                 staged.write(plan.model_path, lambda tmp: model.save(tmp, force=True))
-                staged.write(plan.folder / CAMERA_RECORD,
-                             lambda tmp: _write_json(tmp, jsonable(asdict(fit))))
+            staged.write(plan.folder / CAMERA_RECORD,
+                         lambda tmp: _write_json(tmp, jsonable(asdict(fit))))
     except Exception as exc:
         fit.error, fit.model_path = _error_text(exc), ""
     fit.seconds = time.perf_counter() - t0
@@ -314,20 +317,20 @@ def fit_camera(plan: CameraPlan, options: BatchOptions, *preps) -> CameraFit:
 
 
 def reusable_camera_fit(plan: CameraPlan, sessions) -> CameraFit | None:
-    """The camera's fit of an earlier run, when its model is newer than every frame of
-    its candidate sessions and the candidates are the same; else None."""
+    """The camera's fit of an earlier run, when its model (or, without a model, its
+    record) is newer than every frame of its candidate sessions and the candidates are
+    the same; else None."""
     record = plan.folder / CAMERA_RECORD
     try:
-        data = json.loads(record.read_text())
-        fit = CameraFit(**data)
-        model_time = plan.model_path.stat().st_mtime
+        fit = CameraFit(**json.loads(record.read_text()))
+        made = os.stat(fit.model_path or record).st_mtime
     except (OSError, ValueError, TypeError):
         return None
-    if tuple(fit.candidates) != tuple(plan.candidates) or not fit.model_path:
+    if tuple(fit.candidates) != tuple(plan.candidates):
         return None
     by_id = {s.id: s for s in sessions}
     newest = max(_newest_input(by_id[c]) for c in plan.candidates)
-    if not model_time > newest:
+    if not made > newest:
         return None
     fit.reused = True
     return fit
