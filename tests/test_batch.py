@@ -276,8 +276,13 @@ def test_cli_says_how_to_install_dask_when_it_is_missing(library, tmp_path, caps
 
 
 def test_cli_exit_code_says_some_sessions_failed(library, tmp_path, capsys):
-    code = main(["batch", str(library["root"]), "-o", str(tmp_path / "out"),
-                 "--scheduler", "serial", "--no-pool"])
+    """The broken session alone, without Dask: exit 6, the session and file named."""
+    root = tmp_path / "card"
+    root.mkdir()
+    session = next(s for s in library["lib"].sessions if library["broken"] in s.frames)
+    for f in session.frames:
+        shutil.copy2(f, root / f.name)
+    code = main(["batch", str(root), "-o", str(tmp_path / "out"), "--scheduler", "serial"])
     err = capsys.readouterr().err
     assert code == 6
-    assert f"failed: " in err and BROKEN in err and "truncated" in err
+    assert "failed: simcam-s2-2002" in err and BROKEN in err and "truncated" in err
