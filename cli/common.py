@@ -207,15 +207,14 @@ def say_verdict(diagnostics, force: bool, what: str = "the calibration") -> None
     if level is None:
         return
     say(f"verdict: {level}")
-    if level == "ok":
-        for r in reasons:
-            say(f"  - {r}")
-    elif level == "doubtful":
+    if level == "doubtful":
         for r in reasons:
             warn(r)
     else:
         for r in reasons:
             say(f"  - {r}")
+            _said_warnings.add(r)   # the library warns them too: said once
+    if level == "unusable":
         why = (reasons[0] if reasons else "no reason given") + (
             f" (and {len(reasons) - 1} more reason(s) above)" if len(reasons) > 1 else "")
         if not force:

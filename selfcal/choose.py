@@ -611,14 +611,20 @@ def _run_response(plan: _ResponsePlan, resp_opts, *, progress, pipeline_follows,
     if not plan.frames:
         return None
     try:
-        return calibrate_response([str(p) for p in plan.frames], plan.times,
-                                  progress=progress, **resp_opts)
+        model = calibrate_response(
+            [str(p) for p in plan.frames], plan.times, progress=progress,
+            times_source=plan.exposure_kind if plan.times is not None else None,
+            **resp_opts)
     except CalibrationError as exc:
         if not pipeline_follows:
             raise
         report.warn(f"the response path failed: {exc}")
         report.reasons.append(f"response path failed: {exc}")
         return None
+    # calibrate_response warned them already: recorded here, not warned twice
+    report.warnings.extend(w for w in model.diagnostics.get("warnings", [])
+                           if w not in report.warnings)
+    return model
 
 
 def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, progress,

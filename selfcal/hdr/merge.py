@@ -76,13 +76,14 @@ from __future__ import annotations
 
 import os
 import threading
+import warnings as _pywarnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..align import _negligible, estimate_alignment, warp_to_reference
-from ..errors import CalibrationError, InputError
+from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..frames import (
     _STRIP_PIXELS,
     DEFAULT_CLIP_MARGIN,
@@ -486,14 +487,17 @@ def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, cli
                                "at least two frames to calibrate)")
     options = dict(calibrate_options or {})
     transforms = ref0 = None
-    if align:
-        model, transforms, ref0 = calibrate_aligned(
-            frames, exposure_times, method=align, reference=reference,
-            clip_margin=clip_margin, warnings=warnings, progress=progress, **options)
-        diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
-    else:
-        model = calibrate_response(frames.items, exposure_times, progress=progress,
-                                   **options)
+    # its warnings are the merge's (below, in HDRResult.warnings), not warned twice
+    with _pywarnings.catch_warnings():
+        _pywarnings.simplefilter("ignore", SelfcalWarning)
+        if align:
+            model, transforms, ref0 = calibrate_aligned(
+                frames, exposure_times, method=align, reference=reference,
+                clip_margin=clip_margin, warnings=warnings, progress=progress, **options)
+            diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
+        else:
+            model = calibrate_response(frames.items, exposure_times, progress=progress,
+                                       **options)
     diag = getattr(model, "diagnostics", {})
     diagnostics["model_verdict"] = diag.get("verdict")
     for w in diag.get("warnings", []):
