@@ -137,6 +137,10 @@ class ResponseModel:
 
     @classmethod
     def from_dict(cls, d: dict, *, path=None) -> "ResponseModel":
+        from ..modelfile import check_response_content
+
+        check_response_content(d, path)   # every field, before any is used
+
         def bad(msg):
             return ModelFileError(msg, path)
 
