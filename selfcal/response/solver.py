@@ -224,9 +224,11 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     valid = ~(clipped | saturated)
     exposures = _exposure_setup(np.asarray(log_times, dtype=float), refine_exposures,
                                 values, valid, basis)
-    warnings, ambiguity_prior = _ambiguity_warnings(exposures.known)
+    warnings, ambiguity_prior = _ambiguity_warnings(exposures.known, exposures.log_times)
 
-    order = np.argsort(exposures.initial, kind="stable")
+    # frames by exposure; shots of one exposure by brightness, not by their place in the
+    # input (the pairs, and so the model, must not depend on the order of the frames)
+    order = np.lexsort((values.mean(axis=(1, 2)), exposures.initial))
     rows = build_pair_rows(values, valid, order, exposures.initial, basis, N, max_rank_gap)
     rejections = rejection_counts(clipped, saturated, order, max_rank_gap, rows.stuck)
     thresholds = (_white_thresholds(values, valid, order, max_rank_gap, samples.max_code,
@@ -268,25 +270,27 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                        ambiguity_prior=ambiguity_prior)
 
 
-def _ambiguity_warnings(known: np.ndarray):
+def _ambiguity_warnings(known: np.ndarray, log_times: np.ndarray):
     """The warning that the exponential ambiguity (§5) was left to the prior, if it was.
 
     Returns
     -------
     warnings : list of str
     ambiguity_prior : bool
-        True when fewer than two exposure times are known.
+        True when fewer than two *different* exposure times are known (two shots at one
+        known time fix no exposure ratio).
     """
     warnings: list[str] = []
     ambiguity_prior = False
-    if known.sum() < 2:
+    if np.unique(log_times[known]).size < 2:
         ambiguity_prior = True
         warnings.append(
-            "fewer than two exposure times are known: the exponential ambiguity of the "
-            "response (Lin et al. §5) was resolved by a prior towards the basis mean "
-            "response, a guess that can leave f⁻¹ raised to a wrong power; exposures are "
-            "relative" + (" to the frame with a known time" if known.sum() == 1 else "")
-            + "; two known exposure times fix it")
+            "fewer than two different exposure times are known: the exponential "
+            "ambiguity of the response (Lin et al. §5) was resolved by a prior towards the "
+            "basis mean response, a guess that can leave f⁻¹ raised to a wrong power; "
+            "exposures are relative"
+            + (" to the frame(s) with a known time" if known.any() else "")
+            + "; two different known exposure times fix it")
     return warnings, ambiguity_prior
 
 
@@ -331,15 +335,15 @@ def _initial_log_exposures(values, valid, basis, log_times):
         known = np.flatnonzero(~np.isnan(est))
         progressed = False
         for j in missing:
-            best = None
-            for k in known:
-                both = valid[j] & valid[k]
-                if both.sum() >= 5 and (best is None or both.sum() > best[1]):
-                    best = (k, both.sum(), both)
-            if best is None:
+            shared = [(k, valid[j] & valid[k]) for k in known]
+            most = max((int(both.sum()) for _, both in shared), default=0)
+            if most < 5:
                 continue
-            k, _, both = best
-            est[j] = est[k] + np.median(g0[j][both] - g0[k][both])
+            # every known frame sharing the most samples, averaged: frames clipped alike
+            # share equally many, and the first of them by index would make the guess
+            # depend on the order of the frames
+            est[j] = np.mean([est[k] + np.median(g0[j][both] - g0[k][both])
+                              for k, both in shared if both.sum() == most])
             progressed = True
         if not progressed:
             break
