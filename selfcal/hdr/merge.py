@@ -645,16 +645,24 @@ class _MergeSums:
         """
         hh, ww = self.num.shape[:2]
         unmeasured = np.zeros((hh, ww), dtype=bool)
-        for s in self.strips:
+
+        def strip(s):
             ns, ds = self.num[s], self.den[s]
             hole = ds <= 0
-            np.divide(ns, ds, out=ns, where=~hole)
+            # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
+            # masked division is several times slower
+            with np.errstate(divide="ignore", invalid="ignore"):
+                np.divide(ns, ds, out=ns)
             hole_px = _any_channel(hole)
             if hole_px.any():
                 unmeasured[s] = hole_px
                 fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
                                    self.ref)
                 np.copyto(ns, fill, where=hole)
+
+        # strips are disjoint, and numpy releases the GIL
+        with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
+            list(pool.map(strip, self.strips))
         self.den = None
         return unmeasured
 
