@@ -64,6 +64,10 @@ class PairSamples:
         ``(n, 2)`` block centres (x, y) in rendered pixels.
     gradient_threshold : float
         The high-gradient threshold applied (after adaptation).
+    groups : numpy.ndarray
+        ``(n,)`` int: the pair each sample comes from (its index among the pairs joined by
+        :meth:`concatenate`; 0 for one pair).  :func:`selfcal.pipeline.fit_pipeline`
+        takes it as ``groups`` to choose its regulariser weights by leave-one-scene-out.
     """
 
     raw: np.ndarray
@@ -72,13 +76,21 @@ class PairSamples:
     block: int
     positions: np.ndarray
     gradient_threshold: float = float("nan")
+    groups: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.groups is None:
+            self.groups = np.zeros(len(self.raw), dtype=np.intp)
+        else:
+            self.groups = np.asarray(self.groups, dtype=np.intp).reshape(-1)
 
     def __len__(self) -> int:
         return int(self.raw.shape[0])
 
     @staticmethod
     def concatenate(parts) -> "PairSamples":
-        """Join several pairs' samples (counts are summed; block is the first part's)."""
+        """Join several pairs' samples (counts are summed; block is the first part's;
+        ``groups`` numbers the parts 0, 1, ...)."""
         parts = list(parts)
         if not parts:
             return PairSamples(np.zeros((0, 3)), np.zeros((0, 3)), {}, 0, np.zeros((0, 2)))
@@ -89,7 +101,9 @@ class PairSamples:
         return PairSamples(np.concatenate([p.raw for p in parts]),
                            np.concatenate([p.rendered for p in parts]), counts,
                            parts[0].block, np.concatenate([p.positions for p in parts]),
-                           parts[0].gradient_threshold)
+                           parts[0].gradient_threshold,
+                           np.concatenate([np.full(len(p), k, dtype=np.intp)
+                                           for k, p in enumerate(parts)]))
 
 
 def _auto_block(shape, target_blocks=40_000) -> int:

@@ -12,12 +12,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..samples import hsv_saturation
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
 from .model import BAKE_SIZE, BACKWARD_VARIANTS, PipelineModel
 from .rbf import N_CONTROL_POINTS, rbf_inverse_colour_mapping
 from .tone import SMOOTHNESS, monotone_tone_curves
+from .trust import TrainingColours
 
 #: Fewest samples fit_pipeline accepts.
 MIN_SAMPLES = 30
@@ -68,13 +70,13 @@ def _rmse(a, b) -> float:
     return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
 
 
-def _forward_fit(unit, raw, rendered, smoothness, lut_smoothness):
+def _forward_fit(unit, raw, rendered, smoothness, lut_smoothness, tone_weights=None):
     """Scale rows, fit tone curves (Eq. 9) and the forward LUT (§3.4); training errors."""
     m = row_scales(unit, raw)[:, None] * unit
     if np.linalg.cond(m) > 1e6:
         raise CalibrationError("the rank-based colour matrix is (nearly) singular")
     x = raw @ m.T
-    curves = monotone_tone_curves(x, rendered, smoothness=smoothness)
+    curves = monotone_tone_curves(x, rendered, smoothness=smoothness, weights=tone_weights)
     y = np.clip(curves(x), 0.0, 1.0)
     lut = lattice_regression_lut(y, rendered, smoothness=lut_smoothness)
     pred = np.clip(y + lut.residual(y), 0.0, 1.0)
@@ -82,7 +84,7 @@ def _forward_fit(unit, raw, rendered, smoothness, lut_smoothness):
 
 
 def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres, seed,
-                  want_rbf):
+                  want_rbf, groups=None):
     """f⁻¹ (§3.5, Eq. 9 reversed), the backward LUT (§3.5) and h⁻¹ (Lin et al. Eq. 10).
 
     Rendered samples clipped in a channel are left out of that channel's ``f⁻¹`` and, if
@@ -94,7 +96,8 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     # ICCV 2011 §5): out of the backward fits, they train the clipped-pixel correction
     clipped = (rendered <= CLIP_LO) | (rendered >= CLIP_HI)
     inv = monotone_tone_curves(np.where(clipped, np.nan, rendered), target,
-                               smoothness=smoothness, domain=np.array([[0.0, 1.0]] * 3))
+                               smoothness=smoothness, domain=np.array([[0.0, 1.0]] * 3),
+                               folds=groups if smoothness == "auto" else None)
     # A top code stands for every raw from the clipping threshold up.  When no training
     # sample reaches it, the curve's value there is an extrapolation, and cameras clip
     # JPEG white where the sensor saturates: the white M ρ_w (ρ_w ∝ M⁻¹ 1, its largest raw
@@ -115,8 +118,9 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     e = inv(rendered[ok])
     rho_hat = e @ m_inv.T
     hi = np.maximum(raw[ok].max(axis=0), 1e-3)
+    g_ok = None if groups is None else groups[ok]
     blut = lattice_regression_lut(rho_hat, raw[ok], lo=np.zeros(3), hi=hi,
-                                  smoothness=lut_smoothness)
+                                  smoothness=lut_smoothness, groups=g_ok)
     held_out = {}
     if blut.validation:
         held_out["lut"] = blut.validation[blut.smoothness]
@@ -124,7 +128,8 @@ def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres
     if want_rbf:
         rbf = rbf_inverse_colour_mapping(e, target[ok], n_centres=n_centres,
                                          smoothing="auto",
-                                         error_transform=lambda v: v @ m_inv.T, seed=seed)
+                                         error_transform=lambda v: v @ m_inv.T, seed=seed,
+                                         groups=g_ok)
         held_out["rbf"] = rbf.validation[rbf.smoothing]
     return inv, blut, rbf, held_out
 
@@ -175,16 +180,30 @@ def _check_options(backward, n_sets, set_size, matrix_method):
         raise InputError(f"matrix_method must be 'fast' or 'literal', got {matrix_method!r}")
 
 
-def _training_samples(raw_samples, rendered_samples, n_train, subset_seed):
+def _check_groups(groups, n):
+    """``groups`` as integer labels ``0 … k-1`` (None when absent or a single group)."""
+    if groups is None:
+        return None
+    labels = np.asarray(groups)
+    if labels.ndim != 1 or labels.shape[0] != n:
+        raise InputError(f"groups must hold one label per sample ({n}), got shape "
+                         f"{labels.shape}")
+    codes = np.unique(labels, return_inverse=True)[1].reshape(-1)
+    return codes if codes.max() >= 1 else None
+
+
+def _training_samples(raw_samples, rendered_samples, n_train, subset_seed, groups=None):
     """The checked samples the fit uses: all, or a seeded subset of ``n_train`` of them.
 
     Refuses samples that cannot determine the pipeline: fewer than :data:`MIN_SAMPLES`, raw
     samples without colour variety (the matrix of Gong et al. §3.2 is not determined), a
     rendered channel that barely varies (its tone curve, §3.3, is not).  Returns ``(raw,
-    rendered, n_given)``: float64 in ``[0, 1]``, and the number of samples given.
+    rendered, n_given, groups)``: float64 in ``[0, 1]``, the number of samples given, and
+    the group labels of the samples kept (None: one group).
     """
     raw, rendered = _check_samples(raw_samples, rendered_samples)
     n_given = raw.shape[0]
+    groups = _check_groups(groups, n_given)
     if n_train is not None:
         n_train = int(n_train)
         if n_train < 1:
@@ -193,6 +212,7 @@ def _training_samples(raw_samples, rendered_samples, n_train, subset_seed):
             pick = np.sort(np.random.default_rng(subset_seed).choice(n_given, n_train,
                                                                      replace=False))
             raw, rendered = raw[pick], rendered[pick]
+            groups = None if groups is None else _check_groups(groups[pick], n_train)
     n = raw.shape[0]
     if n < MIN_SAMPLES:
         raise CalibrationError(f"{n} samples are too few to fit a camera pipeline; give at "
@@ -205,7 +225,18 @@ def _training_samples(raw_samples, rendered_samples, n_train, subset_seed):
     if np.ptp(rendered, axis=0).min() < 2.0 / 255:
         raise CalibrationError("the rendered samples barely vary in some channel; the tone "
                                "curves are not determined")
-    return raw, rendered, n_given
+    return raw, rendered, n_given, groups
+
+
+def _neutral_weights(rendered, beta):
+    """Weights ``exp(-(s / β)²)`` of the forward tone-curve samples, ``s`` the HSV
+    saturation of the rendered colour (None: equal weights)."""
+    if beta is None:
+        return None
+    beta = float(beta)
+    if not beta > 0:
+        raise InputError(f"neutral_weighting must be positive, got {beta!r}")
+    return np.exp(-(hsv_saturation(rendered) / beta) ** 2)
 
 
 @dataclass
@@ -225,7 +256,7 @@ class _ForwardFit:
 
 
 def _search_matrix_sets(raw, rendered, *, n_sets, set_size, matrix_method, smoothness,
-                        search_lut, rng, progress) -> _ForwardFit:
+                        search_lut, rng, progress, tone_weights=None) -> _ForwardFit:
     """Steps 1-3: the colour matrix of the best of ``n_sets`` random sample sets.
 
     For each set, :func:`~selfcal.pipeline.matrix.rank_based_matrix` on the set (Gong et
@@ -243,7 +274,7 @@ def _search_matrix_sets(raw, rendered, *, n_sets, set_size, matrix_method, smoot
             unit, info = rank_based_matrix(raw[idx], rendered[idx], method=matrix_method,
                                            return_info=True)
             m, curves, flut, err, err_nolut = _forward_fit(unit, raw, rendered, smoothness,
-                                                           search_lut)
+                                                           search_lut, tone_weights)
         except CalibrationError as exc:
             set_errors.append(None)
             failures.append(str(exc))
@@ -263,12 +294,12 @@ def _search_matrix_sets(raw, rendered, *, n_sets, set_size, matrix_method, smoot
                        set_errors=set_errors, failures=failures, set_size=size)
 
 
-def _refit_forward_lut(raw, rendered, fwd: _ForwardFit):
-    """The forward LUT again, its weight now chosen by leave-one-out (the search used a
-    fixed one); updates ``fwd.lut`` and ``fwd.rmse``."""
+def _refit_forward_lut(raw, rendered, fwd: _ForwardFit, groups=None):
+    """The forward LUT again, its weight now chosen by leave-one-out, or leave-one-group-out
+    with ``groups`` (the search used a fixed one); updates ``fwd.lut`` and ``fwd.rmse``."""
     m = fwd.matrix
     y = np.clip(fwd.curves(raw @ m.T), 0.0, 1.0)
-    fwd.lut = lattice_regression_lut(y, rendered, smoothness="auto")
+    fwd.lut = lattice_regression_lut(y, rendered, smoothness="auto", groups=groups)
     fwd.rmse = _rmse(np.clip(y + fwd.lut.residual(y), 0.0, 1.0), rendered)
 
 
@@ -287,7 +318,7 @@ class _BackwardFit:
 
 
 def _fit_backward(raw, rendered, m, m_inv, *, backward, inverse_smoothness,
-                  lut_smoothness, n_centres, rbf_seed, progress) -> _BackwardFit:
+                  lut_smoothness, n_centres, rbf_seed, progress, groups=None) -> _BackwardFit:
     """Steps 4-5: ``f⁻¹``, backward LUT, RBF ``h⁻¹``, clipped-pixel corrections; the variant.
 
     With ``backward="auto"`` the variant with the lower held-out error over all training
@@ -297,7 +328,7 @@ def _fit_backward(raw, rendered, m, m_inv, *, backward, inverse_smoothness,
         progress("backward", 0, 1, "inverse tone curves, LUT, RBF")
     inv, blut, rbf, held_out = _backward_fit(raw, rendered, m, m_inv, inverse_smoothness,
                                              lut_smoothness, n_centres, rbf_seed,
-                                             backward != "lut")
+                                             backward != "lut", groups)
     corrections, correction_scores, pooled = _clipped_corrections(
         raw, rendered, inv, m_inv, blut, rbf, held_out)
     if backward == "auto":
@@ -324,7 +355,7 @@ def _backward_training_rmse(raw, rendered, m_inv, bwd: _BackwardFit) -> dict:
 
 def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n_given,
                  seed, backward, matrix_method, n_sets, inverse_smoothness,
-                 seconds) -> dict:
+                 seconds, groups=None, neutral_weighting=None) -> dict:
     """:attr:`PipelineModel.diagnostics`: sample counts, training and held-out errors, the
     regulariser weights chosen, the matrix search, timings."""
     clipped = clipped_mask(rendered)
@@ -350,8 +381,12 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n
         "backward_validation_rmse_unclipped": bwd.held_out_unclipped,
         "clipped_correction": clipped_info,
         "backward_train_rmse": _backward_training_rmse(raw, rendered, m_inv, bwd),
-        "validation": "leave-one-out in closed form (lattice: hat-matrix diagonal; RBF: "
-                      "Rippa 1999)",
+        "validation": ("leave-one-out in closed form (lattice: hat-matrix diagonal; RBF: "
+                       "Rippa 1999)" if groups is None else
+                       f"leave-one-scene-out over {int(groups.max()) + 1} groups (lattice, "
+                       "inverse tone curves, RBF: Dubrule 1983 block form)"),
+        "groups": None if groups is None else np.bincount(groups).tolist(),
+        "neutral_weighting": neutral_weighting,
         "forward_lut_smoothness": flut.smoothness,
         "forward_lut_validation_rmse": {k: v * 255 for k, v in flut.validation.items()},
         "inverse_tone_smoothness": getattr(bwd.inverse_curves, "smoothness",
@@ -376,7 +411,8 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
                  backward: str = "auto", progress=None, matrix_method: str = "fast",
                  lut_smoothness="auto", inverse_smoothness="auto",
                  n_centres: int = N_CONTROL_POINTS,
-                 bake_size: int = BAKE_SIZE) -> PipelineModel:
+                 bake_size: int = BAKE_SIZE, neutral_weighting=None,
+                 groups=None) -> PipelineModel:
     """Fit a camera pipeline, raw -> rendered and back, from corresponding samples.
 
     The rank-based radiometric calibration of Gong et al. (paper 000) with the RBF inverse
@@ -405,6 +441,10 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
        a kernel-regression correction of the backward model chosen by leave-one-out
        (:func:`~selfcal.pipeline.clipped.clipped_pixel_correction`; none without clipped
        training samples, or when it does not predict held-out ones better).
+
+    Every fit keeps a subsample of its training colours
+    (:class:`~selfcal.pipeline.trust.TrainingColours`) for
+    :meth:`PipelineModel.outside_training`.
 
     Held-out errors are leave-one-out errors in closed form (both the lattice regression
     and the RBF are linear smoothers; the inverse curves' λ uses 5-fold cross-validation):
@@ -448,6 +488,17 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
         RBF control points.
     bake_size : int
         Nodes per axis of the dense backward table used by :meth:`PipelineModel.to_raw`.
+    neutral_weighting : float, optional
+        β of the weights ``exp(-(s / β)²)`` of the forward tone-curve samples, ``s`` the
+        HSV saturation of the rendered colour (ours; Lin et al. §5 recover the response
+        from desaturated pixels, which the gamut map leaves alone); None: equal weights.
+    groups : array_like, optional
+        ``(n,)`` labels of the pair (scene) each sample comes from.  With two or more
+        groups every ``"auto"`` regulariser weight (forward and backward LUT, inverse
+        tone curves, RBF smoothing) is chosen by leave-one-scene-out instead of
+        leave-one-sample-out: the weight that predicts a scene the fit did not see, which
+        is what a model calibrated on some pictures is used for.  The backward variant
+        is then chosen by the same held-out errors.
 
     Returns
     -------
@@ -474,36 +525,40 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     t_start = time.perf_counter()
     _check_options(backward, n_sets, set_size, matrix_method)
     seeds = np.random.SeedSequence(seed).spawn(3)   # subset, matrix sets, RBF centres
-    raw, rendered, n_given = _training_samples(raw_samples, rendered_samples, n_train,
-                                               seeds[0])
+    raw, rendered, n_given, groups = _training_samples(raw_samples, rendered_samples,
+                                                       n_train, seeds[0], groups)
 
     t0 = time.perf_counter()
     search_lut = LUT_SMOOTHNESS if lut_smoothness == "auto" else float(lut_smoothness)
     fwd = _search_matrix_sets(raw, rendered, n_sets=n_sets, set_size=set_size,
                               matrix_method=matrix_method, smoothness=smoothness,
                               search_lut=search_lut, rng=np.random.default_rng(seeds[1]),
-                              progress=progress)
+                              progress=progress,
+                              tone_weights=_neutral_weights(rendered, neutral_weighting))
     m = fwd.matrix
     m_inv = np.linalg.inv(m)
     if lut_smoothness == "auto":
-        _refit_forward_lut(raw, rendered, fwd)
+        _refit_forward_lut(raw, rendered, fwd, groups)
     t_forward = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     bwd = _fit_backward(raw, rendered, m, m_inv, backward=backward,
                         inverse_smoothness=inverse_smoothness, lut_smoothness=lut_smoothness,
                         n_centres=n_centres, rbf_seed=int(seeds[2].generate_state(1)[0]),
-                        progress=progress)
+                        progress=progress, groups=groups)
     t_backward = time.perf_counter() - t0
 
     diagnostics = _diagnostics(raw, rendered, m_inv, fwd, bwd, n_given=n_given, seed=seed,
                                backward=backward, matrix_method=matrix_method,
                                n_sets=n_sets, inverse_smoothness=inverse_smoothness,
-                               seconds={"forward": t_forward, "backward": t_backward})
+                               seconds={"forward": t_forward, "backward": t_backward},
+                               groups=groups, neutral_weighting=neutral_weighting)
     model = PipelineModel(matrix=m, tone_curves=fwd.curves, forward_lut=fwd.lut,
                           inverse_tone_curves=bwd.inverse_curves, backward_lut=bwd.lut,
                           rbf=bwd.rbf, backward=bwd.variant, diagnostics=diagnostics,
-                          bake_size=bake_size, clipped_corrections=bwd.corrections)
+                          bake_size=bake_size, clipped_corrections=bwd.corrections,
+                          training_colours=TrainingColours.from_samples(
+                              raw, rendered, seed=int(seeds[0].generate_state(1)[0])))
     t0 = time.perf_counter()
     model._table(bwd.variant)  # bake now: to_raw is then fast from the first call
     diagnostics["seconds"]["bake"] = time.perf_counter() - t0

@@ -214,13 +214,29 @@ class LatticeLUT:
                                for k, v in (d.get("validation") or {}).items()})
 
 
+def _leave_group_out(z, res, labels, a, rhs) -> float:
+    """RMSE of each group's residuals predicted from the others' fit (normal equations
+    ``a`` and right-hand side ``rhs`` of all samples; a group's rows are taken out)."""
+    sq = 0.0
+    for g in np.unique(labels):
+        rows = labels == g
+        zg = z[rows]
+        try:
+            r = splu((a - (zg.T @ zg)).tocsc()).solve(np.asarray(rhs - zg.T @ res[rows]))
+        except RuntimeError:          # singular without the group: no prediction
+            return float("inf")
+        sq += float(np.sum((zg @ r - res[rows]) ** 2))
+    return float(np.sqrt(sq / res.size))
+
+
 #: Relative regulariser weights tried by ``smoothness="auto"``.
 SMOOTHNESS_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1)
 
 
 def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LATTICE_SIZE,
                            smoothness=LUT_SMOOTHNESS, smoothness_grid=SMOOTHNESS_GRID,
-                           gamma: float = STRETCH_GAMMA, affine: bool = True) -> LatticeLUT:
+                           gamma: float = STRETCH_GAMMA, affine: bool = True,
+                           groups=None) -> LatticeLUT:
     """Fit a ``size³`` lattice-regression LUT ``y ≈ base + R(g(x))`` (Gong et al. §3.4-3.5).
 
     Lattice regression (Garcia & Gupta, CIC 2009): the node values minimise
@@ -232,7 +248,12 @@ def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LAT
     With ``smoothness="auto"`` the weight is the value of ``smoothness_grid`` with the
     lowest leave-one-out error, in closed form for this linear smoother: the held-out
     residual of sample ``i`` is ``e_i / (1 - h_ii)`` with ``h_ii = w_iᵀ A⁻¹ w_i``,
-    ``A = WᵀW + α L``.  The scores are kept in ``LatticeLUT.validation``.
+    ``A = WᵀW + α L``.  With ``groups`` (two or more distinct labels, e.g. the scene each
+    sample comes from) the error is leave-one-group-out instead: each group's samples
+    predicted by the LUT fitted to the others (ours: samples of one scene are neighbours
+    of one another, so leave-one-out rewards a LUT that follows a scene's own colours and
+    says nothing of colours the scene lacks).  The scores are kept in
+    ``LatticeLUT.validation``.
 
     Parameters
     ----------
@@ -256,6 +277,9 @@ def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LAT
         Also fit the unpenalised linear term ``(t - 1/2) A`` (3×3 ``A``, ours, not the
         paper's: see the module docstring), kept in ``LatticeLUT.linear``; False fits the
         paper's 125 × 3 node values alone.
+    groups : array_like, optional
+        ``(n,)`` labels; with ``smoothness="auto"`` and two or more distinct labels the
+        weight is chosen by leave-one-group-out.
 
     Returns
     -------
@@ -300,7 +324,15 @@ def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LAT
     def system(s):
         return (ztz + float(s) * per_node * lap + ridge).tocsc()
 
-    if smoothness == "auto":
+    labels = None if groups is None else np.asarray(groups).reshape(-1)
+    if labels is not None and labels.shape[0] != x.shape[0]:
+        raise InputError(f"groups has {labels.shape[0]} labels for {x.shape[0]} samples")
+    if smoothness == "auto" and labels is not None and np.unique(labels[ok]).size >= 2:
+        scores = {float(s): _leave_group_out(z, res, labels[ok], system(s), rhs)
+                  for s in smoothness_grid}
+        smoothness = min(scores, key=scores.get)
+        lut.validation = scores
+    elif smoothness == "auto":
         scores = {}
         for s in smoothness_grid:
             # sparse LU (no BLAS threads: a 128×128 inverse must not wait on a thread pool)

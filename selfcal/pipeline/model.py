@@ -31,6 +31,7 @@ from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
 from .rbf import RBFColourMapping
 from .tone import MonotonePolynomial
+from .trust import TrainingColours
 
 MODEL_KIND = "pipeline"
 BACKWARD_VARIANTS = ("lut", "rbf")
@@ -92,12 +93,16 @@ class PipelineModel:
         Per backward variant, the :class:`~selfcal.pipeline.clipped.ClippedCorrection`
         applied to pixels with a clipped channel (``E[ρ | P]`` from clipped training
         samples), or None (no correction).
+    training_colours : TrainingColours or None
+        A subsample of the training colours (raw and rendered), for
+        :meth:`outside_training`; None in models saved before it was kept.
     """
 
     def __init__(self, matrix, tone_curves: MonotonePolynomial, forward_lut: LatticeLUT,
                  inverse_tone_curves: MonotonePolynomial, backward_lut: LatticeLUT,
                  rbf: RBFColourMapping | None, backward: str = "lut", diagnostics=None,
-                 bake_size: int = BAKE_SIZE, clipped_corrections=None):
+                 bake_size: int = BAKE_SIZE, clipped_corrections=None,
+                 training_colours: TrainingColours | None = None):
         m = np.asarray(matrix, dtype=np.float64)
         if m.shape != (3, 3) or not np.all(np.isfinite(m)):
             raise InputError(f"the colour matrix must be a finite 3x3 array, got {m.shape}")
@@ -125,12 +130,35 @@ class PipelineModel:
                 raise InputError("clipped_corrections must map variants to "
                                  "ClippedCorrection or None")
             self.clipped_corrections[v] = corr
+        if training_colours is not None and not isinstance(training_colours, TrainingColours):
+            raise InputError("training_colours must be a TrainingColours or None")
+        self.training_colours = training_colours
         self._tables: dict = {}
         self._code_tables: dict = {}
         self._clipped_tables: dict = {}
 
+    # ------------------------------------------------------------------ trust
+    def outside_training(self, colours, kind: str = "raw"):
+        """Where the model is extrapolating: colours far from every training colour.
+
+        True where a ``(..., 3)`` raw (``kind="raw"``, the input of :meth:`render`) or
+        rendered colour (``kind="rendered"``, the input of :meth:`to_raw`) lies farther
+        than the trust radius from every training colour kept in the model (see
+        :mod:`selfcal.pipeline.trust`: the neighbourhood of the training colours, ours).
+        Across scenes the model's error is several times larger there.
+
+        Returns
+        -------
+        numpy.ndarray or None
+            bool, ``colours.shape[:-1]``; None when the model keeps no training colours
+            (models saved before they were kept).
+        """
+        if self.training_colours is None:
+            return None
+        return self.training_colours.outside(colours, kind)
+
     # ------------------------------------------------------------------ forward
-    def render(self, raw) -> np.ndarray:
+    def render(self, raw, *, return_mask: bool = False):
         """Forward model: linear raw -> rendered, ``y = f(M ρ)``, ``P = y + R_f(g(y))``.
 
         Gong et al., rank-based radiometric calibration, Eq. 1b with §3.2-3.4.
@@ -140,11 +168,15 @@ class PipelineModel:
         raw : array_like
             ``(N, 3)`` or ``(H, W, 3)`` linear camera RGB in ``[0, 1]`` (float, or
             uint16 read as value / 65535).
+        return_mask : bool
+            Also return :meth:`outside_training` of the raw (None for models without
+            training colours).
 
         Returns
         -------
         numpy.ndarray
-            float32 in ``[0, 1]``, same shape (multiply by 255 for 8-bit codes).
+            float32 in ``[0, 1]``, same shape (multiply by 255 for 8-bit codes); with
+            ``return_mask``, the pair ``(rendered, outside)``.
         """
         x = _as_rgb_float(raw, "raw")
         shape = x.shape
@@ -154,6 +186,8 @@ class PipelineModel:
         for s in range(0, flat.shape[0], step):
             y = np.clip(self.tone_curves(flat[s:s + step] @ self.matrix.T), 0.0, 1.0)
             out[s:s + step] = np.clip(y + self.forward_lut.residual(y), 0.0, 1.0)
+        if return_mask:
+            return out.reshape(shape), self.outside_training(x, "raw")
         return out.reshape(shape)
 
     # ------------------------------------------------------------------ backward
@@ -200,8 +234,8 @@ class PipelineModel:
         t = np.clip((e - lo) / (hi - lo), 0.0, 1.0)
         return t ** SHAPER_GAMMA * (self.bake_size - 1)
 
-    def to_raw(self, rendered, *, variant: str | None = None,
-               exact: bool = False) -> np.ndarray:
+    def to_raw(self, rendered, *, variant: str | None = None, exact: bool = False,
+               return_mask: bool = False):
         """Backward model: rendered (JPEG) -> linear raw.
 
         ``e = f⁻¹(P)`` per channel (Gong et al. §3.5), then the chosen variant (see
@@ -220,12 +254,22 @@ class PipelineModel:
         exact : bool
             Evaluate the model directly instead of through the baked table (slow with
             the RBF: about 10 s per million pixels).
+        return_mask : bool
+            Also return :meth:`outside_training` of the rendered input (None for models
+            without training colours).
 
         Returns
         -------
         numpy.ndarray
-            float32 linear raw in ``[0, 1]``, same shape.
+            float32 linear raw in ``[0, 1]``, same shape; with ``return_mask``, the pair
+            ``(raw, outside)``.
         """
+        out = self._to_raw(rendered, variant, exact)
+        if return_mask:
+            return out, self.outside_training(rendered, "rendered")
+        return out
+
+    def _to_raw(self, rendered, variant, exact):
         variant = self._check_variant(variant)
         arr = np.asarray(rendered)
         if arr.dtype == np.uint8 and not exact and arr.ndim >= 1 and arr.shape[-1] == 3:
@@ -333,6 +377,8 @@ class PipelineModel:
             "bake_size": self.bake_size,
             "clipped_corrections": {v: None if c is None else c.to_dict()
                                     for v, c in self.clipped_corrections.items()},
+            "training_colours": (None if self.training_colours is None
+                                 else self.training_colours.to_dict()),
             "diagnostics": jsonable(self.diagnostics),
         }
 
@@ -355,7 +401,9 @@ class PipelineModel:
                        bake_size=int(d.get("bake_size", BAKE_SIZE)),
                        clipped_corrections={
                            v: None if c is None else ClippedCorrection.from_dict(c)
-                           for v, c in (d.get("clipped_corrections") or {}).items()})
+                           for v, c in (d.get("clipped_corrections") or {}).items()},
+                       training_colours=None if d.get("training_colours") is None
+                       else TrainingColours.from_dict(d["training_colours"]))
         except KeyError as exc:
             raise ModelFileError(f"pipeline model lacks the field {exc.args[0]!r}",
                                  path) from None

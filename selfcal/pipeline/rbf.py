@@ -81,7 +81,7 @@ class RBFColourMapping:
 
 
 def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
-                      error_transform=None, refine: bool = False) -> dict:
+                      error_transform=None, refine: bool = False, groups=None) -> dict:
     """Leave-one-out RMSE of the linear-kernel RBF (degree-1 affine part) per smoothing.
 
     Rippa's closed form (Rippa, *An algorithm for selecting a good value for the parameter
@@ -94,6 +94,11 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     value costs one Cholesky factorisation and one triangular solve,
     ``X = L⁻¹ Qᵀ``: ``a = Xᵀ X y`` and ``(A⁻¹)_ii = ||X_:i||²``.
 
+    With ``groups`` the error is leave-one-group-out, the block form of the same identity
+    (Dubrule, *Cross validation of kriging in a unique neighborhood*, Math. Geol. 1983):
+    the errors at the centres of group ``G`` with the interpolant fitted without them are
+    ``((A⁻¹)_GG)⁻¹ a_G``, ``(A⁻¹)_GG = X_:Gᵀ X_:G``.
+
     Parameters
     ----------
     centres, values : numpy.ndarray
@@ -105,6 +110,8 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     refine : bool
         Then also try half a decade either side of the best value (the kernel system
         ``QᵀKQ`` is formed once for all values).
+    groups : array_like, optional
+        ``(n,)`` labels: leave-one-group-out instead of leave-one-out.
 
     Returns
     -------
@@ -124,6 +131,13 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     b = q.T @ (-cdist(c, c)) @ q
     qt = np.ascontiguousarray(q.T)
     tf = (lambda r: r) if error_transform is None else error_transform
+    labels = None
+    if groups is not None:
+        labels = np.asarray(groups).reshape(-1)
+        if labels.shape[0] != n:
+            raise InputError(f"groups has {labels.shape[0]} labels for {n} centres")
+        if np.unique(labels).size < 2:
+            labels = None           # one group: plain leave-one-out
     out = {}
     eye = np.eye(b.shape[0])
 
@@ -133,9 +147,20 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
         except np.linalg.LinAlgError:
             return
         x = sl.solve_triangular(low, qt, lower=True)
-        diag = np.einsum("ij,ij->j", x, x)
         a = x.T @ (x @ y)
-        out[float(s)] = float(np.sqrt(np.mean(tf(a / diag[:, None]) ** 2)))
+        if labels is None:
+            diag = np.einsum("ij,ij->j", x, x)
+            err = a / diag[:, None]
+        else:
+            err = np.empty_like(a)
+            for g in np.unique(labels):
+                rows = labels == g
+                xg = x[:, rows]
+                try:
+                    err[rows] = np.linalg.solve(xg.T @ xg, a[rows])
+                except np.linalg.LinAlgError:
+                    return
+        out[float(s)] = float(np.sqrt(np.mean(tf(err) ** 2)))
 
     for s in smoothing_grid:
         score(s)
@@ -148,7 +173,8 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
 
 def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
                                smoothing="auto", smoothing_grid=SMOOTHING_GRID,
-                               error_transform=None, seed: int = 0) -> RBFColourMapping:
+                               error_transform=None, seed: int = 0,
+                               groups=None) -> RBFColourMapping:
     """Fit the inverse colour mapping ``h⁻¹: e -> T E`` of Lin et al. ICCV 2011, Eq. 10-11.
 
     ``h⁻¹(e) = Σ_i w_i ||e - e_i|| + affine(e)`` through the control pairs
@@ -170,6 +196,9 @@ def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
         A linear map applied to held-out residuals (e.g. ``M⁻¹``, for raw units).
     seed : int
         Seeds the subset of control points.
+    groups : array_like, optional
+        ``(n,)`` labels (e.g. the scene of each sample): the smoothing is chosen by
+        leave-one-group-out (:func:`rbf_leave_one_out`).
 
     Returns
     -------
@@ -185,23 +214,27 @@ def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
     target = np.asarray(target, dtype=np.float64)
     if e.ndim != 2 or e.shape[1] != 3 or target.shape != e.shape:
         raise InputError(f"RBF data must be two (n, 3) arrays, got {e.shape}, {target.shape}")
+    labels = np.zeros(e.shape[0]) if groups is None else np.asarray(groups).reshape(-1)
+    if labels.shape[0] != e.shape[0]:
+        raise InputError(f"groups has {labels.shape[0]} labels for {e.shape[0]} samples")
     ok = np.all(np.isfinite(e), axis=1) & np.all(np.isfinite(target), axis=1)
-    e, target = e[ok], target[ok]
+    e, target, labels = e[ok], target[ok], labels[ok]
     # duplicate control points make the interpolation matrix singular: keep one of each
     _, first = np.unique(np.round(e, 9), axis=0, return_index=True)
     first = np.sort(first)
-    e, target = e[first], target[first]
+    e, target, labels = e[first], target[first], labels[first]
     if e.shape[0] < 10:
         raise CalibrationError(f"the RBF colour mapping needs at least 10 distinct samples, "
                                f"got {e.shape[0]}")
     if e.shape[0] > n_centres:
         pick = np.sort(np.random.default_rng(seed).choice(e.shape[0], n_centres,
                                                           replace=False))
-        e, target = e[pick], target[pick]
+        e, target, labels = e[pick], target[pick], labels[pick]
     if smoothing != "auto":
         return RBFColourMapping(e, target, float(smoothing))
     try:
-        scores = rbf_leave_one_out(e, target, smoothing_grid, error_transform, refine=True)
+        scores = rbf_leave_one_out(e, target, smoothing_grid, error_transform, refine=True,
+                                   groups=None if groups is None else labels)
     except np.linalg.LinAlgError:
         scores = {}
     if not scores:

@@ -195,18 +195,24 @@ def _fit_domain(x, y, domain) -> np.ndarray:
     return np.asarray(domain, dtype=np.float64)
 
 
-def _cross_validated(x, y, w, degree, domain) -> MonotonePolynomial:
+def _cross_validated(x, y, w, degree, domain, folds=None) -> MonotonePolynomial:
     """Per channel, the λ of SMOOTHNESS_GRID with the lowest 5-fold cross-validated error
-    (fixed, seeded folds), then the fit on all samples; scores in ``.validation``."""
+    (fixed, seeded folds; or the given fold labels), then the fit on all samples; scores
+    in ``.validation``."""
     n = x.shape[0]
-    fold = np.random.default_rng(0).permutation(n) % _FOLDS
+    if folds is None:
+        fold = np.random.default_rng(0).permutation(n) % _FOLDS
+    else:
+        fold = np.unique(np.asarray(folds).reshape(-1), return_inverse=True)[1]
+        if fold.shape[0] != n:
+            raise InputError(f"folds has {fold.shape[0]} labels for {n} samples")
     domain = _fit_domain(x, y, domain)
     chosen = np.empty(3)
     scores = [dict() for _ in range(3)]
     for lam in SMOOTHNESS_GRID:
         sq = np.zeros(3)
         cnt = np.zeros(3)
-        for f in range(_FOLDS):
+        for f in range(int(fold.max()) + 1):
             train = fold != f
             test = ~train
             xt = x.copy()
@@ -287,7 +293,7 @@ def _qp(degree: int) -> _ToneQP:
 
 
 def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = DEGREE,
-                         domain=None, weights=None) -> MonotonePolynomial:
+                         domain=None, weights=None, folds=None) -> MonotonePolynomial:
     """Fit per-channel monotone smooth polynomials ``y_k ≈ f_k(x_k)`` (Gong et al. Eq. 9).
 
     For each channel ``k`` solves the quadratic programme of Gong et al., *Rank-based
@@ -315,6 +321,9 @@ def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = 
         ``(3, 2)`` input ranges; default ``[min(0, min x_k), max x_k]``.
     weights : array_like, optional
         ``(n,)`` non-negative sample weights (default 1).
+    folds : array_like, optional
+        ``(n,)`` labels of the cross-validation folds for ``"auto"`` (e.g. the scene of
+        each sample: leave-one-scene-out); default 5 seeded random folds.
 
     Returns
     -------
@@ -334,7 +343,7 @@ def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = 
     if isinstance(smoothness, str):
         if smoothness != "auto":
             raise InputError(f"smoothness must be a number or 'auto', got {smoothness!r}")
-        return _cross_validated(x, y, w, degree, domain)
+        return _cross_validated(x, y, w, degree, domain, folds)
     domain = _fit_domain(x, y, domain)
     coefs = np.empty((3, degree + 1))
     r = _smoothness_gram(degree)
