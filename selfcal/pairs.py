@@ -137,7 +137,7 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
                  block: int | None = None, n_max: int | None = None, seed: int = 0,
                  raw_clip: float = 0.98, rendered_low: float = 1 / 255,
                  rendered_high: float = 254 / 255, gradient_threshold: float = 0.01,
-                 min_keep_fraction: float = 0.25) -> PairSamples:
+                 min_keep_fraction: float = 0.25, keep_clipped: bool = False) -> PairSamples:
     """Block-mean raw↔rendered correspondences of a registered pair, clipped and
     high-gradient blocks skipped.
 
@@ -173,6 +173,15 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     seed : int
     raw_clip, rendered_low, rendered_high, gradient_threshold, min_keep_fraction : float
         The rejection thresholds above.
+    keep_clipped : bool
+        Keep blocks clipped *throughout*: every pixel clipped in the raw, or a rendered
+        channel at code 0 (or 255) in every pixel.  Their means are exact (a camera
+        renders the clipped raw it recorded, and its rendering is bounded by 0 and 255),
+        and they are the only samples of the colours a camera renders out of gamut
+        (saturated colours with a channel at 0); :func:`selfcal.pipeline.fit_pipeline`
+        leaves rendered-clipped samples out of its backward fits and learns ``E[ρ | P]``
+        from them.  Blocks clipped in part are rejected either way (their means mix the
+        two sides of the clip).
 
     Returns
     -------
@@ -220,9 +229,15 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     ren_max = ren_blocks.max(axis=(1, 3)).reshape(-1, 3)
     ren_min = ren_blocks.min(axis=(1, 3)).reshape(-1, 3)
     outside = ~blocks(inside).all(axis=(1, 3)).reshape(-1)
-    clip_raw = (blocks(clip_on).max(axis=(1, 3)) > 1e-6).reshape(-1)
-    clip_ren = ((ren_max >= rendered_high - 1e-6) | (ren_min <= rendered_low + 1e-6)).any(
-        axis=1)
+    clip_frac = blocks(clip_on).mean(axis=(1, 3), dtype=np.float64).reshape(-1)
+    touched = (ren_max >= rendered_high - 1e-6) | (ren_min <= rendered_low + 1e-6)
+    if keep_clipped:   # only blocks clipped in part of them are rejected
+        clip_raw = (clip_frac > 1e-6) & (clip_frac < 1 - 1e-6)
+        whole = (ren_min >= 254.5 / 255) | (ren_max <= 0.5 / 255)
+        clip_ren = (touched & ~whole).any(axis=1)
+    else:
+        clip_raw = clip_frac > 1e-6
+        clip_ren = touched.any(axis=1)
     g = blocks(grad).mean(axis=(1, 3), dtype=np.float64).reshape(-1)
 
     reason = np.zeros(ny * nx, dtype=np.int8)   # 0 = valid

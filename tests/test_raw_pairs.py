@@ -274,6 +274,28 @@ def test_samples_match_the_camera_and_skip_clipped_and_textured_blocks(sim_pair)
     np.testing.assert_array_equal(a.raw, b.raw)
 
 
+def test_blocks_clipped_throughout_are_kept_on_request(sim_pair):
+    raw = sim_pair["raw"].copy()
+    ren = sim_pair["rendered"].copy()
+    raw[20:60, 20:60] = 1.0                      # clipped raw, rendered white
+    ren[20:60, 20:60] = 255
+    ren[100:140, 100:140, 2] = 0                 # a rendered channel at 0 throughout
+    default = pair_samples(raw, ren, None, block=8, seed=0)
+    kept = pair_samples(raw, ren, None, block=8, seed=0, keep_clipped=True)
+    inside = lambda ps, y0, x0: np.any(                               # noqa: E731
+        (ps.positions[:, 0] > x0) & (ps.positions[:, 0] < x0 + 40)
+        & (ps.positions[:, 1] > y0) & (ps.positions[:, 1] < y0 + 40))
+    assert not inside(default, 20, 20) and not inside(default, 100, 100)
+    assert inside(kept, 20, 20) and inside(kept, 100, 100)
+    assert kept.counts["valid"] > default.counts["valid"]
+    # blocks clipped throughout have exact means; blocks clipped in part stay out
+    white = (kept.positions[:, 0] > 24) & (kept.positions[:, 0] < 56) & \
+        (kept.positions[:, 1] > 24) & (kept.positions[:, 1] < 56)
+    assert np.all(kept.raw[white] == 1.0) and np.all(kept.rendered[white] == 1.0)
+    edge = (np.abs(kept.positions[:, 0] - 20) < 4) | (np.abs(kept.positions[:, 0] - 60) < 4)
+    assert not np.any(edge & (kept.positions[:, 1] > 24) & (kept.positions[:, 1] < 56))
+
+
 def test_samples_of_a_cropped_scaled_jpeg_follow_the_camera(sim_pair):
     jpeg, _, _ = crop_and_scale(sim_pair["rendered"], 0.02, 0.5)
     reg = register_raw_jpeg(sim_pair["raw"], jpeg)
