@@ -451,8 +451,8 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     Held-out errors are leave-one-out errors in closed form (both the lattice regression
     and the RBF are linear smoothers; the inverse curves' λ uses 5-fold cross-validation):
     they choose the regulariser weights of the two LUTs and the RBF smoothing, and compare
-    the backward variants -- every sample serves for
-    fitting and for validation, which matters in the 140-sample one-shot setting.
+    the backward variants -- every sample serves for fitting and for validation, which
+    matters in the 140-sample one-shot setting.
     Rendered samples clipped at 0 or 255 are left out of the backward fits (they do not
     determine the raw) and train only the clipped-pixel correction (step 5); raw samples
     need no such care (the camera rendered the clipped raw it recorded).
@@ -535,16 +535,11 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
                                                        n_train, seeds[0], groups)
 
     t0 = time.perf_counter()
-    search_lut = LUT_SMOOTHNESS if lut_smoothness == "auto" else float(lut_smoothness)
-    fwd = _search_matrix_sets(raw, rendered, n_sets=n_sets, set_size=set_size,
-                              matrix_method=matrix_method, smoothness=smoothness,
-                              search_lut=search_lut, rng=np.random.default_rng(seeds[1]),
-                              progress=progress,
-                              tone_weights=_neutral_weights(rendered, neutral_weighting))
-    m = fwd.matrix
-    m_inv = np.linalg.inv(m)
-    if lut_smoothness == "auto":
-        _refit_forward_lut(raw, rendered, fwd, groups)
+    fwd = _fit_forward(raw, rendered, groups, n_sets=n_sets, set_size=set_size,
+                       matrix_method=matrix_method, smoothness=smoothness,
+                       lut_smoothness=lut_smoothness, rng=np.random.default_rng(seeds[1]),
+                       progress=progress, neutral_weighting=neutral_weighting)
+    m, m_inv = fwd.matrix, np.linalg.inv(fwd.matrix)
     t_forward = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -559,14 +554,36 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
                                n_sets=n_sets, inverse_smoothness=inverse_smoothness,
                                seconds={"forward": t_forward, "backward": t_backward},
                                groups=groups, neutral_weighting=neutral_weighting)
-    model = PipelineModel(matrix=m, tone_curves=fwd.curves, forward_lut=fwd.lut,
+    model = _baked_model(fwd, bwd, diagnostics, bake_size, TrainingColours.from_samples(
+        raw, rendered, seed=int(seeds[0].generate_state(1)[0])))
+    diagnostics["seconds"]["total"] = time.perf_counter() - t_start
+    return model
+
+
+def _fit_forward(raw, rendered, groups, *, n_sets, set_size, matrix_method, smoothness,
+                 lut_smoothness, rng, progress, neutral_weighting):
+    """Steps 1-3 of :func:`fit_pipeline`: the colour matrix of the best random set, its
+    tone curves and forward lattice LUT (the LUT's weight then chosen by held-out error
+    when ``lut_smoothness="auto"``)."""
+    search_lut = LUT_SMOOTHNESS if lut_smoothness == "auto" else float(lut_smoothness)
+    fwd = _search_matrix_sets(raw, rendered, n_sets=n_sets, set_size=set_size,
+                              matrix_method=matrix_method, smoothness=smoothness,
+                              search_lut=search_lut, rng=rng, progress=progress,
+                              tone_weights=_neutral_weights(rendered, neutral_weighting))
+    if lut_smoothness == "auto":
+        _refit_forward_lut(raw, rendered, fwd, groups)
+    return fwd
+
+
+def _baked_model(fwd, bwd, diagnostics, bake_size, training_colours) -> PipelineModel:
+    """The :class:`PipelineModel` of the fitted pieces, its backward table baked now (so
+    that ``to_raw`` is fast from the first call)."""
+    model = PipelineModel(matrix=fwd.matrix, tone_curves=fwd.curves, forward_lut=fwd.lut,
                           inverse_tone_curves=bwd.inverse_curves, backward_lut=bwd.lut,
                           rbf=bwd.rbf, backward=bwd.variant, diagnostics=diagnostics,
                           bake_size=bake_size, clipped_corrections=bwd.corrections,
-                          training_colours=TrainingColours.from_samples(
-                              raw, rendered, seed=int(seeds[0].generate_state(1)[0])))
+                          training_colours=training_colours)
     t0 = time.perf_counter()
-    model._table(bwd.variant)  # bake now: to_raw is then fast from the first call
+    model._table(bwd.variant)
     diagnostics["seconds"]["bake"] = time.perf_counter() - t0
-    diagnostics["seconds"]["total"] = time.perf_counter() - t_start
     return model
