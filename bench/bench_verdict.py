@@ -50,6 +50,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, real_bracket_scenes, real_stacks, table  # noqa: E402
+from selfcal import synth  # noqa: E402
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 TUNING_REAL = {"memorial", "fujifilm_xh1/scene1", "sony_ilce6400/scene1"}
@@ -117,22 +118,8 @@ def _reversed(name):
 
 
 def shake(images, fraction=0.01, degrees=0.5, seed=0):
-    """Every frame but the middle one shifted by up to ±fraction of the width, turned by
-    up to ±degrees (seeded): a handheld stack."""
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    out = []
-    for k, im in enumerate(images):
-        if k == len(images) // 2:
-            out.append(im)
-            continue
-        h, w = im.shape[:2]
-        m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-degrees, degrees), 1.0)
-        m[:, 2] += rng.uniform(-fraction, fraction, 2) * w
-        out.append(cv2.warpAffine(im, m, (w, h), flags=cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_REFLECT))
-    return out
+    """Every frame but the middle one shifted and turned a little (a handheld stack)."""
+    return synth.handheld(images, fraction=fraction, degrees=degrees, seed=seed)
 
 
 def _handheld(name, seed=1):

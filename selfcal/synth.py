@@ -1272,6 +1272,36 @@ def simulate_raw_jpeg_pair(scene=None, pipeline=None, *, exposure: float = 1.0, 
             "pipeline": pipeline, "radiance": scene, "exposure": float(exposure)}
 
 
+def handheld(images, *, fraction: float = 0.02, degrees: float = 0.5, seed: int = 0) -> list:
+    """The frames of a stack as a handheld camera would have taken them (ours).
+
+    Every frame but the middle one is turned by up to ``±degrees`` about its centre and
+    shifted by up to ``±fraction`` of the width in x and y (uniform, seeded), with
+    reflected borders (``cv2.warpAffine``, bilinear): the misalignment a verdict or an
+    alignment step must notice.
+
+    Examples
+    --------
+    >>> frames = handheld(demo_stack().images, seed=1)
+    >>> len(frames), frames[0].shape
+    (6, (256, 384, 3))
+    """
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for k, im in enumerate(images):
+        if k == len(images) // 2:
+            out.append(im)
+            continue
+        h, w = im.shape[:2]
+        m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-degrees, degrees), 1.0)
+        m[:, 2] += rng.uniform(-fraction, fraction, 2) * w
+        out.append(cv2.warpAffine(im, m, (w, h), flags=cv2.INTER_LINEAR,
+                                  borderMode=cv2.BORDER_REFLECT))
+    return out
+
+
 def demo_stack(seed: int = 0) -> SyntheticStack:
     """The built-in stack of ``selfcal demo``.
 

@@ -44,20 +44,7 @@ def make_stack(seed=1, times=TIMES, stops=14.0, flip=False):
 
 def shake(images, fraction=0.02, degrees=0.5, seed=0):
     """Every frame but the middle one shifted and turned a little (a handheld stack)."""
-    import cv2
-
-    rng = np.random.default_rng(seed)
-    out = []
-    for k, im in enumerate(images):
-        if k == len(images) // 2:
-            out.append(im)
-            continue
-        h, w = im.shape[:2]
-        m = cv2.getRotationMatrix2D((w / 2, h / 2), rng.uniform(-degrees, degrees), 1.0)
-        m[:, 2] += rng.uniform(-fraction, fraction, 2) * w
-        out.append(cv2.warpAffine(im, m, (w, h), flags=cv2.INTER_LINEAR,
-                                  borderMode=cv2.BORDER_REFLECT))
-    return out
+    return synth.handheld(images, fraction=fraction, degrees=degrees, seed=seed)
 
 
 @pytest.fixture(scope="module")
