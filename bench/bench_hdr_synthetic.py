@@ -83,7 +83,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import data_dir, table  # noqa: E402
+from common import colour_hdri_stack, data_dir, table  # noqa: E402
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 SATURATION = 0.9
@@ -172,19 +172,11 @@ def scores(estimate, e_true, scored, readable, unmeasured=None):
 
 def colour_hdri_merge(images, times):
     """colour-hdri: Debevec 1997 curves from the stack, then its merge (see DESIGN.md)."""
-    from colour_hdri import (ImageStack, camera_response_functions_Debevec1997,
-                             image_stack_to_HDRI)
-    from colour_hdri.utilities import Image, Metadata
+    from colour_hdri import camera_response_functions_Debevec1997, image_stack_to_HDRI
     from threadpoolctl import threadpool_limits
 
     def build():
-        stack = ImageStack()
-        for k in np.argsort(times, kind="stable"):     # shortest exposure first
-            im = Image()
-            im.data = images[k].astype(np.float64) / 255.0
-            im.metadata = Metadata(f_number=8.0, exposure_time=float(times[k]), iso=100.0)
-            stack.append(im)
-        return stack
+        return colour_hdri_stack(images, times)
 
     with threadpool_limits(limits=1):
         crfs = camera_response_functions_Debevec1997(build())

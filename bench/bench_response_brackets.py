@@ -41,23 +41,19 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import opencv_inverse_response, real_bracket_scenes, table  # noqa: E402
+from common import (colour_hdri_inverse_response, opencv_inverse_response,  # noqa: E402
+                    real_bracket_scenes, table)
 
 METHODS = ("selfcal", "OpenCV Debevec", "OpenCV Robertson", "colour-hdri Debevec")
 CODES = slice(1, 255)
 
 
 def colour_hdri_curve(frames, paths, times) -> np.ndarray:
-    from colour_hdri import Image, ImageStack, Metadata, camera_response_functions_Debevec1997
-
     from selfcal.io import read_exposure_info
 
-    stack = ImageStack()
-    for im, p, t in sorted(zip(frames, paths, times), key=lambda x: x[2]):
-        info = read_exposure_info(p)
-        stack.append(Image(data=im / 255.0, metadata=Metadata(
-            f_number=info.f_number or 1.0, exposure_time=t, iso=info.iso or 100.0)))
-    return np.asarray(camera_response_functions_Debevec1997(stack), dtype=np.float64)
+    infos = [read_exposure_info(p) for p in paths]
+    return colour_hdri_inverse_response(
+        frames, times, [(i.f_number or 1.0, i.iso or 100.0) for i in infos])
 
 
 def curves_of_scene(paths, times, reduce: int):

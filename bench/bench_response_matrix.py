@@ -54,7 +54,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import SHARED_DATA, opencv_inverse_response, table  # noqa: E402
+from common import (SHARED_DATA, colour_hdri_inverse_response, opencv_inverse_response,  # noqa: E402
+                    table)
 
 from selfcal.metrics import best_scale_rmse, rmse  # noqa: E402
 from selfcal.synth import DEMO_EXPOSURE_TIMES  # noqa: E402
@@ -80,20 +81,6 @@ def _init_worker():
     cv2.setNumThreads(1)
     threadpool_limits(limits=1)
     warnings.filterwarnings("ignore")
-
-
-def colour_hdri_inverse_response(images, times) -> np.ndarray:
-    """colour-hdri's Debevec 1997 curves (Grossberg sampling) as f⁻¹, (256, 3), max 1."""
-    from colour_hdri import ImageStack, camera_response_functions_Debevec1997
-    from colour_hdri.utilities import Image, Metadata
-
-    stack = ImageStack()
-    for k in np.argsort(times, kind="stable"):          # shortest exposure first
-        im = Image()
-        im.data = images[k].astype(np.float64) / 255.0
-        im.metadata = Metadata(f_number=8.0, exposure_time=float(times[k]), iso=100.0)
-        stack.append(im)
-    return np.asarray(camera_response_functions_Debevec1997(stack), dtype=np.float64)
 
 
 def calibrate_all(images, times, methods=METHODS) -> dict:

@@ -106,3 +106,31 @@ def real_bracket_scenes():
             scenes[f"{folder.parent.name}/{folder.name}"] = (
                 paths, [read_exposure_info(p).exposure_time for p in paths])
     return scenes
+
+
+def colour_hdri_stack(images, times, meta=None):
+    """A colour-hdri ``ImageStack`` of 8-bit RGB frames, shortest exposure first.
+
+    ``meta``: per frame ``(f-number, ISO)``; default f/8, ISO 100 for every frame (only the
+    times then set the exposures, as for our simulated stacks).
+    """
+    from colour_hdri import ImageStack
+    from colour_hdri.utilities import Image, Metadata
+
+    stack = ImageStack()
+    for k in np.argsort(np.asarray(times, float), kind="stable"):
+        n, iso = meta[k] if meta is not None else (8.0, 100.0)
+        im = Image()
+        im.data = np.asarray(images[k]).astype(np.float64) / 255.0
+        im.metadata = Metadata(f_number=n, exposure_time=float(times[k]), iso=iso)
+        stack.append(im)
+    return stack
+
+
+def colour_hdri_inverse_response(images, times, meta=None) -> np.ndarray:
+    """colour-hdri's Debevec 1997 curves (its defaults: Grossberg sampling, hat weights)
+    as f⁻¹, (256, 3), max 1."""
+    from colour_hdri import camera_response_functions_Debevec1997
+
+    return np.asarray(camera_response_functions_Debevec1997(
+        colour_hdri_stack(images, times, meta)), dtype=np.float64)
