@@ -194,3 +194,12 @@ def test_neutral_weighting_is_checked_and_recorded(scene_pair):
     m = fit_pipeline(raw[pick], jpg[pick] / 255.0, n_sets=2, backward="lut",
                      neutral_weighting=0.3)
     assert m.diagnostics["neutral_weighting"] == 0.3
+
+
+def test_highlight_stretch_zero_is_the_identity():
+    from selfcal.pipeline.lattice import highlight_stretch, highlight_stretch_inverse
+
+    x = np.linspace(0, 1, 11)
+    assert np.array_equal(highlight_stretch(x, 0.0), x)
+    assert np.array_equal(highlight_stretch_inverse(x, 0.0), x)
+    assert highlight_stretch(0.5, 1.5) < 0.5        # the paper's g lifts highlights

@@ -17,6 +17,7 @@ Examples
 ...                      n_train=1500, n_sets=5)
 >>> rendered = model.render(pair["raw"])          # float32 HxWx3 in [0, 1]
 >>> raw = model.to_raw(pair["rendered"])          # float32 linear raw
+>>> raw, outside = model.to_raw(pair["rendered"], return_mask=True)  # far from training
 """
 
 from .clipped import ClippedCorrection, clipped_pixel_correction
@@ -27,6 +28,7 @@ from .model import PipelineModel
 from .nus import read_nus_model
 from .rbf import RBFColourMapping, rbf_inverse_colour_mapping
 from .tone import MonotonePolynomial, monotone_tone_curves
+from .trust import TrainingColours
 
 __all__ = [
     "fit_pipeline",
@@ -44,4 +46,5 @@ __all__ = [
     "read_nus_model",
     "clipped_pixel_correction",
     "ClippedCorrection",
+    "TrainingColours",
 ]

@@ -62,19 +62,23 @@ def highlight_stretch(x, gamma: float = STRETCH_GAMMA) -> np.ndarray:
     ----------
     x : array_like
     gamma : float
-        ``> 0``.
+        ``>= 0``; 0 is the identity (no stretch).
 
     Returns
     -------
     numpy.ndarray
     """
     x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
+    if gamma == 0:
+        return x
     return np.expm1(gamma * x) / np.expm1(gamma)
 
 
 def highlight_stretch_inverse(y, gamma: float = STRETCH_GAMMA) -> np.ndarray:
     """Inverse of :func:`highlight_stretch`: ``log(1 + y (e^γ - 1)) / γ``."""
     y = np.clip(np.asarray(y, dtype=np.float64), 0.0, 1.0)
+    if gamma == 0:
+        return y
     return np.log1p(y * np.expm1(gamma)) / gamma
 
 
