@@ -18,6 +18,12 @@ Whole images go backward through a dense table baked over the linearised cube
 ``e = f⁻¹(P)`` (:mod:`selfcal.pipeline.dense`; 49 nodes per axis, spaced as ``u^(1/0.6)``
 so they are denser near black): per pixel one exact per-channel curve and one trilinear
 lookup, whichever variant is used.
+
+The model keeps a subsample of its training colours (:mod:`selfcal.pipeline.trust`):
+``render(raw, return_mask=True)`` and ``to_raw(rendered, return_mask=True)`` also return
+where the input lies farther than a radius from every training colour -- where the model
+is extrapolating (:meth:`PipelineModel.outside_training`).  Models saved before it was kept
+load without it (the mask is then None).
 """
 
 from __future__ import annotations
