@@ -497,9 +497,8 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
         from desaturated pixels, which the gamut map leaves alone, so the curves describe
         the camera's tone rather than a scene's mix of gamut-mapped colours and the LUT
         takes the gamut map); None (the default): equal weights, the paper's Eq. 9.
-        Measured in ``bench/bench_pipeline_crossscene.py`` (β = 0.15, 0.3): no gain
-        across the tuning scenes' pairs that held on the held-out ones, and up to 16 %
-        worse same-scene backward with 140 samples, so it stays off.
+        ``bench/bench_pipeline_crossscene.py`` (β = 0.15, 0.3): no cross-scene gain that held
+        on held-out pairs, same-scene backward up to 16 % worse with 140 samples: off.
     groups : array_like, optional
         ``(n,)`` labels of the pair (scene) each sample comes from.  With two or more
         groups every ``"auto"`` regulariser weight (forward and backward LUT, inverse
