@@ -340,6 +340,22 @@ def check_output_path(path, *, force: bool = False, inputs=(), create_folder: bo
     os.unlink(tmp)
 
 
+def _temporary_beside(path: Path) -> Path:
+    """An empty hidden temporary file in the output's folder (so the final rename is
+    atomic), with the permissions an ordinary new file gets (mkstemp makes 0600)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                                   dir=path.parent)
+    except OSError as exc:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
+                               f"{_reason(exc)})") from None
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    return Path(tmp)
+
+
 @contextlib.contextmanager
 def atomic_output(path, *, force: bool = False, inputs=()):
     """Context manager giving a temporary path that is renamed onto ``path`` on success.
@@ -378,16 +394,10 @@ def atomic_output(path, *, force: bool = False, inputs=()):
                                "folder)")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
-                                   dir=path.parent)
     except OSError as exc:
         raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
                                f"{_reason(exc)})") from None
-    os.close(fd)
-    # mkstemp creates 0600; give the output the permissions an ordinary file would get
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)
+    tmp = _temporary_beside(path)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
@@ -449,17 +459,12 @@ class StagedOutputs:
             for folder in missing:
                 folder.mkdir()
                 self._created_dirs.append(folder)
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.",
-                                       suffix=target.suffix or ".tmp", dir=target.parent)
         except OSError as exc:
             raise OutputWriteError(f"{target}: cannot be written (the folder "
                                    f"{target.parent}: {_reason(exc)})") from None
-        os.close(fd)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        self._staged.append((Path(tmp), target))
-        return Path(tmp)
+        tmp = _temporary_beside(target)
+        self._staged.append((tmp, target))
+        return tmp
 
     def write(self, target, writer):
         """Call ``writer(tmp)`` to write ``target``'s content to a temporary file (the

@@ -23,7 +23,7 @@ from datetime import datetime
 from pathlib import Path
 
 from ..errors import InputError
-from ..io import IMAGE_SUFFIXES, JPEG_SUFFIXES
+from ..io import IMAGE_SUFFIXES, effective_exposure_times
 from ..raw import RAW_SUFFIXES
 
 #: A new session starts when a frame begins more than this many seconds after the
@@ -262,17 +262,9 @@ class Session:
 
     @property
     def exposure_times(self) -> list:
-        """Exposure times scaled to the first frame's ISO and aperture (seconds)."""
-        ref = self.frames[0]
-        out = []
-        for f in self.frames:
-            t = f.exposure_time
-            if f.iso and ref.iso:
-                t *= f.iso / ref.iso
-            if f.f_number and ref.f_number:
-                t *= (ref.f_number / f.f_number) ** 2
-            out.append(t)
-        return out
+        """Exposure times scaled to the first timed frame's ISO and aperture (seconds):
+        :func:`selfcal.io.effective_exposure_times`."""
+        return effective_exposure_times(self.frames)
 
 
 def _iso(t: float) -> str:
