@@ -528,12 +528,7 @@ def _from_dict(doc):
     return cls.from_dict(doc, path="model.json")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "ResponseModel.from_dict and PipelineModel.from_dict do not call "
-    "selfcal.modelfile.check_response_content / check_pipeline_content (load_model does): "
-    "max_code Infinity raises OverflowError, a tone curve that is a list AttributeError, "
-    "and a negative bake_size loads and then fails in to_raw"))
-@settings(**dict(KNOWN_FAILURE, max_examples=30))
+@settings(**dict(DETERMINISTIC, max_examples=30))
 @example(kind="response", changes=[(("max_code",), "replace", math.inf)])
 @example(kind="pipeline_rbf", changes=[(("tone_curves",), "replace", [1, 2])])
 @example(kind="pipeline_lut", changes=[(("bake_size",), "replace", -3)])

@@ -391,8 +391,11 @@ class PipelineModel:
     @classmethod
     def from_dict(cls, d: dict, *, path=None) -> "PipelineModel":
         """Rebuild a model from :meth:`to_dict` content; ModelFileError on bad content."""
+        from ..modelfile import check_pipeline_content
+
         if d.get("kind", MODEL_KIND) != MODEL_KIND:
             raise ModelFileError(f"not a pipeline model (kind {d.get('kind')!r})", path)
+        check_pipeline_content(d, path)   # every field, before any is used
         try:
             return cls(matrix=np.asarray(d["matrix"], dtype=np.float64),
                        tone_curves=MonotonePolynomial.from_dict(d["tone_curves"]),
