@@ -15,7 +15,7 @@ Wrong-data cases:
   turned by up to ±0.5° (``cv2.warpAffine``, seeded), calibrated without alignment; and
   the real handheld bracket ``piccante_canon_t2i/stack_alignment`` (with ``--align
   homography`` it is a good case, as are piccante and ntu with ``--refine-exposures``);
-* ``wrong time``: one mid-bracket frame's time doubled;
+* ``wrong time``: one mid-bracket frame's time doubled, given by the caller (held, not refined);
 * ``two scenes``: the frames of two stacks fed together (the second resized to the first's
   size when needed), each with its own times;
 * ``one stop``: two frames of a stack one stop apart; ``flat scene`` (synthetic): a scene
@@ -104,9 +104,11 @@ def _split(name):
 
 
 def _files(name):
+    """The stack's files as a user gives them: times from EXIF (read by the library, which
+    refines those the pixels contradict), or memorial's from its list."""
     def build():
         paths, times = _stacks()[name]
-        return [str(p) for p in paths], list(times), {}
+        return [str(p) for p in paths], (list(times) if name == "memorial" else None), {}
     return build
 
 
@@ -130,7 +132,8 @@ def _handheld(name, seed=1):
 
 
 def _wrong_time(name, factor=2.0):
-    """One mid-bracket frame's time off by ``factor`` (EXIF lies about one frame)."""
+    """One mid-bracket frame's time off by ``factor``, given by the caller (whose times are
+    held, unlike EXIF times the pixels contradict)."""
     def build():
         images, times = _decoded(name)
         times = list(times)

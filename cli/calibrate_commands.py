@@ -206,8 +206,13 @@ def register(sub) -> None:
                             "default: EXIF")
     times.add_argument("--unknown-exposures", action="store_true",
                        help="ignore EXIF; solve the exposures jointly with the curves")
-    p.add_argument("--refine-exposures", action="store_true",
-                   help="treat the given times as a prior and re-estimate them")
+    refine = p.add_mutually_exclusive_group()
+    refine.add_argument("--refine-exposures", action="store_const", const=True,
+                        default="auto", help="treat the times as a prior and re-estimate "
+                        "them (default: only EXIF times the pixels contradict)")
+    refine.add_argument("--no-refine-exposures", dest="refine_exposures",
+                        action="store_const", const=False,
+                        help="hold every time, EXIF times the pixels contradict included")
     p.add_argument("--align", choices=("mtb", "homography"),
                    help="align handheld frames before calibrating the response: "
                         "translation (median threshold bitmaps) or homography (ECC)")

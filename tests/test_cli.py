@@ -418,3 +418,28 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     files = rendered.write(tmp_path / "rendered16", fmt="tif")
     assert linear_evidence(files, list(times)) is None
     assert linear_evidence(files, [None] * 3) is None
+
+
+def test_contradicted_exif_time_refined_by_default_or_held_on_request(capsys, tmp_path):
+    import dataclasses
+
+    import numpy as np
+
+    from selfcal import synth
+
+    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=3)
+    scene = synth.make_scene(160, 240, dynamic_range_stops=12.0, seed=3)
+    stack = synth.simulate_stack(scene, pipe, synth.DEMO_EXPOSURE_TIMES, jitter=0.02,
+                                 jpeg_quality=92, seed=3)
+    exif_times = np.array(stack.exposure_times, dtype=float)
+    exif_times[2] *= 1.6                       # EXIF says 1.6x what the shutter gave
+    paths = dataclasses.replace(stack, exposure_times=exif_times).write(tmp_path / "s")
+    code, out = run(["calibrate", *paths, "-o", tmp_path / "auto.json"], capsys)
+    assert code == 0
+    assert "frame_02.jpg" in out and "exposures were refined" in out, out
+    assert json.loads((tmp_path / "auto.json").read_text())["diagnostics"]["verdict"] == "ok"
+    code, out = run(["calibrate", *paths, "-o", tmp_path / "held.json",
+                     "--no-refine-exposures"], capsys)
+    assert code == 0
+    held = json.loads((tmp_path / "held.json").read_text())["diagnostics"]
+    assert held["refine_exposures"] is False and held["verdict"] == "doubtful"

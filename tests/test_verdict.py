@@ -273,3 +273,57 @@ def test_refined_times_keep_the_agreeing_frames_times(stack):
         # the wrong one comes back near the truth (the shutter jitter is ±3 %)
         assert model.exposures[wrong] / stack.true_exposures[wrong] == pytest.approx(1, abs=0.08)
         assert model.diagnostics["verdict"] == "ok"
+
+
+# ------------------------------------------- EXIF times the pixels contradict: refined
+
+def exif_stack_with_one_wrong_time(stack, folder, wrong=3, factor=1.6):
+    """The stack's files with frame ``wrong``'s EXIF time off by ``factor`` (the shutter
+    gave the nominal time, EXIF says another: an inaccurate shutter, as real cameras)."""
+    import dataclasses
+
+    times = np.array(stack.exposure_times, dtype=float)
+    times[wrong] *= factor
+    return dataclasses.replace(stack, exposure_times=times).write(folder)
+
+
+def test_contradicted_exif_times_are_refined_by_default(stack, tmp_path):
+    paths = exif_stack_with_one_wrong_time(stack, tmp_path / "s")
+    with pytest.warns(SelfcalWarning, match=r"frame_03.*contradict the EXIF.*refined"):
+        model = selfcal.calibrate_response(paths)
+    d = model.diagnostics
+    assert d["exposure_source"] == "exif" and d["refine_exposures"] is True
+    assert d["verdict"] == "ok", d["verdict_reasons"]
+    # the wrong frame comes back near the truth (jitter ±3 %), the others keep EXIF's
+    assert model.exposures[3] / stack.true_exposures[3] == pytest.approx(1, abs=0.08)
+    others = [0, 1, 2, 4, 5]
+    assert np.allclose(model.exposures[others] / np.array(TIMES)[others], 1, atol=0.06)
+    held = calibrate_quietly(paths, refine_exposures=False)
+    assert held.diagnostics["refine_exposures"] is False
+    assert held.diagnostics["verdict"] == "doubtful"
+    assert rmse_vs_truth(model, stack) < rmse_vs_truth(held, stack)
+
+
+def test_times_the_caller_gives_are_held_not_refined(stack):
+    times = list(TIMES)
+    times[3] *= 1.6
+    model = calibrate_quietly(stack.images, times)
+    assert model.diagnostics["refine_exposures"] is False
+    assert model.exposures[3] == pytest.approx(times[3])
+    assert model.diagnostics["verdict"] == "doubtful"
+
+
+def test_exif_times_mostly_contradicted_are_not_refined_away(stack, tmp_path):
+    import dataclasses
+
+    # EXIF times in reversed order: refining would hide that they belong to other frames
+    reversed_times = np.array(stack.exposure_times, dtype=float)[::-1].copy()
+    paths = dataclasses.replace(stack, exposure_times=reversed_times).write(tmp_path / "r")
+    d = calibrate_quietly(paths).diagnostics
+    assert d["refine_exposures"] is False
+    assert d["verdict"] == "unusable"
+
+
+def test_refine_option_is_checked(stack):
+    with pytest.raises(ValueError, match="refine_exposures"):
+        selfcal.calibrate_response(stack.images, TIMES, refine_exposures="yes")

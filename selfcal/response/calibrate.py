@@ -7,6 +7,7 @@ solved jointly after Kim & Pollefeys, PAMI 2008.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -26,6 +27,7 @@ from ..io import _is_path
 from ..metrics import delta_eq12
 from ..samples import collect_samples, frame_masks
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
+from .verdict import CONTRADICTED_UNUSABLE_SHARE as CONTRADICTED_MAJORITY
 from .verdict import judge_calibration
 
 #: A frame whose given time and pixels disagree by more than this factor is reported.
@@ -84,7 +86,7 @@ def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
     return out, "exif" if any(t is not None for t in out) else "unknown"
 
 
-def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = False,
+def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                        n_components: int = DEFAULT_N_COMPONENTS, saturation_threshold: float =
                        DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
                        basis=None, max_samples: int = DEFAULT_MAX_SAMPLES, seed: int = 0,
@@ -103,8 +105,12 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures: bool = 
     exposure_times : sequence of float or None, optional
         Exposure time per frame; None for a frame whose time is unknown.  When omitted,
         times come from EXIF for paths and are unknown for arrays.
-    refine_exposures : bool
-        Treat the given times as a prior and re-estimate them (shutters are inaccurate).
+    refine_exposures : {"auto", True, False}
+        True: treat the given times as a prior and re-estimate them (shutters are
+        inaccurate).  ``"auto"`` (default): refine EXIF times when the pixels contradict
+        some of them by more than :data:`CONTRADICTION_FACTOR` (ours: the contradiction is
+        then a warning, not a doubtful verdict); hold times the caller gave, and EXIF times
+        most of which are contradicted.  False: hold every time.
     n_components : int
         Number of PCA basis functions per channel (N of Eq. 7); see
         :data:`DEFAULT_N_COMPONENTS`.
@@ -170,7 +176,7 @@ def emit_warnings(model, stacklevel: int = 3) -> None:
         _warnings.warn(message, SelfcalWarning, stacklevel=stacklevel)
 
 
-def _calibrate_response(images, exposure_times=None, *, refine_exposures=False,
+def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                         n_components=DEFAULT_N_COMPONENTS,
                         saturation_threshold=DEFAULT_SATURATION_THRESHOLD, clip_margin=2.0,
                         basis=None, max_samples=DEFAULT_MAX_SAMPLES, seed=0, align=False,
@@ -206,17 +212,24 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures=False,
     used_sources = [sources[k] for k in keep]
     log_times = _log_times(sub_times)
 
-    result = _solve(sub, basis, log_times, sub_masks, n_components=n_components,
-                    refine_exposures=refine_exposures,
-                    saturation_threshold=saturation_threshold, clip_margin=clip_margin,
-                    progress=progress)
-    warnings.extend(result.warnings)
+    solve = functools.partial(_solve, sub, basis, log_times, sub_masks,
+                              n_components=n_components,
+                              saturation_threshold=saturation_threshold,
+                              clip_margin=clip_margin, progress=progress)
+    refine_exposures = _check_refine_option(refine_exposures)
+    result = solve(refine_exposures=refine_exposures is True)
     contradictions = []
-    if np.isfinite(log_times).sum() >= 2 and not refine_exposures:
+    if np.isfinite(log_times).sum() >= 2 and refine_exposures is not True:
         contradictions = _contradicted_times(
-            sub, basis, log_times, sub_masks, used_sources, sub_times, warnings,
+            sub, basis, log_times, sub_masks, used_sources, sub_times,
             n_components=n_components, saturation_threshold=saturation_threshold,
             clip_margin=clip_margin)
+    refine_exposures = _refine_decision(refine_exposures, time_source, contradictions,
+                                        log_times)
+    if refine_exposures and contradictions:        # decided now: EXIF times contradicted
+        result = solve(refine_exposures=True)
+    warnings.extend(result.warnings)
+    warnings.extend(_contradiction_messages(contradictions, refined=refine_exposures))
     if refine_exposures:
         result.log_exposures = _anchor_refined(result.log_exposures, log_times)
     fit = _judged_fit(sub, sub_masks, basis, result, log_times, warnings,
@@ -364,7 +377,8 @@ def _calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=N
                                                 list(frames.sources),
                                                 options.get("times_source"))
     options.setdefault("clip_margin", clip_margin)
-    model = _calibrate_response(small, times, progress=progress, **options)
+    model = _calibrate_response(small, times, progress=progress,
+                                **{**options, "times_source": time_source})
     model.diagnostics["exposure_source"] = time_source
     model.sources = list(frames.sources)
     diag = model.diagnostics
@@ -524,12 +538,12 @@ def _solve(sub, basis, log_times, sub_masks, *, n_components, refine_exposures,
     return result
 
 
-def _contradicted_times(sub, basis, log_times, sub_masks, used_sources, sub_times,
-                        warnings, *, n_components, saturation_threshold, clip_margin):
+def _contradicted_times(sub, basis, log_times, sub_masks, used_sources, sub_times, *,
+                        n_components, saturation_threshold, clip_margin):
     """Given times the pixels contradict by more than :data:`CONTRADICTION_FACTOR`.
 
     Re-solves with the times as a prior (``refine_exposures=True``, a short solve) and
-    compares the estimated exposure ratios with the given ones; warns for each frame.
+    compares the estimated exposure ratios with the given ones.
     """
     known = np.isfinite(log_times)
     contradictions = []
@@ -545,11 +559,40 @@ def _contradicted_times(sub, basis, log_times, sub_masks, used_sources, sub_time
             est = math.exp(log_times[j] + dev[j])
             contradictions.append({"frame": used_sources[j], "given": sub_times[j],
                                    "estimated": est})
-            warnings.append(
-                f"{used_sources[j]}: the pixels contradict the given exposure time "
-                f"({sub_times[j]:g} s given, the pixels say about {est:g} s); "
-                "consider --refine-exposures")
     return contradictions
+
+
+def _check_refine_option(refine_exposures):
+    if refine_exposures not in (True, False, "auto"):
+        raise ValueError(f"refine_exposures must be True, False or 'auto', not "
+                         f"{refine_exposures!r}")
+    return refine_exposures
+
+
+def _refine_decision(refine_exposures, time_source, contradictions, log_times) -> bool:
+    """Whether the exposures are refined: ``"auto"`` refines EXIF times the pixels
+    contradict (ours; the mission's "shutters are inaccurate").
+
+    Times the caller gave are held (a contradiction is reported, the verdict is doubtful);
+    so are EXIF times when most of them are contradicted: then the times are wrong or
+    belong to other frames, and refining would hide it.
+    """
+    if refine_exposures != "auto":
+        return bool(refine_exposures)
+    known = int(np.isfinite(log_times).sum())
+    return (time_source == "exif" and bool(contradictions)
+            and len(contradictions) / known < CONTRADICTED_MAJORITY)
+
+
+def _contradiction_messages(contradictions, *, refined: bool) -> list[str]:
+    if refined:
+        return [f"{c['frame']}: the pixels contradict the EXIF exposure time "
+                f"({c['given']:g} s in EXIF, the pixels say about {c['estimated']:g} s): "
+                "shutters are inaccurate, so the exposures were refined "
+                "(--no-refine-exposures keeps the EXIF times)" for c in contradictions]
+    return [f"{c['frame']}: the pixels contradict the given exposure time "
+            f"({c['given']:g} s given, the pixels say about {c['estimated']:g} s); "
+            "consider --refine-exposures" for c in contradictions]
 
 
 def _anchor_refined(log_exposures, log_times) -> np.ndarray:
