@@ -38,6 +38,11 @@ ssf-A, ssf-D65-cc) are what the acceptance lines report (30 ordered pairs), the 
     python bench/bench_pipeline_crossscene.py                  # every table
     python bench/bench_pipeline_crossscene.py --only tuning    # the tuning table alone
     python bench/bench_pipeline_crossscene.py --only heldout --only swap --only multi
+    python bench/bench_pipeline_crossscene.py --only same      # same-scene regression
+
+The same-scene table repeats bench_pipeline.py's protocol on the two real raws (8-bit
+rendering, random training pixels) and compares with the figures recorded before issue 16
+(acceptance: no more than 10 % worse).
 
 Rendered scenes are kept in --cache (default $TMPDIR/selfcal-crossscene-cache; computed
 from ../shared/data, so never inside the repository); rendering one takes 1-3 minutes.
@@ -575,25 +580,77 @@ def multi_table(scenes, hulls, fits):
           f"two: {sum(s2 < s1 for s1, s2 in zip(summary['1'], summary['2']))}/{n}")
 
 
+#: bench_pipeline.py's same-scene D7000 figures before issue 16 (BENCHMARKS.md, "RAW path:
+#: forward and backward model (issue 4)", targets table): (raw file, block factor) and, per
+#: training size, (forward 0-255, backward raw) on every pixel of the 8-bit rendering.
+SAME_SCENE_BEFORE = {
+    ("colorchart_canon550d.dng", 1): {1500: (1.03, 0.0015), 140: (1.72, 0.0022)},
+    ("blackmagic_cinema.dng", 2): {1500: (0.78, 0.0015), 140: (0.96, 0.0018)},
+}
+
+
+def same_scene_table(cam, cache: Path):
+    """Same-scene regression: bench_pipeline.py's protocol (its read_raw_superpixels, 8-bit
+    rendering, train_samples and fit_all with seed 0) on the two real raws, against the
+    figures recorded before issue 16 (SAME_SCENE_BEFORE); acceptance: no more than 10 %
+    worse."""
+    from bench_pipeline import fit_all, scores
+
+    cache.mkdir(parents=True, exist_ok=True)
+    rows, ok = [], []
+    for (fname, extra), before in SAME_SCENE_BEFORE.items():
+        f = cache / f"same-{fname.split('_')[0]}-{extra}.npz"
+        if not f.exists():
+            rho, wb = read_raw_superpixels(data_dir("raw", fname), extra)
+            raw = np.clip(rho * wb, 0.0, 1.0) / cam.gains
+            truth = cam.render(raw)
+            np.savez(f, raw=raw, truth=truth)
+        d = np.load(f)
+        ds = {"raw": d["raw"], "truth": d["truth"],
+              "rendered": np.round(d["truth"] * 255).astype(np.uint8)}
+        for n, (fwd0, bwd0) in before.items():
+            fits = fit_all(ds, n, seed=0, with_ls=False)
+            fwd, bwd, _ = scores(fits["selfcal"], ds)
+            good = (fwd <= 1.1 * fwd0, bwd <= 1.1 * bwd0)
+            ok.extend(good)
+            rows.append([f"D7000 model on {fname.split('_')[0]}", n,
+                         f"{fwd:.2f} / {fwd0:.2f} ({fwd / fwd0:.2f}x)",
+                         "yes" if good[0] else "NO",
+                         f"{bwd:.4f} / {bwd0:.4f} ({bwd / bwd0:.2f}x)",
+                         "yes" if good[1] else "NO"])
+            print(f"  same-scene fit {fname}, {n} samples: {fits['fit_seconds']:.0f} s",
+                  file=sys.stderr)
+    print("\n### Same scene, bench_pipeline.py's protocol (8-bit rendering, random training "
+          "pixels, seed 0, every pixel scored): now / before issue 16 (its BENCHMARKS "
+          "targets table)\n")
+    print(table(["data", "train", "forward now / before", "<= 1.1x", "backward now / before",
+                 "<= 1.1x"], rows))
+    print(f"\nsame-scene figures no more than 10 % worse than before issue 16: "
+          f"{sum(ok)}/{len(ok)}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--only", choices=("tuning", "heldout", "swap", "multi"),
+    ap.add_argument("--only", choices=("tuning", "heldout", "swap", "multi", "same"),
                     action="append", help="run only these tables (repeatable)")
     ap.add_argument("--cache", type=Path,
                     default=Path(tempfile.gettempdir()) / "selfcal-crossscene-cache",
                     help="folder for the rendered scenes (outside the repository)")
     args = ap.parse_args(argv)
-    parts = set(args.only or ("tuning", "heldout", "swap", "multi"))
+    parts = set(args.only or ("tuning", "heldout", "swap", "multi", "same"))
 
     from selfcal.pipeline.nus import read_nus_model
 
     cam = read_nus_model(data_dir("nus_model_nikon_d7000"), wb_code=WB_CODE)
     t0 = time.perf_counter()
-    names = set(TUNING if parts == {"tuning"} else SCENES if "tuning" in parts else HELD_OUT)
+    names = set(() if parts == {"same"} else TUNING if parts == {"tuning"}
+                else SCENES if "tuning" in parts else HELD_OUT)
     scenes = {n: load_scene(n, cam, args.cache) for n in sorted(names)}
     hulls = {n: Hull(scenes[n]["raw"]) for n in scenes}
     print(f"## selfcal cross-scene benchmark ({cam!r}; scenes {', '.join(sorted(scenes))}; "
           f"JPEG q95)")
+    if "same" in parts:
+        same_scene_table(cam, args.cache)
     if "tuning" in parts:
         tuning_tables(scenes, hulls)
     if parts & {"heldout", "swap", "multi"}:
