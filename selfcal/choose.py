@@ -647,11 +647,19 @@ def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, p
         report.warn(f"pipeline path skipped: {problem}")
         report.reasons.append(f"pipeline path skipped: {problem}")
         return None
+    if "groups" in pipe_opts:
+        raise TypeError("calibrate() sets fit_pipeline's groups itself (one per RAW+JPEG "
+                        "pair); do not pass groups")
+    # one group per pair (PairSamples.groups): with two or more pairs the regulariser
+    # weights are chosen by leave-one-scene-out (fit_pipeline's groups)
     model = fit_pipeline(samples.raw, samples.rendered, progress=progress,
-                         **{"seed": seed, **pipe_opts})
+                         **{"seed": seed, **pipe_opts}, groups=samples.groups)
+    n_groups = len(np.unique(samples.groups))
     report.reasons.append(
         f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
-        f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples")
+        f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples"
+        + (f"; regulariser weights by leave-one-scene-out over {n_groups} pairs"
+           if n_groups > 1 else ""))
     return model
 
 
@@ -796,7 +804,10 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
     block : int, optional
         Block side for the samples (rendered pixels); default adaptive.
     **fit_options
-        Passed to :func:`selfcal.pipeline.fit_pipeline`.
+        Passed to :func:`selfcal.pipeline.fit_pipeline` (not ``groups``: each pair is one
+        group, so with two or more pairs the regulariser weights are chosen by
+        leave-one-scene-out -- the weights that predict a scene the fit did not see;
+        ``model.diagnostics["groups"]`` holds the samples per pair).
 
     Returns
     -------
@@ -811,6 +822,9 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
     CalibrationError
         Too few usable samples (everything clipped or textured).
     """
+    if "groups" in fit_options:
+        raise TypeError("calibrate_pipeline sets fit_pipeline's groups itself (one per "
+                        "pair); do not pass groups")
     raws, rendered = _as_list(raws), _as_list(rendered)
     samples, pairs = collect_pair_samples(raws, rendered, seed=seed, max_samples=max_samples,
                                           half_size=raw_half_size, block=block,
@@ -822,4 +836,4 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
                 f"{Path(p.rendered_name).name}: " + ", ".join(
                     f"{k} {v}" for k, v in p.samples.counts.items()) for p in pairs))
     return fit_pipeline(samples.raw, samples.rendered, seed=seed, progress=progress,
-                        **fit_options)
+                        groups=samples.groups, **fit_options)
