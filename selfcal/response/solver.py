@@ -82,6 +82,8 @@ DEFAULT_SATURATION_THRESHOLD = 0.5
 
 #: Std of code noise (normalised units) assumed for block means when weighting Eq. 8.
 CODE_NOISE = 1.0 / 255.0
+#: IRLS iterations at most when some exposures are estimated (run to convergence).
+MAX_ITERATIONS_ESTIMATED = 60
 
 
 @dataclass
@@ -155,7 +157,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                              saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
                              clip_margin: float = 2.0, exposure_prior_sigma: float = 0.05,
                              max_rank_gap: int = 3, huber_k: float = 1.345,
-                             max_iterations: int = 8, ridge: float = 1e-4,
+                             max_iterations: int | None = None, ridge: float = 1e-4,
                              white_continuation_sigma: float = 0.03,
                              prior_weight: float = 100.0, monotone: bool = True,
                              white_threshold: bool = True,
@@ -183,6 +185,11 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Each frame is paired with the next ``max_rank_gap`` frames in exposure order.
     huber_k : float
         Huber threshold in robust standard deviations (IRLS).
+    max_iterations : int, optional
+        IRLS iterations at most.  Default: 8 (stopping when no coefficient moves by 1e-5)
+        when every exposure is held; when some are estimated, to convergence (1e-8, at
+        most 60): the exposures then move slowly between iterations, and a loop stopped
+        early leaves a model that depends on its starting guess (ours).
     ridge : float
         Weight of the ridge on the coefficients, relative to the mean data weight; used
         only for a basis without PCA variances (or ``prior_weight = 0``).
@@ -247,8 +254,13 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                                sigma=exposure_prior_sigma))
     settings = SolveSettings(N=N, priors=priors,
                              monotone=MonotoneConstraint.on_grid(basis, N, monotone))
+    if max_iterations is None:
+        max_iterations, tolerance = ((8, 1e-5) if exposures.fixed.all() else
+                                     (MAX_ITERATIONS_ESTIMATED, 1e-8))
+    else:
+        tolerance = 1e-5
     fit = _robust_fit(normal, threshold_rows, rows, basis, settings, exposures,
-                      huber_k, max_iterations)
+                      huber_k, max_iterations, tolerance)
     coeffs, K = fit.coefficients, fit.log_exposures
     if refine_exposures and exposures.known.sum() >= 2:
         rescaled = _theil_sen_rescale(K, exposures.log_times, exposures.known)
@@ -367,13 +379,13 @@ class _Fit:
 
 
 def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
-                max_iterations) -> _Fit:
+                max_iterations, tolerance) -> _Fit:
     """Iteratively reweighted least squares with a Huber loss (selfcal's, not §5's).
 
     Every iteration reads the current curve's slope for the noise weights, moves the
     censored threshold rows to the current crossing, solves (jointly, or by block
     alternation), and sets the Huber weights of the residuals in robust standard
-    deviations; it stops when no coefficient moves by 1e-5.
+    deviations; it stops when no coefficient moves by ``tolerance``.
     """
     N, m = settings.N, rows.m
     nt = thresholds.size if thresholds is not None else 0
@@ -411,7 +423,7 @@ def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
         change = np.max(np.abs(new_coeffs - coeffs))
         coeffs = new_coeffs
         robust = new_robust
-        if it > 0 and change < 1e-5:
+        if it > 0 and change < tolerance:
             break
     return _Fit(coefficients=coeffs, log_exposures=K, robust=robust, variance=var,
                 weights=w, monotone_constrained=monotone_constrained)
