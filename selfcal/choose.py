@@ -651,10 +651,12 @@ def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, p
         raise TypeError("calibrate() sets fit_pipeline's groups itself (one per RAW+JPEG "
                         "pair); do not pass groups")
     # one group per pair (PairSamples.groups): with two or more pairs the regulariser
-    # weights are chosen by leave-one-scene-out (fit_pipeline's groups)
-    model = fit_pipeline(samples.raw, samples.rendered, progress=progress,
-                         **{"seed": seed, **pipe_opts}, groups=samples.groups)
+    # weights are chosen by leave-one-scene-out (fit_pipeline's groups; one pair: the
+    # call is unchanged, leave-one-sample-out)
     n_groups = len(np.unique(samples.groups))
+    scenes = {"groups": samples.groups} if n_groups > 1 else {}
+    model = fit_pipeline(samples.raw, samples.rendered, progress=progress,
+                         **{"seed": seed, **pipe_opts, **scenes})
     report.reasons.append(
         f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
         f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples"
@@ -835,5 +837,8 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
             f"{MIN_PIPELINE_SAMPLES}): " + "; ".join(
                 f"{Path(p.rendered_name).name}: " + ", ".join(
                     f"{k} {v}" for k, v in p.samples.counts.items()) for p in pairs))
+    # one group per pair: leave-one-scene-out weights with two or more pairs
+    if len(np.unique(samples.groups)) > 1:
+        fit_options = {**fit_options, "groups": samples.groups}
     return fit_pipeline(samples.raw, samples.rendered, seed=seed, progress=progress,
-                        groups=samples.groups, **fit_options)
+                        **fit_options)
