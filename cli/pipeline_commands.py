@@ -1,7 +1,10 @@
 """``selfcal to-raw`` and ``selfcal render``: apply a RAW-path model to many files.
 
 Nothing numerical lives here: the conversion is :meth:`selfcal.pipeline.PipelineModel.to_raw`
-and :meth:`~selfcal.pipeline.PipelineModel.render`.
+and :meth:`~selfcal.pipeline.PipelineModel.render`.  Both warn, naming the file, when more
+than :data:`WARN_OUTSIDE` of its pixels lie outside the colours the model was trained on
+(their ``return_mask``): there the model extrapolates, and across scenes its error is
+several times larger (``bench/bench_pipeline_crossscene.py``).
 """
 
 from __future__ import annotations
@@ -9,7 +12,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import EPILOG, EXIT_OK, check_output_folder, check_outputs, int_range, say
+from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, int_range, say,
+                     warn)
+
+#: Share of a file's pixels outside the model's training colours above which the command
+#: warns (the mask is :meth:`selfcal.pipeline.PipelineModel.outside_training`; ours).
+#: A few stray pixels (noise, an edge) do not warn.  The training picture itself may: its
+#: clipped and high-gradient blocks are not samples (fixtures/pair: 23 % of its JPEG).
+WARN_OUTSIDE = 0.01
 
 
 def _load_pipeline(path):
@@ -58,14 +68,38 @@ def _convert_files(args, inputs, suffix: str, desc: str, convert) -> list:
     return outs
 
 
+def _outside_warning(src, mask, kind: str) -> str | None:
+    """The warning for a file whose pixels lie outside the model's training colours (None:
+    no warning; models saved before the training colours were kept give no mask)."""
+    if mask is None or mask.size == 0:
+        return None
+    share = float(mask.mean())
+    if share < WARN_OUTSIDE:
+        return None
+    return (f"{src}: {100 * share:.1f} % of its pixels have {kind} colours outside those the "
+            f"model was trained on, so the conversion there is a guess (calibrate with a "
+            f"pair that shows such colours)")
+
+
+def _say_outside(warnings) -> None:
+    for w in warnings:
+        if w is not None:
+            warn(w)
+
+
 def cmd_to_raw(args) -> int:
     from selfcal.hdr.io import write_linear
     from selfcal.io import read_image
 
+    outside = []
+
     def convert(model, src, out):
-        write_linear(out, model.to_raw(read_image(src)), float32=args.float, force=True)
+        raw, mask = model.to_raw(read_image(src), return_mask=True)
+        write_linear(out, raw, float32=args.float, force=True)
+        outside.append(_outside_warning(src, mask, "rendered"))
 
     outs = _convert_files(args, args.images, ".tiff", "to-raw", convert)
+    _say_outside(outside)
     say(f"wrote {len(outs)} linear camera-raw TIFF{'s' if len(outs) != 1 else ''} "
          f"({'float32' if args.float else '16-bit'}) to {Path(args.output)}/")
     return EXIT_OK
@@ -77,12 +111,16 @@ def cmd_render(args) -> int:
     from selfcal.io import write_image
     from selfcal.raw import read_raw_linear
 
+    outside = []
+
     def convert(model, src, out):
-        rendered = model.render(read_raw_linear(src).rgb)
+        rendered, mask = model.render(read_raw_linear(src).rgb, return_mask=True)
         codes = np.clip(np.round(rendered * 255.0), 0, 255).astype(np.uint8)
         write_image(out, codes, jpeg_quality=args.quality, force=True)
+        outside.append(_outside_warning(src, mask, "raw"))
 
     outs = _convert_files(args, args.raws, ".jpg", "render", convert)
+    _say_outside(outside)
     say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to "
          f"{Path(args.output)}/")
     return EXIT_OK
@@ -94,7 +132,8 @@ def register(sub) -> None:
         "to-raw", help="convert rendered images (JPEG) to linear camera raw with a model",
         description="JPEG -> raw with a RAW-path model: E = M⁻¹ h⁻¹(f⁻¹(P)) (Lin et al. "
                     "ICCV 2011 Eq. 11) or the backward lattice LUT, whichever validated "
-                    "better. Writes one linear TIFF per input, named after it.",
+                    "better. Writes one linear TIFF per input, named after it, and warns when more "
+                    "than 1 % of a file's pixels lie outside the model's training colours.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", required=True, metavar="PIPELINE.json")
     p.add_argument("images", nargs="+", metavar="IMAGE")
@@ -107,7 +146,8 @@ def register(sub) -> None:
         "render", help="render raw files as the camera would, with a model",
         description="raw -> JPEG with a RAW-path model: P = f(g⁻¹(LUT(g(M ρ)))) (rank-based "
                     "calibration, §3). Raw files are read as linear camera RGB (no white "
-                    "balance, black and white levels from the file).",
+                    "balance, black and white levels from the file). Warns when more than 1 % of a "
+                    "file's pixels lie outside the model's training colours.",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--model", required=True, metavar="PIPELINE.json")
     p.add_argument("raws", nargs="+", metavar="RAW")
