@@ -117,3 +117,54 @@ def _short(name: str) -> str:
     import os
 
     return os.path.basename(name)
+
+
+def plot_pipeline(model, path, *, force: bool = False):
+    """Write a PNG of a RAW-path model's tone curves, forward and inverse, per channel.
+
+    Left: the forward tone curves ``f`` (Gong et al., rank-based calibration, Eq. 9) from
+    ``M ρ`` to rendered values; right: their inverses ``f⁻¹`` (§3.5).  The colour matrix
+    ``M`` and the backward variant are written above the axes (ours: a summary figure for
+    ``selfcal show``).
+
+    Parameters
+    ----------
+    model : PipelineModel
+    path : path
+        Output PNG, written atomically (refused over an existing file unless ``force``).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10.4, 5.0))
+    for ax, poly, title, xl, yl in (
+            (axes[0], model.tone_curves, "Tone curves f (Eq. 9)", "M ρ", "rendered"),
+            (axes[1], model.inverse_tone_curves, "Inverse tone curves f⁻¹ (§3.5)",
+             "rendered", "M ρ")):
+        for c, colour in enumerate(CHANNEL_COLOURS):
+            x, y = poly.table(c, 512)
+            ax.plot(x, y, color=colour, lw=1.6, label=f"{'RGB'[c]}")
+        ax.set_title(title)
+        ax.set_xlabel(xl)
+        ax.set_ylabel(yl)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8)
+    m = model.matrix
+    rows = "   ".join("[" + " ".join(f"{v:+.3f}" for v in m[i]) + "]" for i in range(3))
+    fig.text(0.01, 0.99, f"M = {rows}    backward: {model.backward}", ha="left", va="top",
+             fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.94))
+    buf = _io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return write_bytes_atomic(path, buf.getvalue(), force=force)
+
+
+def plot_model(model, path, *, force: bool = False):
+    """The curves of a model of either kind: :func:`plot_response` (a response model, its
+    verdict above) or :func:`plot_pipeline` (a RAW-path model)."""
+    if hasattr(model, "to_raw"):
+        return plot_pipeline(model, path, force=force)
+    return plot_response(model, path, force=force)
