@@ -14,6 +14,7 @@ import warnings
 
 from . import calibrate_commands, hdr_commands, pipeline_commands
 from . import batch_commands
+from . import export_commands
 from . import show_commands
 from .common import (EPILOG, EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, negative_times,
                      reset_warnings, say, warn)
@@ -34,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     hdr_commands.register(sub)
     pipeline_commands.register(sub)
     batch_commands.register(sub)
+    export_commands.register(sub)
     show_commands.register(sub)
     parser.set_defaults(commands=sub.choices)
     return parser

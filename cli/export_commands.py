@@ -1,0 +1,60 @@
+"""``selfcal export``: a model as a ``.cube`` look-up table other tools read.
+
+Nothing numerical lives here: the table and the file are :func:`selfcal.export.write_cube`.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from .common import EPILOG, EXIT_OK, check_outputs, int_range, say
+
+
+def cmd_export(args) -> int:
+    import selfcal
+    from selfcal.export import SIZE_LIMITS, check_export, write_cube
+
+    out = Path(args.output)
+    check_outputs([out], [args.model], args.force)
+    model = selfcal.load_model(args.model)
+    if args.size is not None:   # the range of the size depends on the direction: exit 2
+        direction = args.direction or ("to-raw" if hasattr(model, "to_raw") else "linearize")
+        dims = 1 if direction == "linearize" else 3
+        lo, hi = SIZE_LIMITS[dims]
+        if not lo <= args.size <= hi:
+            args.parser.error(f"argument --size: LUT_{dims}D_SIZE must be from {lo} to {hi}, "
+                              f"not {args.size}")
+    try:
+        direction, size = check_export(model, args.direction, args.size)
+    except selfcal.InputError as exc:
+        raise selfcal.InputError(exc.reason, args.model) from None
+    write_cube(model, out, direction=direction, size=size, force=args.force,
+               inputs=[args.model], title=f"selfcal {direction}: {Path(args.model).name}")
+    dims = "1D" if direction == "linearize" else "3D"
+    say(f"wrote {out} ({dims} LUT, {size}{'³' if dims == '3D' else ''} nodes, {direction})")
+    return EXIT_OK
+
+
+def register(sub) -> None:
+    """Add ``export`` to the ``selfcal`` sub-command parser."""
+    p = sub.add_parser(
+        "export", help="write a model as a .cube LUT (Resolve, ffmpeg, OpenColorIO)",
+        description="Write a model as a .cube LUT (Adobe Cube LUT Specification 1.0). "
+                    "A response model gives a 1D LUT that linearises (input code/max_code "
+                    "in [0, 1], one column per channel); a RAW-path model (a selfcal "
+                    "pipeline model or an NUS model folder) gives a 3D LUT: to-raw (JPEG "
+                    "code/255 -> linear camera raw) or render (raw normalised to [0, 1] "
+                    "-> rendered code/255). DOMAIN is 0..1 in every direction.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("model", metavar="MODEL",
+                   help="a selfcal model file, or an NUS model folder")
+    p.add_argument("-o", "--output", required=True, metavar="FILE.cube")
+    p.add_argument("--direction", choices=("linearize", "to-raw", "render"), default=None,
+                   help="linearize (response models, the default for them), to-raw (the "
+                        "default for pipeline models) or render")
+    p.add_argument("--size", type=int_range(2, 65536, "the LUT size"), default=None,
+                   help="nodes: LUT_1D_SIZE 2-65536 (default max_code+1), LUT_3D_SIZE "
+                        "2-256 (default 33; 65 is finer)")
+    p.add_argument("--force", action="store_true", help="overwrite an existing output")
+    p.set_defaults(func=cmd_export, parser=p)
