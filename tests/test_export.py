@@ -1,0 +1,176 @@
+"""``selfcal export``: .cube LUTs read back by independent readers (colour-science, ffmpeg).
+
+The 1D table is read by colour-science's ``read_LUT`` and applied to every 8-bit code; the
+3D tables are applied to the fixture frames by ffmpeg's ``lut3d`` filter (the
+imageio-ffmpeg binary and a system ``ffmpeg`` when there is one) on lossless 16-bit
+frames (``rgb48le`` raw video in and out), and by colour-science's trilinear
+interpolation of the table it read.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import selfcal
+from selfcal.export import cube_table, read_cube_header, write_cube
+from selfcal.io import read_image
+from selfcal.pipeline import fit_pipeline
+from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT
+from selfcal_cli.main import main
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+colour = pytest.importorskip("colour", reason="colour-science (the independent .cube "
+                             "reader) is not installed")
+
+
+def _ffmpeg_binaries() -> list[str]:
+    found = []
+    try:
+        import imageio_ffmpeg
+
+        found.append(imageio_ffmpeg.get_ffmpeg_exe())
+    except (ImportError, RuntimeError):
+        pass
+    system = shutil.which("ffmpeg")
+    if system and system not in found:
+        found.append(system)
+    return found
+
+
+FFMPEG = _ffmpeg_binaries()
+needs_ffmpeg = pytest.mark.skipif(not FFMPEG, reason="no ffmpeg: neither imageio-ffmpeg "
+                                  "(pip install imageio-ffmpeg) nor ffmpeg on PATH")
+
+
+def ffmpeg_lut3d(exe: str, cube: Path, frame16: np.ndarray, interp: str) -> np.ndarray:
+    """Apply ``cube`` to a uint16 RGB frame with ffmpeg's lut3d; float64 in [0, 1]."""
+    h, w, _ = frame16.shape
+    cmd = [exe, "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
+           "rgb48le", "-s", f"{w}x{h}", "-i", "-", "-vf",
+           f"lut3d=file={cube.name}:interp={interp}", "-f", "rawvideo", "-pix_fmt",
+           "rgb48le", "-"]
+    res = subprocess.run(cmd, input=frame16.astype("<u2").tobytes(), capture_output=True,
+                         cwd=cube.parent, check=True, timeout=60)
+    return np.frombuffer(res.stdout, "<u2").reshape(h, w, 3) / 65535.0
+
+
+@pytest.fixture(scope="module")
+def response_model():
+    return selfcal.calibrate_response(sorted((FIXTURES / "stack").glob("*.jpg")))
+
+
+@pytest.fixture(scope="module")
+def pipeline_model():
+    """A RAW-path model from 600 pixels of the fixture pair (backward: lattice LUT; the
+    RBF variant goes through the same dense table)."""
+    raw = read_image(FIXTURES / "pair" / "pair.tiff").reshape(-1, 3) / 65535.0
+    jpg = read_image(FIXTURES / "pair" / "pair.jpg").reshape(-1, 3)
+    idx = np.random.default_rng(0).choice(raw.shape[0], 600, replace=False)
+    return fit_pipeline(raw[idx], jpg[idx] / 255.0, n_train=600, n_sets=2, seed=0,
+                        backward="lut")
+
+
+def test_1d_cube_read_by_colour_linearises_every_code(response_model, tmp_path):
+    path = write_cube(response_model, tmp_path / "lin.cube")
+    head = read_cube_header(path)
+    assert head["LUT_1D_SIZE"] == "256" and head["TITLE"].startswith('"')
+    assert head["DOMAIN_MIN"].split() == ["0.0"] * 3 and head["DOMAIN_MAX"].split() == ["1.0"] * 3
+    lut = colour.read_LUT(str(path))
+    assert isinstance(lut, colour.LUT3x1D) and lut.size == 256
+    codes = np.repeat(np.arange(256, dtype=np.uint8)[:, None], 3, axis=1)
+    want = response_model.linearize(codes)
+    got = lut.apply(codes / 255.0)
+    assert np.abs(got - want).max() < 1e-3
+    # another size: nodes between the codes, still within 0.001
+    lut = colour.read_LUT(str(write_cube(response_model, tmp_path / "l1024.cube", size=1024)))
+    assert np.abs(lut.apply(codes / 255.0) - want).max() < 1e-3
+
+
+def test_3d_table_order_red_fastest(pipeline_model):
+    rows, direction, size = cube_table(pipeline_model, "to-raw", size=3)
+    assert direction == "to-raw" and rows.shape == (27, 3)
+    # row 1 is (r, g, b) = (0.5, 0, 0), row 3 is (0, 0.5, 0), row 9 is (0, 0, 0.5)
+    for row, node in ((1, [0.5, 0, 0]), (3, [0, 0.5, 0]), (9, [0, 0, 0.5])):
+        np.testing.assert_allclose(rows[row], pipeline_model.to_raw(np.array([node]))[0],
+                                   atol=1e-7)
+
+
+@needs_ffmpeg
+@pytest.mark.parametrize("exe", FFMPEG)
+def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
+    cube = write_cube(pipeline_model, tmp_path / "to_raw.cube", direction="to-raw")
+    assert read_cube_header(cube)["LUT_3D_SIZE"] == "33"
+    jpg = read_image(FIXTURES / "pair" / "pair.jpg")
+    ours = pipeline_model.to_raw(jpg)
+    by_colour = colour.read_LUT(str(cube)).apply(jpg / 255.0)
+    inner = ((jpg >= 8) & (jpg <= 247)).all(axis=2)    # not in a cell touching a clip face
+    for interp in ("trilinear", "tetrahedral"):
+        out = ffmpeg_lut3d(exe, cube, jpg.astype(np.uint16) * 257, interp)
+        if interp == "trilinear":   # ffmpeg reads the file as colour-science does
+            assert np.abs(out - by_colour).max() < 2e-4
+        err = np.abs(out - ours).max(axis=2)
+        assert np.percentile(err[inner], 99) < 0.005, interp
+        assert err[inner].max() < 0.012, interp          # measured 0.008 (33³)
+
+
+@needs_ffmpeg
+@pytest.mark.parametrize("exe", FFMPEG)
+def test_3d_render_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
+    cube = write_cube(pipeline_model, tmp_path / "render.cube", direction="render")
+    raw16 = read_image(FIXTURES / "pair" / "pair.tiff")
+    by_colour = colour.read_LUT(str(cube)).apply(raw16 / 65535.0)
+    out = ffmpeg_lut3d(exe, cube, raw16, "trilinear")
+    assert np.abs(out - by_colour).max() < 2e-4
+    # at the table's nodes ffmpeg gives selfcal's render (no interpolation error)
+    k = np.random.default_rng(1).integers(0, 33, (64, 64, 3))
+    nodes16 = np.round(k / 32 * 65535).astype(np.uint16)
+    out = ffmpeg_lut3d(exe, cube, nodes16, "tetrahedral")
+    assert np.abs(out - pipeline_model.render(nodes16)).max() < 2e-3
+    # between nodes: a uniform 33³ grid of linear raw is coarse where the tone curve is
+    # steep (the fixture's median raw is 0.045); half the pixels within 0.5 %
+    out = ffmpeg_lut3d(exe, cube, raw16, "tetrahedral")
+    err = np.abs(out - pipeline_model.render(raw16)).max(axis=2)
+    assert np.median(err) < 0.005
+
+
+def test_export_cli_directions_and_errors(response_model, pipeline_model, tmp_path, capsys):
+    response_model.save(tmp_path / "resp.json")
+    pipeline_model.save(tmp_path / "pipe.json")
+    assert main(["export", str(tmp_path / "resp.json"), "-o", str(tmp_path / "r.cube")]) == 0
+    assert read_cube_header(tmp_path / "r.cube")["LUT_1D_SIZE"] == "256"
+    assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "p.cube"),
+                 "--direction", "render", "--size", "17"]) == 0
+    head = read_cube_header(tmp_path / "p.cube")
+    assert head["LUT_3D_SIZE"] == "17" and "pipe.json" in head["TITLE"]
+    assert len((tmp_path / "p.cube").read_text().splitlines()) == 6 + 17 ** 3
+    capsys.readouterr()
+    # an existing output: exit 5, untouched; --force replaces it
+    before = (tmp_path / "p.cube").read_bytes()
+    assert main(["export", str(tmp_path / "pipe.json"), "-o",
+                 str(tmp_path / "p.cube")]) == EXIT_OUTPUT
+    assert (tmp_path / "p.cube").read_bytes() == before
+    assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "p.cube"),
+                 "--force"]) == 0
+    assert read_cube_header(tmp_path / "p.cube")["LUT_3D_SIZE"] == "33"
+    # the wrong kind of model for a direction: exit 3, naming the file; nothing written
+    assert main(["export", str(tmp_path / "resp.json"), "-o", str(tmp_path / "x.cube"),
+                 "--direction", "to-raw"]) == EXIT_INPUT
+    assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "x.cube"),
+                 "--direction", "linearize"]) == EXIT_INPUT
+    text = capsys.readouterr().err
+    assert "resp.json" in text and "pipe.json" in text and not (tmp_path / "x.cube").exists()
+    # a size the direction cannot have: a usage error (exit 2)
+    for size in ("300", "1", "x"):
+        with pytest.raises(SystemExit) as info:
+            main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "x.cube"),
+                  "--size", size])
+        assert info.value.code == 2
+    assert "LUT_3D_SIZE" in capsys.readouterr().err
+    with pytest.raises(selfcal.InputError, match="LUT_1D_SIZE"):
+        write_cube(response_model, tmp_path / "y.cube", size=70000)
+    assert not (tmp_path / "y.cube").exists()
