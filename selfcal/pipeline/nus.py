@@ -456,10 +456,27 @@ def load_nus_pipeline(folder, wb_code: int | None = 14, *, bake_size: int = BAKE
         White-balance setting (see :func:`read_nus_model`; default 14, fluorescent, the
         setting of the NUS D7000 sample images).
 
+    Returns
+    -------
+    NUSPipelineModel
+        The same object for the same folder (unchanged files) and settings within a
+        process, so that its baked tables are made once.
+
     Raises
     ------
     InputError
         Missing or malformed files, one direction missing, unknown white balance.
     """
     camera = NUSCameraModel(folder, direction="jpg2raw", wb_code=wb_code)
-    return NUSPipelineModel(camera, bake_size=bake_size, render_size=render_size)
+    # one baked model per folder state in a process: loading it again costs no new bake
+    stamp = tuple(sorted((f.name, f.stat().st_mtime_ns, f.stat().st_size)
+                         for f in Path(folder).glob("*.txt")))
+    key = (str(Path(folder).resolve()), camera.wb_code, int(bake_size), int(render_size),
+           stamp)
+    if key not in _LOADED:
+        _LOADED.clear()
+        _LOADED[key] = NUSPipelineModel(camera, bake_size=bake_size, render_size=render_size)
+    return _LOADED[key]
+
+
+_LOADED: dict = {}

@@ -1,0 +1,99 @@
+"""NUS model folders as models: ``selfcal.load_model(folder)`` and ``--model FOLDER``.
+
+The reference is the direct RBF evaluation of :class:`selfcal.pipeline.nus.NUSCameraModel`
+(Kim et al. PAMI 2012); the model ``load_model`` returns is baked into dense tables.
+Metric: differences in ``[0, 1]`` (raw for ``to_raw``, rendered for ``render``), RMS over
+the pixels of the fixture frames (every pixel: the tables cover the whole input cube),
+the reference ``to_raw`` clipped to ``[0, 1]`` as every pipeline model's output is.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+
+import selfcal
+from selfcal.io import read_image, write_image
+from selfcal.pipeline import PipelineModel
+from selfcal.pipeline.nus import NUSPipelineModel, read_nus_model
+from selfcal_cli.common import EXIT_INPUT
+from selfcal_cli.main import main
+
+REPO = Path(__file__).resolve().parents[1]
+FIXTURES = REPO / "fixtures"
+NUS = REPO.parent / "shared" / "data" / "nus_model_nikon_d7000"
+needs_nus = pytest.mark.skipif(not NUS.exists(),
+                               reason="../shared/data/nus_model_nikon_d7000 absent")
+
+
+def _rms(a, b) -> float:
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - b) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def nus():
+    model = selfcal.load_model(NUS)
+    return model, read_nus_model(NUS, wb_code=14)
+
+
+def test_a_folder_that_is_not_an_nus_model_is_refused(tmp_path):
+    with pytest.raises(selfcal.ModelFileError, match="folder"):
+        selfcal.load_model(tmp_path)
+
+
+@needs_nus
+def test_load_model_gives_a_pipeline_model_matching_the_reference(nus):
+    model, cam = nus
+    assert isinstance(model, PipelineModel) and isinstance(model, NUSPipelineModel)
+    assert selfcal.load_model(NUS) is model          # baked once per process
+    jpg = read_image(FIXTURES / "pair" / "pair.jpg")
+    ours = model.to_raw(jpg)
+    assert ours.dtype == np.float32 and ours.shape == jpg.shape
+    ref = np.clip(cam.to_raw(jpg), 0.0, 1.0)
+    assert _rms(ours, ref) < 1e-3                    # measured 1.4e-4 (max 1.3e-3)
+    # float input goes through the same table
+    assert _rms(model.to_raw(jpg / 255.0), ref) < 1e-3
+    raw = read_image(FIXTURES / "pair" / "pair.tiff")
+    ours = model.render(raw)
+    ref = cam.render(raw / 65535.0)
+    assert _rms(ours, ref) < 2.5e-3                  # measured 1.7e-3 (max 0.011)
+    with pytest.raises(selfcal.InputError):
+        model.to_raw(jpg, variant="lut")
+    with pytest.raises(selfcal.InputError, match="not saved"):
+        model.save(Path("unused.json"))
+
+
+@needs_nus
+def test_to_raw_and_render_cli_with_a_model_folder(nus, tmp_path, capsys):
+    model, cam = nus
+    jpg_path = FIXTURES / "pair" / "pair.jpg"
+    code = main(["to-raw", "--model", str(NUS), str(jpg_path), "-o", str(tmp_path / "raw"),
+                 "--float"])
+    assert code == 0, capsys.readouterr().err
+    est = tifffile.imread(tmp_path / "raw" / "pair.tiff")
+    ref = np.clip(cam.to_raw(read_image(jpg_path)), 0.0, 1.0)
+    assert _rms(est, ref) < 1e-3
+    code = main(["render", "--model", str(NUS), str(FIXTURES / "pair" / "pair.tiff"), "-o",
+                 str(tmp_path / "jpg"), "--quality", "100"])
+    assert code == 0, capsys.readouterr().err
+    # a JPEG file: compared with the reference written the same way (same rounding,
+    # chroma subsampling and quality)
+    got = read_image(tmp_path / "jpg" / "pair.jpg").astype(np.float64)
+    ref = cam.render(read_image(FIXTURES / "pair" / "pair.tiff") / 65535.0) * 255.0
+    write_image(tmp_path / "ref.jpg", np.clip(np.round(ref), 0, 255).astype(np.uint8),
+                jpeg_quality=100)
+    # measured 1.0 code: the baked render differs by 0.44 code RMS (3 at most)
+    assert _rms(got, read_image(tmp_path / "ref.jpg")) < 1.5    # codes
+    # export as a 3D LUT
+    assert main(["export", str(NUS), "-o", str(tmp_path / "nus.cube"), "--size", "9"]) == 0
+    assert len((tmp_path / "nus.cube").read_text().splitlines()) == 6 + 9 ** 3
+
+
+def test_cli_names_a_folder_that_is_not_a_model(tmp_path, capsys):
+    frame = FIXTURES / "pair" / "pair.jpg"
+    code = main(["to-raw", "--model", str(tmp_path), str(frame), "-o", str(tmp_path / "o")])
+    assert code == EXIT_INPUT
+    assert str(tmp_path) in capsys.readouterr().err
