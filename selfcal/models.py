@@ -6,9 +6,9 @@ content of its ``kind`` (:func:`selfcal.modelfile.check_response_content`,
 kind: :class:`selfcal.response.ResponseModel` (the JPEG-only path) or
 :class:`selfcal.pipeline.PipelineModel` (the RAW path).  A folder of NUS in-camera model
 files (Kim et al. PAMI 2012, :mod:`selfcal.pipeline.nus`) loads as a pipeline model too
-(:class:`selfcal.pipeline.nus.NUSPipelineModel`, baked into dense tables).  It lives above both paths so that
-neither model imports the other's room, and the low-level JSON helpers in
-:mod:`selfcal.modelfile` stay below them.
+(:class:`selfcal.pipeline.nus.NUSPipelineModel`, baked into dense tables).  It lives
+above both paths so that neither model imports the other's room, and the low-level JSON
+helpers in :mod:`selfcal.modelfile` stay below them.
 """
 
 from __future__ import annotations
