@@ -13,13 +13,13 @@ from .common import EPILOG, EXIT_OK, check_outputs, int_range, say
 
 def cmd_export(args) -> int:
     import selfcal
-    from selfcal.export import SIZE_LIMITS, check_export, write_cube
+    from selfcal.export import SIZE_LIMITS, check_export, default_direction, write_cube
 
     out = Path(args.output)
     check_outputs([out], [args.model], args.force)
     model = selfcal.load_model(args.model)
     if args.size is not None:   # the range of the size depends on the direction: exit 2
-        direction = args.direction or ("to-raw" if hasattr(model, "to_raw") else "linearize")
+        direction = args.direction or default_direction(model)
         dims = 1 if direction == "linearize" else 3
         lo, hi = SIZE_LIMITS[dims]
         if not lo <= args.size <= hi:
