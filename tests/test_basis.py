@@ -508,3 +508,63 @@ def test_real_invemor_in_log_domain():
     grid = inv.x[0]
     errs = [rmse(b.inverse_response(b.fit_inverse_response(grid, y, 5)), y) for y in inv.y[::10]]
     assert np.mean(errs) < 0.004
+
+
+# --------------------------------------------------------------------------------------
+# the coefficient prior of a basis file without PCA variances (issue 18)
+# --------------------------------------------------------------------------------------
+
+def test_estimated_variances_match_the_builtin_basis_own():
+    """The estimate for a basis without variances, applied to the built-in basis (made from
+    the same curve family, another seed), gives back its stored PCA variances."""
+    from selfcal.response.priors import (ESTIMATED_PRIOR_SCALE, estimated_coefficient_variance,
+                                         pca_variance_precision)
+
+    b = builtin_basis()
+    est = estimated_coefficient_variance(b, 6)
+    ratio = est / b.explained_variance[:6]
+    assert np.all((ratio[:4] > 0.8) & (ratio[:4] < 1.25)), ratio
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+    bare = ResponseBasis(b.intensity, b.mean, b.components[:6], "log", "bare", b.log_floor)
+    np.testing.assert_allclose(pca_variance_precision(bare, 6, 100.0),
+                               100.0 * ESTIMATED_PRIOR_SCALE / est)
+    assert pca_variance_precision(bare, 6, 0.0) is None
+
+
+def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatch):
+    """An invemor-format basis (a linear-domain PCA of curve-family curves, written in
+    Grossberg & Nayar's text layout) recovers, from a simulated stack, curves it represents
+    exactly with 5 components; with the coefficient prior off (the ridge of before issue
+    18) the same calibrations miss the tolerance."""
+    import selfcal
+    from selfcal import synth
+    from selfcal.response import priors
+
+    _, train, _ = cf.generate_inverse_curves(300, intensity=GRID, seed=5)
+    mean = train.mean(axis=0)
+    comps = np.linalg.svd(train - mean, full_matrices=False)[2][:25]
+    path = tmp_path / "invemor.txt"
+    _write_emor(path, "B", "g0", "hinv", GRID, mean, comps)
+    _, others, _ = cf.generate_inverse_curves(12, intensity=GRID, seed=99)
+    times = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
+    tol = 0.005
+
+    def errors():
+        out = []
+        for j in (2, 10):                 # two whose 5-component projection is monotone
+            target = mean + ((others[j] - mean) @ comps[:5].T) @ comps[:5]
+            assert np.all(np.diff(target) > 0) and target[0] >= -1e-9
+            curve = synth.ToneCurve.from_table(target, GRID, name=f"projected {j}")
+            pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=j)
+            stack = synth.simulate_stack(synth.make_scene(96, 144, seed=j), pipe, times,
+                                         jitter=0.0, jpeg_quality=95, seed=j)
+            truth = stack.inverse_response()
+            model = selfcal.calibrate_response(stack.images, times, basis=str(path))
+            out.append(rmse(model.inverse_response()[1:255], truth[1:255]))
+        return np.array(out)
+
+    on = errors()
+    assert on.max() < tol, on
+    monkeypatch.setattr(priors, "ESTIMATED_PRIOR_SCALE", 0.0)
+    off = errors()
+    assert off.max() > tol, off

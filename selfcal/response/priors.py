@@ -7,10 +7,13 @@ exists for one reason:
 - :attr:`PriorTerms.coefficient_precision`, the *PCA-variance prior* c_n ~ N(0, λ_n / w):
   the data leave the bend of the never-observed last codes (and, with fewer than two known
   times, the exponential ambiguity) open; the curve database's variances decide it.  It is
-  on whenever the basis carries PCA variances and ``prior_weight > 0`` — the built-in
-  basis does, so it is on in every solve, whatever the number of known times.
-- :attr:`PriorTerms.ridge`: the same role for a basis without PCA variances (it replaces
-  the PCA-variance prior, never adds to it); it keeps the coefficient block invertible.
+  on whenever ``prior_weight > 0``, whatever the number of known times.  The built-in
+  basis carries its PCA variances; a basis file without them (Grossberg & Nayar's
+  ``invemor.txt`` stores no variances) gets λ_n estimated by
+  :func:`estimated_coefficient_variance` (ours: the second moments of the coefficients
+  of selfcal's documented curve family projected on that basis).
+- :attr:`PriorTerms.ridge`: only with ``prior_weight = 0`` (it replaces the
+  PCA-variance prior, never adds to it); it keeps the coefficient block invertible.
 - :class:`WhiteContinuation`, the *white-continuation prior*: beyond the brightest valid
   sample f⁻¹(1) = 1 is pure extrapolation; the straight continuation of the observed curve
   should meet g(1) = 0, which removes the almost free shift of g over the observed range.
@@ -22,6 +25,7 @@ The censored white-threshold rows are data rows, not a prior: see :mod:`.equatio
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,15 +75,89 @@ def white_continuation_terms(values, valid, basis, N: int,
     return tuple(terms)
 
 
-def pca_variance_precision(basis, N: int, prior_weight: float):
-    """Precision ``prior_weight / λ_n`` of the PCA-variance prior, or None without variances.
+#: Curves of :mod:`.curve_family` projected on a basis without PCA variances, and their
+#: seed (:func:`estimated_coefficient_variance`).
+FAMILY_CURVES = 1000
+FAMILY_SEED = 20110102
+#: Multiplier of ``prior_weight`` for a basis whose variances are estimated
+#: (:func:`estimated_coefficient_variance`); chosen on the tuning split of
+#: ``bench/bench_basis.py`` (even DoRF curves, seeds < 1000) among 1, 3 and 10.  0 switches
+#: the estimate off: the ridge acts instead, as it did before issue 18.
+ESTIMATED_PRIOR_SCALE = 3.0
+#: κ of the projection weights ``(rms f⁻¹ + κ)²``, as the built-in basis' PCA
+#: (:func:`selfcal.response.basis.log_pca_basis`).
+_WEIGHT_OFFSET = 0.05
 
-    None when the basis carries no PCA variances or ``prior_weight`` is 0: the ridge then
-    takes its place.
+
+@functools.lru_cache(maxsize=4)
+def _family_curves(grid_bytes: bytes, n_curves: int, seed: int) -> np.ndarray:
+    """f⁻¹ of ``n_curves`` curves of :mod:`.curve_family` on a grid (cached: ~1.5 s each)."""
+    from .curve_family import generate_inverse_curves
+
+    grid = np.frombuffer(grid_bytes, dtype=np.float64)
+    _, inverse, _ = generate_inverse_curves(n_curves, intensity=grid, seed=seed)
+    inverse.setflags(write=False)
+    return inverse
+
+
+def estimated_coefficient_variance(basis, N: int, *, n_curves: int = FAMILY_CURVES,
+                                   seed: int = FAMILY_SEED) -> np.ndarray:
+    """λ_n for a log-domain basis that carries no PCA variances (selfcal's estimate).
+
+    A PCA basis file such as Grossberg & Nayar's ``invemor.txt`` (PAMI 2004) gives the
+    components in order but not the variance of the curve database along each, and the
+    PCA-variance prior c_n ~ N(0, λ_n / w) needs those.  Without DoRF (which may not be
+    shipped), the curves at hand are selfcal's documented family
+    (:mod:`.curve_family`, the curves the built-in basis was made from): each is fitted
+    with the first ``N`` components by weighted log-domain least squares (weights
+    ``(rms f⁻¹ + κ)²`` per intensity, as :func:`~selfcal.response.basis.log_pca_basis`),
+    and λ_n is the mean square of its coefficient n.  The prior is centred at the basis
+    mean (c = 0), so the second moment, not the variance about the family's mean, is what
+    it needs.  On ``invemor.txt`` this replaces the ridge that made its curves about
+    twice as far from the truth as the built-in basis' (``bench/bench_basis.py``).
+
+    Parameters
+    ----------
+    basis : ResponseBasis
+        Log-domain (Eq. 7; a linear one converted by ``to_log_domain``).
+    N : int
+        Number of components used.
+    n_curves, seed : int
+        How many family curves, and their seed.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Positive second moments (floored at 1e-12 of the largest).
     """
+    grid = np.ascontiguousarray(basis.intensity, dtype=np.float64)
+    f = _family_curves(grid.tobytes(), int(n_curves), int(seed))
+    eps = basis.log_floor if basis.log_floor > 0 else 1e-5
+    g = np.log(np.maximum(f, eps)) - basis.mean                        # (J, K)
+    w = np.sqrt(np.mean(f ** 2, axis=0)) + _WEIGHT_OFFSET               # (K,)
+    H = basis.components[:N].T * w[:, None]                             # (K, N)
+    coeffs = np.linalg.lstsq(H, (g * w).T, rcond=None)[0]               # (N, J)
+    lam = np.mean(coeffs ** 2, axis=1)
+    return np.maximum(lam, 1e-12 * max(float(lam.max()), 1e-300))
+
+
+def pca_variance_precision(basis, N: int, prior_weight: float):
+    """Precision ``prior_weight / λ_n`` of the PCA-variance prior, or None when it is off.
+
+    λ_n are the basis' PCA variances; for a basis without them (a file such as
+    ``invemor.txt``) they are estimated by :func:`estimated_coefficient_variance` and the
+    weight is multiplied by :data:`ESTIMATED_PRIOR_SCALE`.  None when ``prior_weight`` is
+    0 (or N is 0), or for such a basis when that scale is 0: the ridge then takes its
+    place.
+    """
+    if not prior_weight > 0 or N <= 0:
+        return None
     ev = getattr(basis, "explained_variance", None)
-    return (prior_weight / np.asarray(ev[:N], dtype=float)
-            if ev is not None and prior_weight > 0 else None)
+    if ev is not None and len(ev) >= N:
+        return prior_weight / np.asarray(ev[:N], dtype=float)
+    if not ESTIMATED_PRIOR_SCALE > 0:
+        return None
+    return prior_weight * ESTIMATED_PRIOR_SCALE / estimated_coefficient_variance(basis, N)
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,8 +198,9 @@ class PriorTerms:
     Attributes
     ----------
     coefficient_precision : ndarray (N,) or None
-        PCA-variance prior c_n ~ N(0, λ_n / prior_weight), the same for every channel; None
-        when the basis has no variances, and then ``ridge`` acts instead.
+        PCA-variance prior c_n ~ N(0, λ_n / prior_weight), the same for every channel (λ_n
+        estimated for a basis without variances, :func:`pca_variance_precision`); None
+        when ``prior_weight`` is 0, and then ``ridge`` acts instead.
     ridge : float
         Ridge on the coefficients relative to the mean diagonal of their data block; only
         when ``coefficient_precision`` is None.
