@@ -11,19 +11,36 @@ with N = 3..8 components of
     (``f^-1 = g0 + sum_n hinv_n c_n``).
 
 The error is the RMSE of ``f^-1`` in the linear domain over the 1024 grid points on [0, 1].
+
+``--calibrate`` adds the issue-18 comparison: calibrations of synthetic stacks, each DoRF
+forward curve (``201_CRF_data.mat``) rendered by :mod:`selfcal.synth` into a 6-shot stack
+(1/250 … 1/8 s, ±3 % shutter jitter, noise, smooth gamut, JPEG q90, as
+``bench_response_synthetic.py`` at a smaller size), calibrated with nominal times with the
+built-in basis and with ``--basis invemor.txt``.  Score: RMSE of f⁻¹ over codes 1…254.
+invemor.txt has no PCA variances; its coefficient prior is estimated
+(:func:`selfcal.response.priors.estimated_coefficient_variance`) and weighted by
+``ESTIMATED_PRIOR_SCALE``, which is chosen on the *tuning* split (even-indexed curves,
+seeds = index < 1000) among 1, 3, 10; 0 is the ridge of before issue 18.  The *held-out*
+split (odd-indexed curves, seeds = 1000 + index) reports the acceptance: invemor's median
+within 1.5x the built-in basis' median.
+
 The data are read from ``../shared/data/dorf_emor`` (or ``--data DIR``); they are never
 copied into the repository.
 
 Usage::
 
     python bench/bench_basis.py [--data DIR]
+    python bench/bench_basis.py --calibrate heldout [--size 192x288] [--jobs 2] [--step 1]
+    python bench/bench_basis.py --calibrate tuning
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
+from multiprocessing import Pool
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +55,10 @@ from selfcal.response.basis import builtin_basis, read_dorf_mat, read_invemor  #
 
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "dorf_emor"
 TARGET = 0.004
+TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
+TUNING_SCALES = (1.0, 3.0, 10.0)
+HELDOUT_SEED = 1000
+ACCEPT_RATIO = 1.5
 
 
 def fit_rmse(basis, curves, n: int) -> np.ndarray:
@@ -50,11 +71,102 @@ def fit_rmse(basis, curves, n: int) -> np.ndarray:
     return out
 
 
+def _calibrate_one(task):
+    """RMSE of f⁻¹ (codes 1..254) of one synthetic stack calibrated with one basis."""
+    index, seed, irradiance, brightness, size, basis_path, scale = task
+    import warnings
+
+    import selfcal
+    from selfcal import synth
+    from selfcal.response import priors
+
+    priors.ESTIMATED_PRIOR_SCALE = scale
+    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
+    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=seed)
+    scene = synth.make_scene(*size, seed=seed)
+    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=seed)
+    truth = stack.inverse_response()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = selfcal.calibrate_response(stack.images, TIMES, basis=basis_path)
+    inner = slice(1, 255)
+    return (index, basis_path is not None, scale), rmse(model.inverse_response()[inner],
+                                                         truth[inner])
+
+
+def calibrate_split(args, invemor: Path) -> int:
+    """Synthetic calibrations, built-in basis against invemor.txt, on one split."""
+    import scipy.io as sio
+
+    fwd = args.data / "201_CRF_data.mat"
+    if not fwd.is_file():
+        print(f"bench_basis: {fwd} missing", file=sys.stderr)
+        return 2
+    mat = sio.loadmat(fwd)
+    h, w = (int(v) for v in args.size.lower().split("x"))
+    heldout = args.calibrate == "heldout"
+    first = 1 if heldout else 0
+    indices = list(range(first, mat["I"].shape[0], 2 * args.step))
+    scales = (0.0, float(args.scale)) if heldout else (0.0,) + TUNING_SCALES
+    tasks = []
+    for i in indices:
+        seed = HELDOUT_SEED + i if heldout else i
+        tasks.append((i, seed, mat["I"][i], mat["B"][i], (h, w), None, 1.0))
+        tasks += [(i, seed, mat["I"][i], mat["B"][i], (h, w), str(invemor), sc)
+                  for sc in scales]
+    t0 = time.perf_counter()
+    with Pool(args.jobs) as pool:
+        res = dict(pool.imap_unordered(_calibrate_one, tasks))
+    elapsed = time.perf_counter() - t0
+    split = ("held-out split: odd-indexed DoRF curves, seed = 1000 + index" if heldout else
+             "tuning split: even-indexed DoRF curves, seed = index")
+    print(f"Synthetic calibrations, {split}; {len(indices)} curves, stacks {h}x{w}, 6 shots "
+          "1/250..1/8 s, ±3% jitter, noise, smooth gamut, JPEG q90, nominal times, N = 5")
+    print("RMSE of f⁻¹ over codes 1..254 (f⁻¹(255) = 1)")
+    print()
+    base = np.array([res[(i, False, 1.0)] for i in indices])
+    head = f"{'basis':<48} | {'median':>7} {'mean':>7} {'p90':>7} {'max':>7} | {'median ratio':>12}"
+    print(head)
+    print("-" * len(head))
+    rows = [("built-in", base)]
+    for sc in scales:
+        label = ("invemor.txt, ridge (prior off, before issue 18)" if sc == 0 else
+                 f"invemor.txt, estimated prior x{sc:g}")
+        rows.append((label, np.array([res[(i, True, sc)] for i in indices])))
+    for label, v in rows:
+        print(f"{label:<48} | {np.median(v):>7.4f} {v.mean():>7.4f} "
+              f"{np.percentile(v, 90):>7.4f} {v.max():>7.4f} | "
+              f"{np.median(v) / np.median(base):>12.2f}")
+    print()
+    if heldout:
+        ratio = np.median(rows[-1][1]) / np.median(base)
+        print(f"acceptance (invemor median <= {ACCEPT_RATIO}x built-in): ratio {ratio:.2f} -> "
+              + ("met" if ratio <= ACCEPT_RATIO else "NOT met"))
+    else:
+        best = min(TUNING_SCALES, key=lambda sc: np.median([res[(i, True, sc)]
+                                                            for i in indices]))
+        print(f"best scale on the tuning split (median): {best:g}")
+    print(f"({len(tasks)} calibrations in {elapsed:.0f} s on {args.jobs} processes)")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="built-in basis vs inverse EMoR on DoRF")
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA,
                     help="folder with dorfCurvesInv.mat and invemor.txt")
+    ap.add_argument("--calibrate", choices=("tuning", "heldout"),
+                    help="synthetic calibrations on one split instead of the basis fits")
+    ap.add_argument("--scale", type=float, default=None,
+                    help="ESTIMATED_PRIOR_SCALE for the held-out split (default: the "
+                         "library's)")
+    ap.add_argument("--size", default="192x288", help="scene HxW (default %(default)s)")
+    ap.add_argument("--step", type=int, default=1, help="use every K-th curve of the split")
+    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     args = ap.parse_args(argv)
+    if args.scale is None:
+        from selfcal.response.priors import ESTIMATED_PRIOR_SCALE
+
+        args.scale = ESTIMATED_PRIOR_SCALE
     inv_mat, invemor = args.data / "dorfCurvesInv.mat", args.data / "invemor.txt"
     missing = [p for p in (inv_mat, invemor) if not p.is_file()]
     if missing:
@@ -63,6 +175,8 @@ def main(argv=None) -> int:
               + "). They are not part of the repository; point --data at a folder holding "
                 "them.", file=sys.stderr)
         return 2
+    if args.calibrate:
+        return calibrate_split(args, invemor)
     try:
         curves = read_dorf_mat(inv_mat)
         emor = read_invemor(invemor)
