@@ -39,6 +39,8 @@ ssf-A, ssf-D65-cc) are what the acceptance lines report (30 ordered pairs), the 
     python bench/bench_pipeline_crossscene.py --only tuning    # the tuning table alone
     python bench/bench_pipeline_crossscene.py --only heldout --only swap --only multi
     python bench/bench_pipeline_crossscene.py --only same      # same-scene regression
+    python bench/bench_pipeline_crossscene.py --only diagnose  # tuning pairs: where the
+                                                               # forward error sits
 
 The same-scene table repeats bench_pipeline.py's protocol on the two real raws (8-bit
 rendering, random training pixels) and compares with the figures recorded before issue 16
@@ -580,6 +582,53 @@ def multi_table(scenes, hulls, fits):
           f"two: {sum(s2 < s1 for s1, s2 in zip(summary['1'], summary['2']))}/{n}")
 
 
+def diagnose_table(scenes, hulls):
+    """Tuning pairs only (issue 16, what still carries the forward error): the default
+    model scored in the hull of scene A's pixels (the acceptance protocol) and in the hull
+    of A's training samples (the colours the fit was given: block means, without the
+    clipped and high-gradient blocks); and two principled changes, each scored in the
+    pixel hull: the forward LUT without its unpenalised linear term (affine=False: a global
+    linear term extrapolates into colours no sample constrains) and samples that keep
+    blocks clipped throughout (pair_samples keep_clipped)."""
+    import copy
+
+    from selfcal.pairs import collect_pair_samples
+    from selfcal.pipeline.lattice import lattice_regression_lut
+
+    rows, cols = [], {k: [] for k in ("pixel", "sample", "affine", "clipped")}
+    for a in TUNING:
+        s = training_samples(scenes, [a])
+        sk = collect_pair_samples([scenes[a]["image_raw"]], [scenes[a]["image_rendered"]],
+                                  seed=0, keep_clipped=True)[0]
+        m, mk = fit_selfcal(s, backward="lut"), fit_selfcal(sk, backward="lut")
+        y = np.clip(m.tone_curves(s.raw @ m.matrix.T), 0.0, 1.0)
+        ma = copy.copy(m)
+        ma.forward_lut = lattice_regression_lut(y, s.rendered, smoothness="auto",
+                                                affine=False)
+        sample_hull = Hull(s.raw)
+        for b in TUNING:
+            t = scenes[b]
+            pix, smp = hulls[a].inside(t["raw"]), sample_hull.inside(t["raw"])
+            err = {k: rmse(np.asarray(mod.render(t["raw"])).reshape(-1, 3), t["truth"],
+                           mask) * 255
+                   for k, mod, mask in (("pixel", m, pix), ("sample", m, smp),
+                                        ("affine", ma, pix), ("clipped", mk, pix))}
+            if a != b:
+                for k in cols:
+                    cols[k].append(err[k])
+            rows.append([f"{a} → {b}", f"{pix.mean():.2f} / {smp.mean():.2f}",
+                         f"{f2(err['pixel'])} / {f2(err['sample'])}", f2(err["affine"]),
+                         f"{f2(err['clipped'])} ({len(sk)} vs {len(s)} samples)"])
+    rows.append(["geometric mean, cross-scene", "",
+                 f"{f2(gmean(cols['pixel']))} / {f2(gmean(cols['sample']))}",
+                 f2(gmean(cols["affine"])), f2(gmean(cols["clipped"]))])
+    print("\n### Tuning pairs: where the forward error sits (forward RMSE 0-255; hull of A's "
+          "pixels / of A's training samples; changes scored in the pixel hull)\n")
+    print(table(["train → test", "in hull: pixels / samples",
+                 "default fwd: pixel hull / sample hull", "LUT affine=False",
+                 "keep_clipped samples"], rows))
+
+
 #: bench_pipeline.py's same-scene D7000 figures before issue 16 (BENCHMARKS.md, "RAW path:
 #: forward and backward model (issue 4)", targets table): (raw file, block factor) and, per
 #: training size, (forward 0-255, backward raw) on every pixel of the 8-bit rendering.
@@ -631,7 +680,8 @@ def same_scene_table(cam, cache: Path):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--only", choices=("tuning", "heldout", "swap", "multi", "same"),
+    ap.add_argument("--only", choices=("tuning", "heldout", "swap", "multi", "same",
+                                              "diagnose"),
                     action="append", help="run only these tables (repeatable)")
     ap.add_argument("--cache", type=Path,
                     default=Path(tempfile.gettempdir()) / "selfcal-crossscene-cache",
@@ -643,8 +693,10 @@ def main(argv=None):
 
     cam = read_nus_model(data_dir("nus_model_nikon_d7000"), wb_code=WB_CODE)
     t0 = time.perf_counter()
-    names = set(() if parts == {"same"} else TUNING if parts == {"tuning"}
+    names = set(() if parts <= {"same", "diagnose"} else TUNING if parts <= {"tuning"}
                 else SCENES if "tuning" in parts else HELD_OUT)
+    if "diagnose" in parts:
+        names |= set(TUNING)
     scenes = {n: load_scene(n, cam, args.cache) for n in sorted(names)}
     hulls = {n: Hull(scenes[n]["raw"]) for n in scenes}
     print(f"## selfcal cross-scene benchmark ({cam!r}; scenes {', '.join(sorted(scenes))}; "
@@ -653,6 +705,8 @@ def main(argv=None):
         same_scene_table(cam, args.cache)
     if "tuning" in parts:
         tuning_tables(scenes, hulls)
+    if "diagnose" in parts:
+        diagnose_table(scenes, hulls)
     if parts & {"heldout", "swap", "multi"}:
         fits = heldout_fits(scenes)
         if "heldout" in parts:
