@@ -170,28 +170,10 @@ def negative_times(argv) -> str | None:
 
 # ------------------------------------------------------------------------- verdicts
 
-VERDICT_LEVELS = ("ok", "doubtful", "unusable")
+from selfcal.response.verdict import LEVELS as VERDICT_LEVELS  # noqa: E402,F401
+from selfcal.response.verdict import verdict_of  # noqa: E402,F401
 
 
-def verdict_of(diagnostics) -> tuple[str | None, list[str]]:
-    """A model's verdict level and reasons, from ``diagnostics["verdict"]`` and
-    ``diagnostics["verdict_reasons"]``.
-
-    Levels are ``ok``, ``doubtful`` and ``unusable``; any other verdict string (an older
-    model's ``"poorly determined: a; b"``) is ``doubtful``, its reasons the text after
-    the colon.  ``(None, [])`` when there is no verdict (RAW-path models).
-    """
-    raw = (diagnostics or {}).get("verdict")
-    reasons = [str(r) for r in (diagnostics or {}).get("verdict_reasons") or []]
-    if raw is None:
-        return None, reasons
-    text = str(raw).strip()
-    if text in VERDICT_LEVELS:
-        return text, reasons
-    if not reasons:
-        detail = text.split(":", 1)[1] if ":" in text else text
-        reasons = [r.strip() for r in detail.split(";") if r.strip()] or [text]
-    return "doubtful", reasons
 
 
 def say_verdict(diagnostics, force: bool, what: str = "the calibration") -> None:

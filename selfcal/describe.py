@@ -28,23 +28,12 @@ __all__ = ["describe", "format_description", "TABLE_FRACTIONS", "VERDICT_LEVELS"
 #: Where the curve tables are read: fractions of the largest code (response models: the
 #: codes round(fraction · max_code); pipeline models: fractions of each curve's domain).
 TABLE_FRACTIONS = (0.0, 0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)
-VERDICT_LEVELS = ("ok", "doubtful", "unusable")
+from .response.verdict import LEVELS as VERDICT_LEVELS  # noqa: E402
+from .response.verdict import verdict_of  # noqa: E402
 
 
 def _verdict(diagnostics: dict):
-    """(level or None, reasons): an older model's ``"poorly determined: a; b"`` string is
-    ``doubtful`` with the text after the colon as its reasons (as the CLI reads it)."""
-    raw = diagnostics.get("verdict")
-    reasons = [str(r) for r in diagnostics.get("verdict_reasons") or []]
-    if raw is None:
-        return None, reasons
-    text = str(raw).strip()
-    if text in VERDICT_LEVELS:
-        return text, reasons
-    if not reasons:
-        detail = text.split(":", 1)[1] if ":" in text else text
-        reasons = [r.strip() for r in detail.split(";") if r.strip()] or [text]
-    return "doubtful", reasons
+    return verdict_of(diagnostics)
 
 
 def _floats(x):

@@ -629,3 +629,24 @@ def _motion_findings(samples, valid, intensity, inverse, log_exposures, ev: dict
              f"residual by up to {gain:.1f}× the noise): a handheld stack? calibrate with "
              "alignment "
              "(align='mtb' or 'homography', --align)")]
+
+
+def verdict_of(diagnostics) -> tuple[str | None, list[str]]:
+    """A model's verdict level and reasons, from ``diagnostics["verdict"]`` and
+    ``diagnostics["verdict_reasons"]``.
+
+    Levels are ``ok``, ``doubtful`` and ``unusable``; any other verdict string (an older
+    model's ``"poorly determined: a; b"``) is ``doubtful``, its reasons the text after
+    the colon.  ``(None, [])`` when there is no verdict (RAW-path models).
+    """
+    raw = (diagnostics or {}).get("verdict")
+    reasons = [str(r) for r in (diagnostics or {}).get("verdict_reasons") or []]
+    if raw is None:
+        return None, reasons
+    text = str(raw).strip()
+    if text in LEVELS:
+        return text, reasons
+    if not reasons:
+        detail = text.split(":", 1)[1] if ":" in text else text
+        reasons = [r.strip() for r in detail.split(";") if r.strip()] or [text]
+    return "doubtful", reasons
