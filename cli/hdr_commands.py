@@ -18,23 +18,17 @@ RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
 
 # ------------------------------------------------------------------------- merge
 
-def _refuse_linear_frames(images, times) -> None:
-    """Linear TIFFs merged as rendered frames would be calibrated on the fly: refuse,
-    naming them and the option (:func:`selfcal.choose_groups.linear_evidence`)."""
-    import selfcal
+def _linear_frames(images, times) -> str | None:
+    """Why TIFF frames are linear data (:func:`selfcal.choose_groups.linear_evidence`), or
+    None: linear TIFFs are merged as they are, never calibrated as rendered frames."""
     from selfcal.choose_groups import linear_evidence
     from selfcal.io import effective_exposure_times, read_exposure_info
 
     if not all(p.suffix.lower() in (".tif", ".tiff") for p in images):
-        return
+        return None
     if times is None:
         times = effective_exposure_times([read_exposure_info(p) for p in images])
-    why = linear_evidence(images, times)
-    if why:
-        names = ", ".join(p.name for p in images[:4]) + (", …" if len(images) > 4 else "")
-        raise selfcal.InputError(
-            f"{names} are linear data: {why}; merge them with --linear (or, if they are "
-            "rendered frames after all, give --model or their --times)")
+    return linear_evidence(images, times)
 
 
 def cmd_merge(args) -> int:
@@ -69,11 +63,17 @@ def cmd_merge(args) -> int:
             raise selfcal.CalibrationError(
                 f"{images[0]}: one frame and no model: give --model (a response needs at "
                 "least two frames to calibrate), or --linear for a linear image")
-        _refuse_linear_frames(images, args.times)
+        why = _linear_frames(images, args.times)
+        if why:
+            names = ", ".join(p.name for p in images[:4]) + (", …" if len(images) > 4 else "")
+            say(f"{names} are linear data ({why}): merged as they are, no response fitted "
+                "(give --model or their --times if they are rendered frames after all)")
+            args.linear = True
 
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost,
                        reference=args.reference, linear=args.linear,
+                       linear_exposures=args.linear_exposures,
                        progress=progress_bar("merge"))
     if model is None and not args.linear:
         say_verdict(getattr(result.model, "diagnostics", None) or
@@ -89,13 +89,21 @@ def cmd_merge(args) -> int:
     # summary
     how = ("linear input" if args.linear else
            f"model from {args.model}" if args.model else "model calibrated on the fly")
-    unit = ("t·ISO/100/N² from EXIF" if result.exposure_source.startswith("exif")
+    unit = ("ratios measured from the pixels, scaled to the EXIF t·ISO/100/N²"
+            if result.exposure_source == "measured+exif"
+            else "ratios measured from the pixels, scaled to the given times"
+            if result.exposure_source == "measured+given"
+            else "ratios measured from the pixels (relative)"
+            if result.exposure_source == "measured"
+            else "t·ISO/100/N² from EXIF" if result.exposure_source.startswith("exif")
             else "the given times" if result.exposure_source.startswith("given")
             else "the model's estimates")
     say(f"frames: {len(images)}  ({how}; exposure e = {unit}"
          + (", corrected by the model" if result.exposure_source.endswith("+model") else "")
          + ")")
-    say(f"{'frame':<32} {'e':>10} {'used':>7}" + ("  shift" if result.transforms else ""))
+    lin = result.diagnostics.get("linear_exposures")
+    say(f"{'frame':<32} {'e':>10} {'used':>7}" + ("  shift" if result.transforms else "")
+        + ("  ratio (pixels)  time vs pixels" if lin else ""))
     used = result.diagnostics.get("frame_used_fraction", [])
     for k, (src, e) in enumerate(zip(result.sources, result.exposures)):
         mark = " (reference)" if k == result.reference else ""
@@ -103,6 +111,10 @@ def cmd_merge(args) -> int:
         if result.transforms is not None:
             t = result.transforms[k]
             line += f"  {-t[0, 2]:+.1f},{-t[1, 2]:+.1f} px"
+        if lin:
+            m, d = lin["measured"][k], lin["differences"][k]
+            line += (f"  {m:>14.4g}" if m is not None else f"  {'-':>14}")
+            line += f"  {100 * d:+13.1f}%" if d is not None else f"  {'-':>14}"
         say(line + mark)
     rad = result.radiance
     measured = ~result.unmeasured
@@ -196,7 +208,13 @@ def register(subparsers) -> None:
                         "model (Granados 2010); hat: Debevec's triangle (default %(default)s)")
     kind.add_argument("--linear", action="store_true",
                       help="the images are linear already (e.g. from selfcal linearize or "
-                           "a raw converter); no response model")
+                           "a raw converter; raw files and TIFFs found linear are merged "
+                           "so without it); no response model")
+    p.add_argument("--linear-exposures", choices=("auto", "measured", "times"),
+                   default="auto",
+                   help="linear frames: exposures from the pixels' ratios in the times' "
+                        "scale (auto; --times are kept as given), always from the pixels "
+                        "(measured), or the times as they are (times)")
     p.add_argument("--reference", type=int, metavar="K",
                    help="index of the reference frame (default: the middle exposure)")
     p.add_argument("--half", action="store_true",

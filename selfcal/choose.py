@@ -477,10 +477,10 @@ def _refuse_linear(frames, eff) -> None:
     if why:
         raise CalibrationError(
             f"{_names(frames)} are linear data, not rendered frames: {why}; linear data "
-            "have no response to calibrate: merge them as linear (selfcal merge --linear; "
-            "merge_hdr(..., linear=True)), put each raw beside the camera's JPEG of the "
-            "same name for the RAW path, or, if they are rendered frames after all, give "
-            "their exposure times")
+            "have no response to calibrate: merge them to HDR as they are (selfcal merge, "
+            "which measures their exposure ratios from the pixels; merge_hdr(..., "
+            "linear=True)), put each raw beside the camera's JPEG of the same name for the "
+            "RAW path, or, if they are rendered frames after all, give their exposure times")
 
 
 def _read_pairs(groups: InputGroups, *, seed, max_samples, half_size, block, progress,
@@ -761,9 +761,11 @@ def _missing_message(groups: InputGroups, candidates) -> str:
     if not groups.rendered:
         k = len(groups.unpaired_raws)
         return (f"{k} raw file{'s' if k != 1 else ''} ({_names(groups.unpaired_raws)}) "
-                "without a JPEG of the same name, and no other images: put each raw's "
-                "camera JPEG beside it (same name, same folder) for the RAW path, or give "
-                "rendered frames at ≥ 2 exposures")
+                "without a JPEG of the same name, and no other images: raws are linear "
+                "and have no response to calibrate (a bracket of them merges to HDR as it "
+                "is: selfcal merge RAWS -o OUT.exr); put each raw's camera JPEG beside it "
+                "(same name, same folder) for the RAW path, or give rendered frames at ≥ 2 "
+                "exposures")
     return f"{_response_missing(groups, candidates)} and {_raws_note(groups)}: {need}"
 
 

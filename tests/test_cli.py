@@ -395,10 +395,14 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     # now: refused, saying what they are and what to do
     code, text = run(["calibrate", tmp_path / "raws", "-o", tmp_path / "m.json"], capsys)
     assert code == EXIT_CALIBRATION
-    assert "raw_0.tif, raw_1.tif, raw_2.tif are linear data" in text and "--linear" in text
+    assert "raw_0.tif, raw_1.tif, raw_2.tif are linear data" in text
+    assert "selfcal merge" in text
     assert not (tmp_path / "m.json").exists()
-    code, text = run(["merge", *paths, "-o", tmp_path / "r.exr"], capsys)
-    assert code == EXIT_INPUT and "--linear" in text
+    # merge recognises them and merges them as they are (issue 18)
+    code, text = run(["merge", *paths, "-o", tmp_path / "auto.exr"], capsys)
+    assert code == 0, text
+    assert "are linear data" in text and "no response fitted" in text
+    assert "ratios measured from the pixels (relative)" in text
     code, text = run(["merge", *paths, "--linear", "--times", *map(str, times),
                       "-o", tmp_path / "r.exr"], capsys)
     assert code == 0, text

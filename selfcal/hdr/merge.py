@@ -91,6 +91,7 @@ from ..frames import (
     _clip_limits,
     _default_reference,
     _Frames,
+    _given_exposures,
     _Lineariser,
     _max_code,
     _model_frame_index,
@@ -101,6 +102,7 @@ from ..frames import (
 from ..io import JPEG_SUFFIXES, _cv2, _is_path, read_image
 from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
 from ..samples import collect_samples
+from .linear_exposures import REPORT_DIFFERENCE, USES, measure_linear_exposures
 from .deghost import (
     _ghost_mask,
     _misalignment_warning,
@@ -191,7 +193,8 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
               linear: bool = False, noise: NoiseModel | None = None,
               clip_margin: float = DEFAULT_CLIP_MARGIN, deghost_threshold: float = 3.0,
               deghost_tolerance: float = 0.1, calibrate_options: dict | None = None,
-              lossy: bool | None = None, stuck_codes=None, progress=None) -> HDRResult:
+              lossy: bool | None = None, stuck_codes=None, linear_exposures: str = "auto",
+              progress=None) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -268,9 +271,16 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     stuck_codes : dict or False, optional
         ``{"floor": [R, G, B], "ceiling": [R, G, B]}``, normalised codes.  Default: the
         model's ``diagnostics["stuck_codes"]``, else measured; False: none.
+    linear_exposures : {"auto", "measured", "times"}
+        Linear frames only: where the exposures come from
+        (:func:`.linear_exposures.measure_linear_exposures`).  ``"auto"``: the ratios
+        measured from the pixels (Lin et al. 2011, §5), put in the EXIF times' scale;
+        times the caller gives are kept.  ``"measured"``: the pixels' ratios always;
+        ``"times"``: the times as they are.  ``diagnostics["linear_exposures"]`` says
+        what was measured and how far each time is from it.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` with stages ``"read"``/``"solve"`` (the
-        calibration), ``"align"`` and ``"merge"``.
+        calibration), ``"exposures"`` (linear frames), ``"align"`` and ``"merge"``.
 
     Returns
     -------
@@ -293,6 +303,9 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     (dtype('float32'), (256, 384, 3))
     """
     align = _check_options(weighting, align, linear, model)
+    if linear_exposures not in USES:
+        raise InputError(f"linear_exposures must be one of {', '.join(USES)}, got "
+                         f"{linear_exposures!r}")
     noise = DEFAULT_NOISE if noise is None else noise
     frames = _Frames(images, linear)
     linear = frames.linear  # raw files are linear
@@ -307,8 +320,13 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
             frames, exposure_times, align, reference, clip_margin, calibrate_options,
             progress, warnings, diagnostics)
         fresh = True
-    exposures, exposure_source = _resolve_exposures(frames, exposure_times, model, fresh,
-                                                    warnings)
+    if linear:
+        exposures, exposure_source = _linear_exposures(frames, exposure_times,
+                                                       linear_exposures, clip_margin,
+                                                       warnings, diagnostics, progress)
+    else:
+        exposures, exposure_source = _resolve_exposures(frames, exposure_times, model,
+                                                        fresh, warnings)
     ref = _default_reference(exposures) if reference is None else int(reference)
     if not 0 <= ref < n:
         raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
@@ -454,6 +472,32 @@ def _looks_lossy(frames: _Frames, linear: bool) -> bool:
         elif np.asarray(item).dtype == np.uint8:
             return True
     return False
+
+
+def _linear_exposures(frames: _Frames, exposure_times, use: str, clip_margin: float,
+                      warnings: list, diagnostics: dict, progress):
+    """Exposures of linear frames: the pixels' ratios in the times' scale
+    (:func:`.linear_exposures.measure_linear_exposures`), and the warnings that say so."""
+    times, times_source = _given_exposures(frames, exposure_times)
+    lin = measure_linear_exposures(frames, times, times_source, use=use,
+                                   clip_margin=clip_margin, progress=progress)
+    diagnostics["linear_exposures"] = lin.as_dict(frames.sources)
+    label = {"given": "given times", "exif": "EXIF exposures"}[times_source]
+    worst = lin.largest_difference()
+    if lin.source == "measured":
+        warnings.append("no exposure times known: the radiance is on a relative scale "
+                        "(exposure ratios measured from the pixels)")
+    elif worst is not None and worst[0] > REPORT_DIFFERENCE:
+        name = os.path.basename(frames.sources[worst[1]])
+        if lin.source.startswith("measured"):
+            warnings.append(f"using the exposure ratios measured from the pixels instead of "
+                            f"the {label} (they differ by up to {100 * worst[0]:.1f}%, at "
+                            f"{name})")
+        else:
+            warnings.append(f"the {label} differ from the exposure ratios measured from the "
+                            f"pixels by up to {100 * worst[0]:.1f}% (at {name}); kept as "
+                            "given (linear_exposures='measured' uses the pixels')")
+    return lin.exposures, lin.source
 
 
 def _check_options(weighting, align, linear: bool, model):

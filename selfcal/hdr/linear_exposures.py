@@ -1,0 +1,181 @@
+"""Exposures of a linear bracket measured from its pixels: raw files, linear TIFFs.
+
+Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), §5: "with RAW images, the exposure
+ratio can be directly computed by dividing the raw values between two images".  Linear data
+have the identity for a response, so a bracket of raws (or of a raw converter's linear
+16-bit TIFFs) needs no calibration: the ratios of the frames' values at pixels well exposed
+in both are the exposure ratios (:func:`selfcal.pairs.raw_exposure_ratios`), free of the
+shutter's error, and the frames merge to HDR directly (:func:`selfcal.merge_hdr` with
+``linear=True``).
+
+What is ours: how measured ratios and the times (EXIF or the caller's) are combined.  The
+ratios set the exposures; the times set only their absolute scale, by the median over the
+frames of ``log(time / measured)`` -- so one wrong time cannot move the others (issue 14's
+lesson on anchoring).  Times the caller gives are kept as they are (``use="auto"``), and a
+difference from the pixels is reported, as on the response path.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CalibrationError, InputError
+from ..pairs import raw_exposure_ratios, raw_thumbnail
+
+__all__ = ["LinearExposures", "measure_linear_exposures", "MEASURE_SIDE",
+           "REPORT_DIFFERENCE"]
+
+#: Long side (pixels) of the area-averaged thumbnails the ratios are measured on.
+MEASURE_SIDE = 512
+#: A time differing from the pixels' ratio by more than this (relative) is reported.
+REPORT_DIFFERENCE = 0.01
+#: ``use`` values of :func:`measure_linear_exposures`.
+USES = ("auto", "measured", "times")
+
+
+@dataclass
+class LinearExposures:
+    """The exposures of a linear bracket and what they rest on.
+
+    Attributes
+    ----------
+    exposures : ndarray, shape (F,)
+        The exposure of each frame used for the merge: in the units of the times where any
+        are known, else relative to the first measured frame.
+    measured : ndarray, shape (F,)
+        The pixels' relative exposures (first measured frame = 1); NaN for a frame sharing
+        too few well-exposed pixels with the others.
+    times : list of float or None
+        The times given (the caller's or EXIF ``t · ISO/100 / N²``), None where unknown.
+    times_source : str
+        ``"given"`` (the caller's) or ``"exif"``.
+    source : str
+        Where :attr:`exposures` come from: ``"measured"`` (relative scale),
+        ``"measured+exif"`` / ``"measured+given"`` (the pixels' ratios in the times'
+        scale), ``"exif"`` / ``"given"`` (the times as they are).
+    differences : list of float or None
+        Per frame, ``time / (measured × scale) − 1``: how far the time is from the pixels.
+    pairs : list of tuple
+        ``(i, j, ratio, count)`` of every frame pair measured.
+    """
+
+    exposures: np.ndarray
+    measured: np.ndarray
+    times: list
+    times_source: str
+    source: str
+    differences: list = field(default_factory=list)
+    pairs: list = field(default_factory=list)
+
+    def largest_difference(self):
+        """``(relative difference, frame index)`` of the time furthest from the pixels, or
+        None when no time was compared."""
+        known = [(abs(d), k) for k, d in enumerate(self.differences) if d is not None]
+        return max(known) if known else None
+
+    def as_dict(self, sources) -> dict:
+        """JSON-ready summary (for ``diagnostics``), frames named by ``sources``."""
+        return {"source": self.source, "times_source": self.times_source,
+                "measured": [None if not math.isfinite(m) else float(m)
+                             for m in self.measured],
+                "times": list(self.times),
+                "differences": list(self.differences),
+                "frames": [str(Path(s).name) for s in sources]}
+
+
+def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
+    """Frame ``k`` of a :class:`selfcal.frames._Frames` on [0, 1] (white = 1), reduced to
+    :data:`MEASURE_SIDE`, NaN where a clipped value went in."""
+    if frames.raw_files[k]:
+        from ..raw import read_raw_linear
+
+        rgb = read_raw_linear(frames.items[k], half_size=True).rgb
+        white = 1.0
+    else:
+        rgb = frames.load(k)
+        white = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(rgb.dtype, 1.0)
+    rgb = np.asarray(rgb, dtype=np.float32) / np.float32(white)
+    clip_level = 1.0 - (clip_margin / 255.0 if white > 1.0 else 1e-4)
+    return raw_thumbnail(rgb, max_side=MEASURE_SIDE, clip_level=clip_level)
+
+
+def _scale_to_times(measured: np.ndarray, times: list) -> float | None:
+    """The factor putting the measured exposures in the times' units: the median over the
+    frames with both of ``log(time / measured)`` (None without such a frame)."""
+    logs = [math.log(t / m) for t, m in zip(times, measured)
+            if t is not None and math.isfinite(m)]
+    return math.exp(float(np.median(logs))) if logs else None
+
+
+def measure_linear_exposures(frames, times, times_source: str, *, use: str = "auto",
+                             clip_margin: float = 2.0, progress=None) -> LinearExposures:
+    """Relative exposures of a linear bracket from its pixels, combined with its times.
+
+    Parameters
+    ----------
+    frames : selfcal.frames._Frames
+        Linear frames of one scene (raw files, linear TIFFs, or arrays).
+    times : list of float or None
+        Per frame, the exposure time given or read from EXIF (None where unknown).
+    times_source : {"given", "exif"}
+    use : {"auto", "measured", "times"}
+        ``"auto"``: the measured ratios in the times' scale, except that times the caller
+        gave (``times_source="given"``, all known) are kept as they are; ``"measured"``:
+        always the measured ratios; ``"times"``: the times as they are (an error where one
+        is unknown).
+    clip_margin : float
+        Values within this distance of white (8-bit scale) count as clipped.
+    progress : callable, optional
+        ``progress("exposures", done, total, source)``.
+
+    Returns
+    -------
+    LinearExposures
+
+    Raises
+    ------
+    CalibrationError
+        A frame whose exposure neither the pixels nor a time give (named).
+    """
+    if use not in USES:
+        raise InputError(f"use must be one of {', '.join(USES)}, got {use!r}")
+    n = len(frames)
+    thumbs = []
+    for k in range(n):
+        thumbs.append(_thumbnail(frames, k, clip_margin))
+        if progress is not None:
+            progress("exposures", k + 1, n, frames.sources[k])
+    rel, report = raw_exposure_ratios(thumbs, max_side=MEASURE_SIDE)
+    # one connected set of frames is needed for one scale
+    components = [c for c in report["component"] if c >= 0]
+    main = max(set(components), key=components.count) if components else None
+    measured = np.array([e if c == main else np.nan
+                         for e, c in zip(rel, report["component"])], dtype=float)
+    if np.isfinite(measured).any():
+        measured /= measured[np.isfinite(measured)][0]
+
+    scale = _scale_to_times(measured, times)
+    differences = [None if t is None or not math.isfinite(m) or scale is None
+                   else float(t / (m * scale) - 1.0) for t, m in zip(times, measured)]
+    keep_times = use == "times" or (use == "auto" and times_source == "given"
+                                    and all(t is not None for t in times))
+    if keep_times:
+        exposures, source = list(times), times_source
+    else:
+        exposures = [m * (scale or 1.0) if math.isfinite(m) else
+                     (t if scale is not None else None) for m, t in zip(measured, times)]
+        source = "measured" if scale is None else f"measured+{times_source}"
+    missing = [frames.sources[k] for k, e in enumerate(exposures) if e is None]
+    if missing:
+        why = ("has no exposure time" if use == "times" else
+               "shares too few well-exposed pixels with the other frames to measure its "
+               "exposure, and has no exposure time")
+        raise CalibrationError(
+            f"{missing[0]}: {why} (give exposure times)"
+            + (f"; {len(missing) - 1} more frames too" if len(missing) > 1 else ""))
+    return LinearExposures(np.asarray(exposures, dtype=float), measured, list(times),
+                           times_source, source, differences, report["pairs"])

@@ -1,0 +1,133 @@
+"""Raw-only brackets: linear frames merged directly, their exposures measured from the pixels
+(issue 18; Lin et al. 2011 §5).  Truth: the simulator's jittered exposures and radiance."""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+import pytest
+
+import selfcal
+from selfcal import synth
+from selfcal.hdr.linear_exposures import REPORT_DIFFERENCE
+
+TIMES = (1 / 125, 1 / 30, 1 / 8, 1 / 2)
+
+
+def _bracket(tmp_path, *, with_times: bool, seed: int = 7, jitter: float = 0.05):
+    """16-bit linear TIFFs of a jittered bracket (a raw converter's output)."""
+    import tifffile
+
+    scene = synth.make_scene(120, 160, dynamic_range_stops=10, saturation=0.5, seed=seed)
+    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=seed), list(TIMES),
+                                 jitter=jitter, seed=seed)
+    folder = tmp_path / f"lin{seed}{'t' if with_times else ''}"
+    folder.mkdir()
+    paths = []
+    for k, (raw, t) in enumerate(zip(stack.raws, TIMES)):
+        tags = []
+        if with_times:
+            fr = Fraction(t).limit_denominator(100_000)
+            tags = [(33434, 5, 1, (fr.numerator, fr.denominator), False)]
+        path = folder / f"raw_{k}.tif"
+        tifffile.imwrite(path, np.round(np.clip(raw, 0, 1) * 65535).astype(np.uint16),
+                         photometric="rgb", extratags=tags)
+        paths.append(path)
+    return paths, stack
+
+
+def _ratios(x):
+    x = np.asarray(x, dtype=float)
+    return x / x[0]
+
+
+def _radiance_error(result, stack) -> float:
+    """Median relative error of the radiance at its best scale, where the truth is lit."""
+    truth = stack.radiance
+    ok = (truth > 1e-3).all(axis=2) & ~result.unmeasured
+    rad = result.radiance[ok]
+    scale = np.median(rad / truth[ok])
+    return float(np.median(np.abs(rad / (scale * truth[ok]) - 1)))
+
+
+def test_ratios_measured_without_times_within_one_percent(tmp_path):
+    paths, stack = _bracket(tmp_path, with_times=False)
+    result = selfcal.merge_hdr(paths, linear=True)
+    true = _ratios(stack.true_exposures)
+    assert np.max(np.abs(_ratios(result.exposures) / true - 1)) < 0.01
+    # the nominal times are 5 % off: the measurement is what fixes them
+    assert np.max(np.abs(_ratios(TIMES) / true - 1)) > 0.02
+    assert result.exposure_source == "measured"
+    assert any("relative scale" in w for w in result.warnings)
+    lin = result.diagnostics["linear_exposures"]
+    assert lin["source"] == "measured" and lin["times"] == [None] * len(TIMES)
+    assert _radiance_error(result, stack) < 0.03
+
+
+def test_exif_times_scale_the_measured_ratios(tmp_path):
+    paths, stack = _bracket(tmp_path, with_times=True)
+    result = selfcal.merge_hdr(paths, linear=True)
+    assert result.exposure_source == "measured+exif"
+    true = _ratios(stack.true_exposures)
+    assert np.max(np.abs(_ratios(result.exposures) / true - 1)) < 0.01
+    # in the times' units: the median frame agrees with its time
+    exif = np.array(TIMES)        # ISO and aperture unknown: t · 100/100 / 1²
+    assert abs(np.median(np.log(result.exposures / exif))) < 1e-9
+    diffs = result.diagnostics["linear_exposures"]["differences"]
+    worst = int(np.argmax(np.abs(diffs)))
+    assert max(abs(d) for d in diffs) > REPORT_DIFFERENCE
+    assert any("instead of the EXIF exposures" in w and f"raw_{worst}.tif" in w
+               for w in result.warnings)
+    # "times": the EXIF times as they are
+    held = selfcal.merge_hdr(paths, linear=True, linear_exposures="times")
+    assert held.exposure_source == "exif"
+    np.testing.assert_allclose(held.exposures, exif, rtol=1e-6)
+
+
+def test_given_times_are_kept_unless_measured_is_asked_for(tmp_path):
+    paths, stack = _bracket(tmp_path, with_times=False)
+    given = list(TIMES)
+    kept = selfcal.merge_hdr(paths, given, linear=True)
+    assert kept.exposure_source == "given"
+    np.testing.assert_allclose(kept.exposures, given)
+    assert any("kept as given" in w for w in kept.warnings)
+    measured = selfcal.merge_hdr(paths, given, linear=True, linear_exposures="measured")
+    assert measured.exposure_source == "measured+given"
+    true = _ratios(stack.true_exposures)
+    assert np.max(np.abs(_ratios(measured.exposures) / true - 1)) < 0.01
+    # the measured exposures merge closer to the truth than the 5 %-off times
+    assert _radiance_error(measured, stack) < _radiance_error(kept, stack)
+
+
+def test_linear_arrays_and_a_frame_nothing_measures(tmp_path):
+    _, stack = _bracket(tmp_path, with_times=False, seed=11)
+    arrays = [np.clip(r, 0, 1).astype(np.float32) for r in stack.raws]
+    result = selfcal.merge_hdr(arrays, linear=True)
+    true = _ratios(stack.true_exposures)
+    assert np.max(np.abs(_ratios(result.exposures) / true - 1)) < 0.01
+    black = arrays[:2] + [np.zeros_like(arrays[0])]
+    with pytest.raises(selfcal.CalibrationError, match=r"array #2: shares too few"):
+        selfcal.merge_hdr(black, linear=True)
+    with pytest.raises(selfcal.InputError, match="linear_exposures must be one of"):
+        selfcal.merge_hdr(arrays, linear=True, linear_exposures="exif")
+
+
+def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):
+    from selfcal.hdr.io import read_radiance
+    from selfcal_cli.main import main
+
+    paths, stack = _bracket(tmp_path, with_times=True)
+    out = tmp_path / "r.exr"
+    code = main(["merge", *map(str, paths), "-o", str(out)])
+    text = capsys.readouterr()
+    text = text.out + text.err
+    assert code == 0, text
+    assert "are linear data" in text and "follow the exposure times" in text
+    assert "ratios measured from the pixels, scaled to the EXIF" in text
+    assert "ratio (pixels)" in text and "instead of the EXIF exposures" in text
+    radiance = read_radiance(out)
+    truth = stack.radiance
+    ok = (truth > 1e-3).all(axis=2)
+    scale = np.median(radiance[ok] / truth[ok])
+    assert np.median(np.abs(radiance[ok] / (scale * truth[ok]) - 1)) < 0.03
