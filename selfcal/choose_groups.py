@@ -17,6 +17,7 @@ import numpy as np
 
 from .errors import InputError
 from .io import IMAGE_SUFFIXES, read_image
+from .pairs import split_thumbnails
 from .raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff
 
 __all__ = ["InputGroups", "group_inputs", "linear_evidence", "RENDERED_SUFFIXES"]
@@ -186,13 +187,15 @@ def group_inputs(paths) -> InputGroups:
 
 # ---- linear data ---------------------------------------------------------------------
 
-def _grey_thumbnail(path, side: int = 256) -> np.ndarray:
-    """Mean of the channels on [0, 1], subsampled to about ``side`` pixels a side."""
+def _grey_thumbnails(path, side: int = 256):
+    """The frame's mean of the channels on [0, 1] as two half-frame thumbnails of about
+    ``side`` pixels a side, (values, selection) of :func:`selfcal.pairs.split_thumbnails`
+    (NaN where a clipped value went in)."""
     img = read_image(path)
-    step = max(1, int(math.ceil(max(img.shape[:2]) / side)))
-    grey = img[::step, ::step].astype(np.float64).mean(axis=2)
-    return grey / (65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8
-                   else 1.0)
+    white = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0
+    values, selection = split_thumbnails(img.astype(np.float32) / np.float32(white),
+                                         max_side=side)
+    return values.mean(axis=2), selection.mean(axis=2)
 
 
 def _photometric_linear_raw(path) -> bool:
@@ -205,20 +208,28 @@ def _photometric_linear_raw(path) -> bool:
         return False
 
 
-def _ratio_profile(a: np.ndarray, b: np.ndarray):
-    """Median log(b / a) over pixels well exposed in both, and the spread of its medians
-    over the quartiles of ``a`` relative to it; None with too few pixels."""
-    ok = (a > 0.01) & (b > 0.01) & (a < 0.9) & (b < 0.9)
+def _ratio_profile(a, b):
+    """log(b / a) over pixels well exposed in both, and the spread of its values over the
+    quartiles of ``a`` relative to it; None with too few pixels.
+
+    ``a`` and ``b`` are (values, selection) half-frame thumbnails: pixels are chosen and
+    put in quartiles by the selection half and measured (log of the ratio of sums) on the
+    other, so that the noise does not bend the profile at its ends.
+    """
+    (av, asel), (bv, bsel) = a, b
+    ok = ((asel > 0.01) & (bsel > 0.01) & (asel < 0.9) & (bsel < 0.9)
+          & np.isfinite(av) & np.isfinite(bv) & (av > 0) & (bv > 0))
     if ok.sum() < 64:
         return None
-    a, lr = a[ok], np.log(b[ok] / a[ok])
-    edges = np.quantile(a, [0.0, 0.25, 0.5, 0.75, 1.0])
-    medians = [float(np.median(lr[(a >= lo) & (a <= hi)]))
-               for lo, hi in zip(edges[:-1], edges[1:])]
-    level = float(np.median(lr))
+    av, bv, asel = av[ok], bv[ok], asel[ok]
+    edges = np.quantile(asel, [0.0, 0.25, 0.5, 0.75, 1.0])
+    levels = [float(np.log(bv[m].sum() / av[m].sum()))
+              for lo, hi in zip(edges[:-1], edges[1:])
+              if (m := (asel >= lo) & (asel <= hi)).any()]
+    level = float(np.log(bv.sum() / av.sum()))
     if abs(level) < math.log(LINEAR_MIN_EXPOSURE_RATIO):
         return None
-    return level, (max(medians) - min(medians)) / abs(level)
+    return level, (max(levels) - min(levels)) / abs(level)
 
 
 def linear_evidence(frames, exposures) -> str | None:
@@ -255,10 +266,10 @@ def linear_evidence(frames, exposures) -> str | None:
     if all(_photometric_linear_raw(p) for p in frames):
         return "their TIFF tags say linear raw data (PhotometricInterpretation LinearRaw)"
     try:
-        greys = [_grey_thumbnail(p) for p in frames]
+        greys = [_grey_thumbnails(p) for p in frames]
     except InputError:      # e.g. float TIFFs: said where the frames are read for the work
         return None
-    if any(g.shape != greys[0].shape for g in greys):
+    if any(g[0].shape != greys[0][0].shape for g in greys):
         return None
     known = [(float(e), g) for e, g in zip(exposures, greys) if e is not None]
     timed = len({round(math.log(t), 2) for t, _ in known}) >= 2
@@ -267,7 +278,7 @@ def linear_evidence(frames, exposures) -> str | None:
         pairs = [(a, b, math.log(tb / ta)) for (ta, a), (tb, b) in zip(ordered, ordered[1:])
                  if tb >= ta * LINEAR_MIN_EXPOSURE_RATIO]
     else:
-        ordered = sorted(greys, key=lambda g: float(np.median(g)))
+        ordered = sorted(greys, key=lambda g: float(np.median(np.nan_to_num(g[1], nan=1.0))))
         pairs = [(a, b, None) for a, b in zip(ordered, ordered[1:])]
     profiles = [(prof, log_t) for a, b, log_t in pairs
                 if (prof := _ratio_profile(a, b)) is not None]

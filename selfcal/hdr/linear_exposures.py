@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..pairs import raw_exposure_ratios, raw_thumbnail
+from ..pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "MEASURE_SIDE",
            "REPORT_DIFFERENCE"]
@@ -88,8 +88,8 @@ class LinearExposures:
 
 
 def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
-    """Frame ``k`` of a :class:`selfcal.frames._Frames` on [0, 1] (white = 1), reduced to
-    :data:`MEASURE_SIDE`, NaN where a clipped value went in."""
+    """Frame ``k`` of a :class:`selfcal.frames._Frames` on [0, 1] (white = 1), as the two
+    half-frame thumbnails of :func:`selfcal.pairs.split_thumbnails` (values, selection)."""
     if frames.raw_files[k]:
         from ..raw import read_raw_linear
 
@@ -100,7 +100,7 @@ def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
         white = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(rgb.dtype, 1.0)
     rgb = np.asarray(rgb, dtype=np.float32) / np.float32(white)
     clip_level = 1.0 - (clip_margin / 255.0 if white > 1.0 else 1e-4)
-    return raw_thumbnail(rgb, max_side=MEASURE_SIDE, clip_level=clip_level)
+    return split_thumbnails(rgb, max_side=MEASURE_SIDE, clip_level=clip_level)
 
 
 def _scale_to_times(measured: np.ndarray, times: list) -> float | None:
@@ -149,7 +149,8 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
         thumbs.append(_thumbnail(frames, k, clip_margin))
         if progress is not None:
             progress("exposures", k + 1, n, frames.sources[k])
-    rel, report = raw_exposure_ratios(thumbs, max_side=MEASURE_SIDE)
+    rel, report = raw_exposure_ratios([v for v, _ in thumbs], select=[c for _, c in thumbs],
+                                      statistic="sum", max_side=2 * MEASURE_SIDE)
     # one connected set of frames is needed for one scale
     components = [c for c in report["component"] if c >= 0]
     main = max(set(components), key=components.count) if components else None
