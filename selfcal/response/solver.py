@@ -29,8 +29,10 @@ selfcal's own (one line each on why):
 - PCA-variance prior on the coefficients (:mod:`.priors`): the data leave the bend of the
   never-observed last codes open, and with fewer than two known times the exponential
   ambiguity too; the curve database decides.  On in every solve with the built-in basis
-  (it carries PCA variances), not only with < 2 known times; a ridge replaces it for a
-  basis without variances.
+  (it carries PCA variances), not only with < 2 known times.  A basis without variances
+  (``invemor.txt``) gets them estimated from the curve family projected on it
+  (:func:`.priors.estimated_coefficient_variance`, ours); the ridge acts only when the
+  prior is off (``prior_weight = 0``, or ``priors.ESTIMATED_PRIOR_SCALE = 0``).
 - White-continuation prior (:mod:`.priors`): beyond the brightest valid sample f⁻¹(1) = 1
   is extrapolation, and the observed curve's straight continuation should meet it.
 - Censored white-threshold rows (:class:`.equations.ThresholdRows`): where each channel
@@ -192,13 +194,16 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         early leaves a model that depends on its starting guess (ours).
     ridge : float
         Weight of the ridge on the coefficients, relative to the mean data weight; used
-        only for a basis without PCA variances (or ``prior_weight = 0``).
+        only when the PCA-variance prior is off (``prior_weight = 0``, or a basis without
+        variances with ``priors.ESTIMATED_PRIOR_SCALE = 0``).
     white_continuation_sigma : float
         Std (log units) of the white-continuation prior: the observed curve continues
         straight from the brightest valid sample to g(1) = 0.
     prior_weight : float
         Scale of the PCA-variance prior c_n ~ N(0, λ_n / prior_weight) from the basis' PCA
-        variances λ_n, on in every solve whatever the number of known times.  The data
+        variances λ_n (estimated for a basis without them, and then weighted by
+        ``priors.ESTIMATED_PRIOR_SCALE``), on in every solve whatever the number of known
+        times.  The data
         term counts every pair equation as independent, but one sample location enters up
         to 3·(F−1) correlated equations (channels, pairs) and JPEG errors are spatially
         correlated, so the prior is weighted up by about that factor; 100 was chosen on
