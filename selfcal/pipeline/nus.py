@@ -32,11 +32,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 from scipy.spatial.distance import cdist
 
 from ..errors import InputError
-from .dense import grid_points, trilinear_lookup
 from .model import BAKE_SIZE, PipelineModel, _as_rgb_float
 
 #: White-balance setting codes of the NUS models (README of the model zoo).
@@ -285,12 +285,170 @@ def read_nus_model(folder, direction: str = "raw2jpg", wb_code: int | None = 14)
 
 # ---- an NUS model folder as a selfcal pipeline model ------------------------------------
 
-#: Nodes per axis of the dense forward (render) table of an NUS model.
+#: Nodes per axis of the coarse forward (render) grid of an NUS model: its cells are the
+#: blocks of the lazily evaluated render table.
 NUS_RENDER_SIZE = 49
-#: The render table's nodes sit at raw ``ρ = u^(1/γ)`` (``u`` uniform): dense near black,
-#: where the tone curve is steepest (ours, as the backward table's shaper).
+#: Each coarse cell is split into ``NUS_RENDER_REFINE³`` cells (a 241-node grid per axis
+#: at the defaults); only the cells an image reaches are evaluated.
+NUS_RENDER_REFINE = 5
+#: The render grid's nodes sit at raw ``ρ = u^(1/γ)`` (``u`` uniform): cells grow with
+#: ``ρ^(1-γ)`` as the tone curve's slope falls (for a ``1/2.2`` tone curve the output error
+#: of first-order interpolation is then even over the cube; ours, measured by
+#: ``bench/bench_nus_model.py``).
 NUS_RENDER_GAMMA = 0.45
 _RAW_CODES = 65536
+_CHUNK = 1 << 15
+
+
+class _LazyRenderTable:
+    """``h(T ρ)`` on a fine grid over the raw cube, evaluated only where images reach (ours).
+
+    The raw2jpg RBF ``Σ wᵢ ||e - cᵢ|| + [1, e] A`` (Kim et al. PAMI 2012) is a sum of
+    cones: it has a kink at each of its thousands of centres, so trilinear interpolation
+    converges only to first order in the cell size and a table within 1e-3 of it needs
+    about 241 nodes per axis (14 M nodes; 5 minutes of RBF evaluation).  A natural image
+    reaches a small part of that cube (a 24 MP frame: 50,000-200,000 nodes), so the grid
+    is kept in blocks, one per coarse cell (``coarse_cells³`` of them, ``refine + 1`` nodes
+    per axis each, faces shared by duplication), allocated when a pixel first falls in
+    the coarse cell, and a node is evaluated when a pixel first falls in one of the
+    cells it is a corner of.
+
+    Per pixel: the raw read at 16-bit precision, the grid coordinate from per-code tables
+    (one packed integer per channel: coarse cell and offset in the block), one gather of
+    the block number and eight 16-byte gathers of the corner rows (``h`` padded to four
+    float32), trilinear interpolation in the shaper's coordinate ``u = ρ^γ``.
+
+    Parameters
+    ----------
+    evaluate : callable
+        ``(n, 3)`` raw -> ``(n, 3)`` ``h(T ρ)`` (float64).
+    coarse_cells, refine : int
+        Cells per axis of the coarse grid, and the split of each.
+    gamma : float
+        The shaper: nodes at ``ρ = u^(1/γ)``.
+    scale : float
+    shift : float or array_like of 4
+        The table holds ``scale · h + shift`` per column (the render's tone-table index,
+        saving passes per pixel; interpolation commutes with it).
+    """
+
+    def __init__(self, evaluate, coarse_cells: int, refine: int, gamma: float,
+                 scale: float = 1.0, shift=0.0):
+        self._evaluate = evaluate
+        self.scale = float(scale)
+        self.shift = np.broadcast_to(np.asarray(shift, dtype=np.float64), (4,))
+        self.c = c = int(coarse_cells)
+        self.r = r = int(refine)
+        self.b = b = r + 1                       # nodes per axis of a block
+        self.nb = b ** 3
+        if b * b * (r - 1) + b * (r - 1) + (r - 1) >= 256 or c ** 3 * 256 >= 2 ** 31:
+            raise ValueError("the render grid is too fine for its packed indices")
+        self.gamma = float(gamma)
+        self.block_of = np.full(c ** 3, -1, dtype=np.int32)
+        self.coarse_of = np.empty(0, dtype=np.int64)
+        self.values = np.zeros((0, 4), dtype=np.float32)
+        self.known = np.zeros(0, dtype=bool)    # node evaluated
+        self.ready = np.zeros(0, dtype=bool)    # cell (at its first corner) has all 8
+        self.n_blocks = 0
+        self.evaluated = 0
+        self.offsets = [0, 1, b, b + 1, b * b, b * b + 1, b * b + b, b * b + b + 1]
+        u = np.arange(_RAW_CODES, dtype=np.float64) / (_RAW_CODES - 1)
+        u = u ** self.gamma * (c * r)
+        i = np.minimum(np.floor(u).astype(np.int64), c * r - 1)
+        self.t = (u - i).astype(np.float32)
+        coarse, sub = np.divmod(i, r)
+        # per channel: (coarse-cell contribution << 8) + offset in the block
+        self.packed = [(((coarse * c * c) << 8) + sub * b * b).astype(np.int32),
+                       (((coarse * c) << 8) + sub * b).astype(np.int32),
+                       ((coarse << 8) + sub).astype(np.int32)]
+
+    def _grow(self, blocks: int):
+        cap = self.values.shape[0] // self.nb
+        if blocks <= cap:
+            return
+        cap = max(blocks, 2 * cap, 64)
+        for name in ("values", "known", "ready"):
+            old = getattr(self, name)
+            new = np.zeros((cap * self.nb,) + old.shape[1:], dtype=old.dtype)
+            new[:old.shape[0]] = old
+            setattr(self, name, new)
+        coarse_of = np.empty(cap, dtype=np.int64)
+        coarse_of[:self.n_blocks] = self.coarse_of[:self.n_blocks]
+        self.coarse_of = coarse_of
+
+    def _add_blocks(self, coarse: np.ndarray):
+        coarse = np.unique(coarse)
+        n0, n = self.n_blocks, coarse.size
+        self._grow(n0 + n)
+        self.coarse_of[n0:n0 + n] = coarse
+        self.block_of[coarse] = np.arange(n0, n0 + n, dtype=np.int32)
+        self.n_blocks = n0 + n
+
+    def _fill(self, cells: np.ndarray):
+        """Evaluate the missing corners of ``cells`` (first-corner node indices)."""
+        cells = np.unique(cells)
+        nodes = np.unique((cells[:, None] + np.array(self.offsets)).ravel())
+        nodes = nodes[~self.known[nodes]]
+        if nodes.size:
+            b, c, r = self.b, self.c, self.r
+            blk, loc = np.divmod(nodes, self.nb)
+            co = self.coarse_of[blk]
+            fine = np.stack([co // (c * c) * r + loc // (b * b),
+                             (co // c) % c * r + (loc // b) % b,
+                             co % c * r + loc % b], axis=1)
+            rho = (fine / (c * r)) ** (1.0 / self.gamma)
+            self.values[nodes] = self.shift
+            self.values[nodes, :3] += self._evaluate(rho) * self.scale
+            self.known[nodes] = True
+            self.evaluated += nodes.size
+        self.ready[cells] = True
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        """``scale · h + shift`` at ``(n, 3)`` 16-bit raw codes ``q`` (intp); ``(n, 4)``
+        float32, the fourth column unused."""
+        key = self.packed[0].take(q[:, 0])
+        key += self.packed[1].take(q[:, 1])
+        key += self.packed[2].take(q[:, 2])
+        coarse = key >> 8
+        blk = self.block_of.take(coarse)
+        if (blk < 0).any():
+            self._add_blocks(coarse[blk < 0])
+            blk = self.block_of.take(coarse)
+        base = blk.astype(np.intp)
+        base *= self.nb
+        base += key & 255
+        ready = self.ready.take(base)
+        if not ready.all():
+            self._fill(base[~ready])
+        rows = self.values.view(np.complex128).ravel()   # one 16-byte row per node
+        n = q.shape[0]
+        # OpenCV images of four channels: 256 pixels a row when n allows, else one row
+        shape = (n // 256, 256, 4) if n % 256 == 0 else (1, n, 4)
+        bufs = [np.empty((n, 4), dtype=np.float32) for _ in range(6)]
+
+        def corner(k, buf):     # rows[base + offset], the offset as a view (no index pass)
+            rows[self.offsets[k]:].take(base, out=bufs[buf].view(np.complex128).reshape(n))
+            return bufs[buf].reshape(shape)
+
+        def lerp(a, b, w, out):
+            # cv2.blendLinear: (w0 a + w1 b) / (w0 + w1 + 1e-5) in one pass (3x numpy's
+            # three); the weights are scaled by 2^16 so that the 1e-5 costs < 1e-9
+            return cv2.blendLinear(a, b, w[0], w[1], dst=out)
+
+        w = []
+        for k in range(3):
+            tk = self.t.take(q[:, k])
+            tk *= np.float32(65536.0)
+            w.append(((np.float32(65536.0) - tk).reshape(shape[:2]), tk.reshape(shape[:2])))
+        out = bufs[5].reshape(shape)
+        c0 = lerp(corner(0, 0), corner(1, 1), w[2], bufs[0].reshape(shape))
+        c1 = lerp(corner(2, 1), corner(3, 2), w[2], bufs[1].reshape(shape))
+        c0 = lerp(c0, c1, w[1], bufs[2].reshape(shape))
+        c1 = lerp(corner(4, 0), corner(5, 1), w[2], bufs[0].reshape(shape))
+        c2 = lerp(corner(6, 3), corner(7, 4), w[2], bufs[1].reshape(shape))
+        c1 = lerp(c1, c2, w[1], bufs[3].reshape(shape))
+        lerp(c0, c1, w[0], out)
+        return bufs[5]
 
 
 class _NUSInverseTone:
@@ -320,15 +478,22 @@ class NUSPipelineModel(PipelineModel):
       RBF: ``ρ = T⁻¹ h⁻¹(f⁻¹(P))`` baked over the linearised cube (``bake_size`` nodes per
       axis, the ``u^(1/0.6)`` shaper), 8-bit input through the per-code table.  Output
       clipped to ``[0, 1]`` like every pipeline model's.
-    - ``render``: ``h(T ρ)`` (the raw2jpg RBF) baked over the raw cube ``[0, 1]³``
-      (:data:`NUS_RENDER_SIZE` nodes per axis at ``ρ = u^(1/0.45)``, ours), trilinear,
+    - ``render``: ``h(T ρ)`` (the raw2jpg RBF) on a fine grid over the raw cube
+      ``[0, 1]³`` (``(render_size - 1) · render_refine + 1`` nodes per axis at
+      ``ρ = u^(1/0.45)``: 241 by default; ours), evaluated lazily where images reach
+      (:class:`_LazyRenderTable`: the first image pays for the nodes it needs), trilinear,
       then the clip and the tone curve ``f`` per channel (tabulated at every 1/65535).
       The raw is read at 16-bit precision (float input is rounded to ``1/65535``, below
       any raw file's step) to find its grid coordinate by a table look-up.
 
     The RBF's kernel ``||e - c_i||`` has a kink at each of its thousands of centres, so
-    a trilinear table matches it closely on average but not everywhere (the RMS and
-    largest differences are measured by ``bench/bench_nus_model.py``).
+    trilinear interpolation converges only to first order: the render grid is fine
+    (within 1e-3 of the reference on a real frame, where a 49³ table was off by 6.7e-3)
+    and hence lazy.  The differences and times are measured by
+    ``bench/bench_nus_model.py``.  The first render of a frame spanning many colours
+    costs a few seconds of RBF evaluation (about 20 µs per node; a 24 MP frame needs
+    50,000-200,000 nodes), kept for the next frames; an image of random colours over the
+    whole cube would need millions.
 
     Not saved as a selfcal model file (:meth:`save` refuses): the folder is the model.
 
@@ -339,19 +504,23 @@ class NUSPipelineModel(PipelineModel):
     bake_size : int
         Nodes per axis of the backward table.
     render_size : int
-        Nodes per axis of the forward table.
+        Nodes per axis of the coarse forward grid (its cells are the lazy blocks).
+    render_refine : int
+        Each coarse cell split into ``render_refine³`` cells.
     """
 
     def __init__(self, camera: NUSCameraModel, *, bake_size: int = BAKE_SIZE,
-                 render_size: int = NUS_RENDER_SIZE):
+                 render_size: int = NUS_RENDER_SIZE,
+                 render_refine: int = NUS_RENDER_REFINE):
         for d in _DIRECTIONS:
             if d not in camera._maps:
                 raise InputError(f"{d}_ctrlPoints.txt is missing: a model used for both "
                                  "to-raw and render needs both RBF maps", camera.folder)
         self.camera = camera
         self.render_size = int(render_size)
+        self.render_refine = int(render_refine)
         self._forward = None
-        self._raw_coords = None
+        self._tone_table = None
         wb = "base" if camera.wb_code is None else f"{camera.wb_code} " \
             f"({WB_NAMES.get(camera.wb_code, '?')})"
         super().__init__(matrix=camera.transform, tone_curves=None, forward_lut=None,
@@ -372,25 +541,40 @@ class NUSPipelineModel(PipelineModel):
         return self.camera._maps["jpg2raw"](np.asarray(e, dtype=np.float64)) \
             @ self.camera.transform_inverse.T
 
-    def _forward_table(self):
+    def _forward_table(self) -> _LazyRenderTable:
         if self._forward is None:
             cam = self.camera
-            g = self.render_size
-            u = grid_points(np.zeros(3), np.ones(3), g).reshape(-1, 3)
-            mapped = cam._maps["raw2jpg"]((u ** (1.0 / NUS_RENDER_GAMMA)) @ cam.transform.T)
-            self._forward = mapped.reshape((g,) * 3 + (3,)).astype(np.float32)
+            raw2jpg, transform = cam._maps["raw2jpg"], cam.transform
+
+            def evaluate(rho):
+                return raw2jpg(rho @ transform.T)
+
+            # the table holds h in 16-bit steps plus half a step plus 65536 c: after a clip
+            # and a truncation, channel c's index into the tone table (passes saved)
+            self._forward = _LazyRenderTable(evaluate, self.render_size - 1,
+                                             self.render_refine, NUS_RENDER_GAMMA,
+                                             scale=_RAW_CODES - 1,
+                                             shift=0.5 + _RAW_CODES * np.arange(4))
             codes = np.arange(_RAW_CODES, dtype=np.float64) / (_RAW_CODES - 1)
-            self._raw_coords = (codes ** NUS_RENDER_GAMMA * (g - 1)).astype(np.float32)
-            # f at every 1/65535 of the gamut-mapped value, per channel
-            self._tone_table = cam.tone(np.repeat(codes[:, None], 3, axis=1)).astype(
-                np.float32)
+            # f at every 1/65535 of the gamut-mapped value, channel after channel (and a
+            # fourth, unused: the table's rows have four columns, contiguous passes are
+            # 1.5-2x faster than over three of four)
+            tone = np.zeros((4, _RAW_CODES), dtype=np.float32)
+            tone[:3] = cam.tone(np.repeat(codes[:, None], 3, axis=1)).T
+            self._tone_table = tone.ravel()
         return self._forward
 
-    def render(self, raw, *, return_mask: bool = False):
-        """Forward: raw -> rendered, ``f(clip(h(T ρ), 0, 1))`` through the baked table.
+    def render_exact(self, raw) -> np.ndarray:
+        """``f(clip(h(T ρ), 0, 1))`` evaluated directly (the reference,
+        :meth:`NUSCameraModel.render`; about 20 µs per pixel); float64, same shape."""
+        return self.camera.render(_as_rgb_float(raw, "raw"))
 
-        ``h(T ρ)`` is interpolated in the baked table; the clip and the tone curve ``f``
-        are then applied per channel (``f`` tabulated at every ``1/65535``).
+    def render(self, raw, *, return_mask: bool = False):
+        """Forward: raw -> rendered, ``f(clip(h(T ρ), 0, 1))`` through the render table.
+
+        ``h(T ρ)`` is interpolated in the lazily evaluated fine table (see the class
+        docstring); the clip and the tone curve ``f`` are then applied per channel (``f``
+        tabulated at every ``1/65535``).
 
         Parameters
         ----------
@@ -406,23 +590,32 @@ class NUSPipelineModel(PipelineModel):
         numpy.ndarray
             float32 in ``[0, 1]``, same shape.
         """
-        x = _as_rgb_float(raw, "raw")
+        x = np.asarray(raw)
+        if x.dtype != np.uint16 or x.ndim < 1 or x.shape[-1] != 3:
+            x = _as_rgb_float(x, "raw")          # uint16 is used as the 16-bit code
         table = self._forward_table()
+        tone = self._tone_table
         shape = x.shape
         flat = x.reshape(-1, 3)
         out = np.empty(flat.shape, dtype=np.float32)
         top = np.float32(_RAW_CODES - 1)
-        step = 1 << 20
-        for s in range(0, flat.shape[0], step):
-            q = np.clip(flat[s:s + step], 0.0, 1.0) * top
-            q += np.float32(0.5)
-            mapped = trilinear_lookup(table, self._raw_coords[q.astype(np.int32)])
-            np.clip(mapped, 0.0, 1.0, out=mapped)
-            mapped *= top
-            mapped += np.float32(0.5)
-            idx = mapped.astype(np.int32)
-            for c in range(3):
-                out[s:s + step, c] = self._tone_table[idx[:, c], c]
+        lo = tuple(0.5 + _RAW_CODES * c for c in range(4))
+        hi = tuple(v + _RAW_CODES - 1 for v in lo)
+        for s in range(0, flat.shape[0], _CHUNK):
+            chunk = flat[s:s + _CHUNK]
+            n = chunk.shape[0]
+            if flat.dtype == np.uint16:
+                q = chunk.astype(np.intp)
+            else:   # OpenCV (one channel): rounded to int32, then clipped to the codes
+                q = cv2.multiply(chunk.reshape(1, 3 * n), float(top), dtype=cv2.CV_32S)
+                cv2.max(q, 0, dst=q)
+                cv2.min(q, _RAW_CODES - 1, dst=q)
+                q = q.reshape(n, 3).astype(np.intp)
+            mapped = table(q)                      # (n, 4): 65535 h + 0.5 + 65536 c
+            # clipped per column with OpenCV (10x numpy's clip with array bounds)
+            img = mapped.reshape(1, n, 4)
+            cv2.min(cv2.max(img, lo, dst=img), hi, dst=img)
+            out[s:s + _CHUNK] = tone.take(mapped.astype(np.intp))[:, :3]
         out = out.reshape(shape)
         return (out, None) if return_mask else out
 
@@ -441,7 +634,8 @@ def is_nus_model_folder(path) -> bool:
 
 
 def load_nus_pipeline(folder, wb_code: int | None = 14, *, bake_size: int = BAKE_SIZE,
-                      render_size: int = NUS_RENDER_SIZE) -> NUSPipelineModel:
+                      render_size: int = NUS_RENDER_SIZE,
+                      render_refine: int = NUS_RENDER_REFINE) -> NUSPipelineModel:
     """An NUS model folder as a pipeline model (:class:`NUSPipelineModel`).
 
     What :func:`selfcal.load_model` returns for such a folder: ``to_raw`` and ``render``
@@ -455,6 +649,10 @@ def load_nus_pipeline(folder, wb_code: int | None = 14, *, bake_size: int = BAKE
     wb_code : int or None
         White-balance setting (see :func:`read_nus_model`; default 14, fluorescent, the
         setting of the NUS D7000 sample images).
+    bake_size : int
+        Nodes per axis of the backward table.
+    render_size, render_refine : int
+        The render grid: coarse nodes per axis, and the split of each coarse cell.
 
     Returns
     -------
@@ -472,10 +670,11 @@ def load_nus_pipeline(folder, wb_code: int | None = 14, *, bake_size: int = BAKE
     stamp = tuple(sorted((f.name, f.stat().st_mtime_ns, f.stat().st_size)
                          for f in Path(folder).glob("*.txt")))
     key = (str(Path(folder).resolve()), camera.wb_code, int(bake_size), int(render_size),
-           stamp)
+           int(render_refine), stamp)
     if key not in _LOADED:
         _LOADED.clear()
-        _LOADED[key] = NUSPipelineModel(camera, bake_size=bake_size, render_size=render_size)
+        _LOADED[key] = NUSPipelineModel(camera, bake_size=bake_size, render_size=render_size,
+                                        render_refine=render_refine)
     return _LOADED[key]
 
 
