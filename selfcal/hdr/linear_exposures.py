@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..frames import _given_exposures
 from ..pairs import raw_exposure_ratios, split_thumbnails
 
-__all__ = ["LinearExposures", "measure_linear_exposures", "MEASURE_SIDE",
-           "REPORT_DIFFERENCE"]
+__all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
+           "MEASURE_SIDE", "REPORT_DIFFERENCE"]
 
 #: Long side (pixels) of the area-averaged thumbnails the ratios are measured on.
 MEASURE_SIDE = 512
@@ -180,3 +181,32 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
             + (f"; {len(missing) - 1} more frames too" if len(missing) > 1 else ""))
     return LinearExposures(np.asarray(exposures, dtype=float), measured, list(times),
                            times_source, source, differences, report["pairs"])
+
+
+def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: float,
+                             warnings: list, diagnostics: dict, progress):
+    """:func:`measure_linear_exposures` for :func:`selfcal.merge_hdr`: the times (given,
+    else EXIF) read, the summary put in ``diagnostics["linear_exposures"]`` and the
+    warnings that say what was used.  Returns ``(exposures, source)``."""
+    from ..frames import _given_exposures
+
+    times, times_source = _given_exposures(frames, exposure_times)
+    lin = measure_linear_exposures(frames, times, times_source, use=use,
+                                   clip_margin=clip_margin, progress=progress)
+    diagnostics["linear_exposures"] = lin.as_dict(frames.sources)
+    label = {"given": "given times", "exif": "EXIF exposures"}[times_source]
+    worst = lin.largest_difference()
+    if lin.source == "measured":
+        warnings.append("no exposure times known: the radiance is on a relative scale "
+                        "(exposure ratios measured from the pixels)")
+    elif worst is not None and worst[0] > REPORT_DIFFERENCE:
+        name = Path(frames.sources[worst[1]]).name
+        if lin.source.startswith("measured"):
+            warnings.append(f"using the exposure ratios measured from the pixels instead of "
+                            f"the {label} (they differ by up to {100 * worst[0]:.1f}%, at "
+                            f"{name})")
+        else:
+            warnings.append(f"the {label} differ from the exposure ratios measured from the "
+                            f"pixels by up to {100 * worst[0]:.1f}% (at {name}); kept as "
+                            "given (linear_exposures='measured' uses the pixels')")
+    return lin.exposures, lin.source

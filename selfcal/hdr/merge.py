@@ -33,10 +33,9 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
   highlight edge leaves clipped pixels a few codes below white;
 * **the same frames as the calibration**: a frame the model's calibration ignored is not
   merged, with its reason in a warning;
-* a **misalignment test**: each pair of neighbours in exposure is compared, exposure-
-  normalised, at its registration and shifted by a pixel (:mod:`.deghost`); when a shift
-  lowers the residual by more than ``deghost.MISALIGNMENT_GAIN``, a warning names
-  ``--align`` (and says that exposures the model estimated may reflect the misalignment);
+* a **misalignment test**: neighbours in exposure are compared, exposure-normalised, as
+  registered and shifted by a pixel (:mod:`.deghost`); a shift lowering the residual by
+  more than ``deghost.MISALIGNMENT_GAIN`` gives a warning naming ``--align``;
 * pixels that **no frame measured** unclipped are filled by a documented rule and reported
   in :attr:`HDRResult.unmeasured`: per channel, from the **darkest** frame (shortest
   exposure) when the brightest frame is clipped at white there -- a highlight; its
@@ -49,12 +48,11 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
 * optional **alignment** to the reference frame (median threshold bitmaps, Ward 2003;
   ECC homography, Evangelidis & Psarakis 2008) and **deghosting** against the reference
   frame with the noise model;
-* frames are **streamed**: paths are decoded one at a time (twice with alignment: once to
-  estimate it, once to merge) into float32 accumulators (numerator and denominator per
-  channel) of the frame size, processed in strips of rows with OpenCV lookup tables
-  (``cv2.LUT``) for f⁻¹ and the weights, in parallel threads.  Only the reference frame's
-  codes (for deghosting) and those of the darkest and brightest frames (for the fill) are
-  kept, as codes; 17 frames of 24 MP merge in well under 2 GB.
+* frames are **streamed**: decoded one at a time (twice with alignment) into float32
+  accumulators of the frame size, in strips of rows with OpenCV lookup tables for f⁻¹
+  and the weights, in parallel threads; only the reference, darkest and brightest
+  frames' codes are kept (deghosting, the fill): 17 frames of 24 MP in well under 2 GB;
+* **linear frames** (raws, linear TIFFs): exposures from their pixels (:mod:`.linear_exposures`).
 
 References
 ----------
@@ -91,7 +89,6 @@ from ..frames import (
     _clip_limits,
     _default_reference,
     _Frames,
-    _given_exposures,
     _Lineariser,
     _max_code,
     _model_frame_index,
@@ -102,7 +99,7 @@ from ..frames import (
 from ..io import JPEG_SUFFIXES, _cv2, _is_path, read_image
 from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
 from ..samples import collect_samples
-from .linear_exposures import REPORT_DIFFERENCE, USES, measure_linear_exposures
+from .linear_exposures import USES, resolve_linear_exposures
 from .deghost import (
     _ghost_mask,
     _misalignment_warning,
@@ -190,11 +187,10 @@ class HDRResult:
 
 def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
               align=False, deghost: bool = False, reference: int | None = None,
-              linear: bool = False, noise: NoiseModel | None = None,
+              linear: bool = False, linear_exposures: str = "auto", noise=None,
               clip_margin: float = DEFAULT_CLIP_MARGIN, deghost_threshold: float = 3.0,
               deghost_tolerance: float = 0.1, calibrate_options: dict | None = None,
-              lossy: bool | None = None, stuck_codes=None, linear_exposures: str = "auto",
-              progress=None) -> HDRResult:
+              lossy: bool | None = None, stuck_codes=None, progress=None) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -272,12 +268,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
         ``{"floor": [R, G, B], "ceiling": [R, G, B]}``, normalised codes.  Default: the
         model's ``diagnostics["stuck_codes"]``, else measured; False: none.
     linear_exposures : {"auto", "measured", "times"}
-        Linear frames only: where the exposures come from
-        (:func:`.linear_exposures.measure_linear_exposures`).  ``"auto"``: the ratios
-        measured from the pixels (Lin et al. 2011, §5), put in the EXIF times' scale;
-        times the caller gives are kept.  ``"measured"``: the pixels' ratios always;
-        ``"times"``: the times as they are.  ``diagnostics["linear_exposures"]`` says
-        what was measured and how far each time is from it.
+        Linear frames' exposures (:func:`.linear_exposures.measure_linear_exposures`).
     progress : callable, optional
         ``progress(stage, done, total, detail)`` with stages ``"read"``/``"solve"`` (the
         calibration), ``"exposures"`` (linear frames), ``"align"`` and ``"merge"``.
@@ -302,11 +293,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     >>> result.radiance.dtype, result.radiance.shape
     (dtype('float32'), (256, 384, 3))
     """
-    align = _check_options(weighting, align, linear, model)
-    if linear_exposures not in USES:
-        raise InputError(f"linear_exposures must be one of {', '.join(USES)}, got "
-                         f"{linear_exposures!r}")
-    noise = DEFAULT_NOISE if noise is None else noise
+    align, noise = _check_options(weighting, align, linear, model, linear_exposures, noise)
     frames = _Frames(images, linear)
     linear = frames.linear  # raw files are linear
     n = len(frames)
@@ -320,13 +307,10 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
             frames, exposure_times, align, reference, clip_margin, calibrate_options,
             progress, warnings, diagnostics)
         fresh = True
-    if linear:
-        exposures, exposure_source = _linear_exposures(frames, exposure_times,
-                                                       linear_exposures, clip_margin,
-                                                       warnings, diagnostics, progress)
-    else:
-        exposures, exposure_source = _resolve_exposures(frames, exposure_times, model,
-                                                        fresh, warnings)
+    exposures, exposure_source = resolve_linear_exposures(
+        frames, exposure_times, linear_exposures, clip_margin, warnings, diagnostics,
+        progress) if linear else _resolve_exposures(frames, exposure_times, model, fresh,
+                                                      warnings)
     ref = _default_reference(exposures) if reference is None else int(reference)
     if not 0 <= ref < n:
         raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
@@ -474,34 +458,9 @@ def _looks_lossy(frames: _Frames, linear: bool) -> bool:
     return False
 
 
-def _linear_exposures(frames: _Frames, exposure_times, use: str, clip_margin: float,
-                      warnings: list, diagnostics: dict, progress):
-    """Exposures of linear frames: the pixels' ratios in the times' scale
-    (:func:`.linear_exposures.measure_linear_exposures`), and the warnings that say so."""
-    times, times_source = _given_exposures(frames, exposure_times)
-    lin = measure_linear_exposures(frames, times, times_source, use=use,
-                                   clip_margin=clip_margin, progress=progress)
-    diagnostics["linear_exposures"] = lin.as_dict(frames.sources)
-    label = {"given": "given times", "exif": "EXIF exposures"}[times_source]
-    worst = lin.largest_difference()
-    if lin.source == "measured":
-        warnings.append("no exposure times known: the radiance is on a relative scale "
-                        "(exposure ratios measured from the pixels)")
-    elif worst is not None and worst[0] > REPORT_DIFFERENCE:
-        name = os.path.basename(frames.sources[worst[1]])
-        if lin.source.startswith("measured"):
-            warnings.append(f"using the exposure ratios measured from the pixels instead of "
-                            f"the {label} (they differ by up to {100 * worst[0]:.1f}%, at "
-                            f"{name})")
-        else:
-            warnings.append(f"the {label} differ from the exposure ratios measured from the "
-                            f"pixels by up to {100 * worst[0]:.1f}% (at {name}); kept as "
-                            "given (linear_exposures='measured' uses the pixels')")
-    return lin.exposures, lin.source
-
-
-def _check_options(weighting, align, linear: bool, model):
-    """``align`` as a method name or False (``True`` means ``"mtb"``); errors for bad options."""
+def _check_options(weighting, align, linear: bool, model, linear_exposures: str, noise):
+    """``align`` as a method name or False (``True`` means ``"mtb"``), and the noise model
+    (default :data:`.weights.DEFAULT_NOISE`); errors for bad options."""
     if weighting not in ("hat", "noise") and not callable(weighting):
         raise InputError(f"unknown weighting {weighting!r} (hat, noise or a function)")
     if align is True:
@@ -510,7 +469,9 @@ def _check_options(weighting, align, linear: bool, model):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
     if linear and model is not None:
         raise InputError("linear=True: the frames are linear already; do not pass a model")
-    return align
+    if linear_exposures not in USES:
+        raise InputError(f"linear_exposures must be one of {', '.join(USES)}")
+    return align, (DEFAULT_NOISE if noise is None else noise)
 
 
 def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, clip_margin,
