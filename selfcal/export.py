@@ -30,10 +30,20 @@ What each direction writes (``direction``):
 
 Both 3D directions write ``DOMAIN_MIN 0 0 0`` and ``DOMAIN_MAX 1 1 1`` (the values the
 models take; the lines are the spec's defaults, written so that no reader has to assume
-them).  A 3D table is sampled on a uniform grid of its input, so the ``render`` table is
-coarse where the tone curve is steep (the darkest few grid cells of linear raw: a 33³
-table is off by up to a few per cent of full scale below raw ≈ 0.1); a shaper LUT would
-fix that, but neither the 3D-only ``.cube`` files ffmpeg reads nor this module write one.
+them).  A narrower domain (to leave out the last codes before clipping) is not written:
+ffmpeg's ``lut3d`` (checked with 9.0.2) reads the lines but only ever shrinks its input,
+scaling by ``min(1, 1 / (max - min))`` and ignoring ``DOMAIN_MIN``, so a table for
+``[0, 0.98]`` would be read as one for ``[0, 1]``.
+
+A 3D table is sampled on a uniform grid of its input, so it is coarse where the model
+is steep: the ``render`` table in the darkest grid cells of linear raw (the tone curve
+rises fastest there), the ``to-raw`` table in the last cell before code 255 (a camera's
+``f⁻¹`` can climb a fifth of full scale over its last three codes).  A shaper LUT would
+fix both, but neither the 3D-only ``.cube`` files ffmpeg reads nor this module write one;
+``bench/bench_export_cube.py`` measures what is left, and prints the one-dimensional
+evidence of it.  The table holds the model at its nodes: ``to_raw`` / ``render`` of the
+model, or its exact evaluation where the model has one that is not a table itself
+(``render_exact`` of an NUS model folder, whose ``render`` interpolates a table).
 
 Ours: the choice of what each direction's input and output mean.  The writer is ours too
 (~30 lines): colour-science's ``write_LUT`` writes the same table order but omits the
@@ -51,7 +61,8 @@ import numpy as np
 from .errors import InputError
 from .io import atomic_output, check_output_path
 
-__all__ = ["DIRECTIONS", "DEFAULT_3D_SIZE", "cube_table", "write_cube", "read_cube_header"]
+__all__ = ["DIRECTIONS", "DEFAULT_3D_SIZE", "cube_table", "write_cube", "read_cube_header",
+           "model_code_range"]
 
 DIRECTIONS = ("linearize", "to-raw", "render")
 #: Nodes per axis of a 3D table unless asked otherwise (33 and 65 are the usual sizes).
@@ -110,8 +121,63 @@ def check_export(model, direction: str | None, size: int | None) -> tuple[str, i
     return direction, int(size)
 
 
-def cube_table(model, direction: str | None = None, *, size: int | None = None):
+def model_code_range(model) -> tuple[int, int] | None:
+    """The codes a model was fitted on, when it says (an NUS folder's
+    ``jpg2raw_validRange.txt``: ``diagnostics["valid_range"]``), else None."""
+    diag = getattr(model, "diagnostics", None) or {}
+    rng = diag.get("valid_range") if isinstance(diag, dict) else None
+    if rng is None:
+        return None
+    return int(rng[0]), int(rng[1])
+
+
+def check_code_range(code_range, direction: str) -> tuple[int, int] | None:
+    """``(lo, hi)`` codes for a ``to-raw`` table, or InputError saying what is wrong."""
+    if code_range is None:
+        return None
+    if direction != "to-raw":
+        raise InputError(f"a code range applies to the to-raw direction (8-bit input), not "
+                         f"{direction!r}")
+    try:
+        lo, hi = (int(v) for v in code_range)
+    except (TypeError, ValueError):
+        raise InputError(f"the code range must be two whole numbers, not {code_range!r}") \
+            from None
+    if not 0 <= lo < hi <= 255:
+        raise InputError(f"the code range must satisfy 0 <= low < high <= 255, not "
+                         f"{lo}-{hi}")
+    return lo, hi
+
+
+def _continue_outside(values: np.ndarray, x: np.ndarray, lo: float, hi: float):
+    """Replace, along each of the first three axes, the values at nodes outside
+    ``[lo, hi]`` (evaluated at ``lo`` / ``hi``) by the chord from the nearest inside node
+    through that end value, continued to the node (ours; tensor product, so a corner
+    outside on two axes is continued on both)."""
+    strictly = np.flatnonzero((x > lo) & (x < hi))
+    if strictly.size == 0:          # no node inside to draw a chord from: the ends' values
+        return values
+    top, bottom = strictly[-1], strictly[0]
+    for axis in range(3):
+        v = np.moveaxis(values, axis, 0)            # a view: edits land in ``values``
+        for k in np.flatnonzero(x > hi):
+            v[k] = v[top] + (v[k] - v[top]) * ((x[k] - x[top]) / (hi - x[top]))
+        for k in np.flatnonzero(x < lo):
+            v[k] = v[bottom] + (v[k] - v[bottom]) * ((x[bottom] - x[k]) / (x[bottom] - lo))
+    return values
+
+
+def cube_table(model, direction: str | None = None, *, size: int | None = None,
+               code_range=None):
     """The rows of the ``.cube`` table of ``model`` (see the module docstring).
+
+    Parameters
+    ----------
+    model, direction, size
+        See :func:`write_cube`.
+    code_range : (int, int), optional
+        ``to-raw`` only: the codes inside which the table follows the model (see
+        :func:`write_cube`); None keeps every node at the model's value.
 
     Returns
     -------
@@ -125,13 +191,20 @@ def cube_table(model, direction: str | None = None, *, size: int | None = None):
     if direction == "linearize":
         rows = model.linearize(np.repeat(x[:, None], 3, axis=1))
         return np.asarray(rows, dtype=np.float64), direction, size
-    # index [b, g, r] so that a C-order flattening varies red fastest
-    b, g, r = np.meshgrid(x, x, x, indexing="ij")
+    code_range = check_code_range(code_range, direction)
+    lo, hi = (0.0, 1.0) if code_range is None else (code_range[0] / 255, code_range[1] / 255)
+    # index [b, g, r] so that a C-order flattening varies red fastest; nodes outside the
+    # code range are evaluated at its ends, then continued along the chords
+    xc = np.clip(x, lo, hi)
+    b, g, r = np.meshgrid(xc, xc, xc, indexing="ij")
     nodes = np.stack([r, g, b], axis=-1).reshape(-1, 3)
     if direction == "to-raw":
-        rows = model.to_raw(nodes)
-    else:
-        rows = model.render(nodes)
+        rows = np.asarray(model.to_raw(nodes), dtype=np.float64)
+        if lo > 0.0 or hi < 1.0:
+            rows = _continue_outside(rows.reshape((size,) * 3 + (3,)), x, lo, hi)
+            rows = rows.reshape(-1, 3)
+    else:   # an NUS folder's render is itself a table: its nodes from the RBF
+        rows = getattr(model, "render_exact", model.render)(nodes)
     return np.asarray(rows, dtype=np.float64), direction, size
 
 
@@ -140,7 +213,8 @@ def _title(text: str) -> str:
 
 
 def write_cube(model, path, *, direction: str | None = None, size: int | None = None,
-               title: str | None = None, force: bool = False, inputs=()) -> Path:
+               title: str | None = None, force: bool = False, inputs=(),
+               code_range="model") -> Path:
     """Write ``model`` as a ``.cube`` look-up table (Adobe Cube LUT Specification 1.0).
 
     Parameters
@@ -159,6 +233,16 @@ def write_cube(model, path, *, direction: str | None = None, size: int | None = 
         (default 33; 65 for a finer table).
     title : str, optional
         The ``TITLE`` line (default names the direction).
+    code_range : "model", (int, int) or None
+        ``to-raw`` only: the codes ``(low, high)`` inside which the table follows the
+        model.  Nodes outside them hold the chord from the nearest node inside through the
+        model at ``low`` / ``high``, continued (ours): the cell holding ``high`` then
+        interpolates the model up to ``high``, not towards its value at 255 (where an
+        ``f⁻¹`` climbing a fifth of full scale over its last three codes makes a 33³
+        table miss code 252 by 0.07), and codes outside the range are extrapolated.
+        ``"model"`` (the default): the codes the model was fitted on when it says
+        (:func:`model_code_range`: an NUS folder's 5-252), else every node holds the
+        model, as with None.  Written as a comment line in the file.
 
     Returns
     -------
@@ -167,14 +251,19 @@ def write_cube(model, path, *, direction: str | None = None, size: int | None = 
     Raises
     ------
     InputError
-        A direction the model cannot export, or a size outside the spec's range.
+        A direction the model cannot export, a size outside the spec's range, or a code
+        range that is not two codes ``0 <= low < high <= 255`` (or given for a direction
+        other than ``to-raw``).
     OutputExistsError, OutputWriteError
         The output exists (without ``force``), is an input, or cannot be written.
     """
     path = Path(path)
     direction, size = check_export(model, direction, size)
+    if isinstance(code_range, str) and code_range == "model":
+        code_range = model_code_range(model) if direction == "to-raw" else None
+    code_range = check_code_range(code_range, direction)
     check_output_path(path, force=force, inputs=inputs)
-    rows, direction, size = cube_table(model, direction, size=size)
+    rows, direction, size = cube_table(model, direction, size=size, code_range=code_range)
     dims = 1 if direction == "linearize" else 3
     what = {"linearize": "code/max_code -> linear (f^-1 per channel)",
             "to-raw": "rendered code/255 -> linear camera raw in [0, 1]",
@@ -187,6 +276,9 @@ def write_cube(model, path, *, direction: str | None = None, size: int | None = 
             f"LUT_{dims}D_SIZE {size}",
             "DOMAIN_MIN 0.0 0.0 0.0",
             "DOMAIN_MAX 1.0 1.0 1.0"]
+    if code_range is not None:
+        head.insert(2, f"# follows the model for codes {code_range[0]}-{code_range[1]}; "
+                       "nodes outside continue the chords from inside (extrapolated)")
     with atomic_output(path, force=force, inputs=inputs) as tmp:
         with open(tmp, "w", encoding="ascii", newline="\n") as fh:
             fh.write("\n".join(head) + "\n")

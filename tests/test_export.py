@@ -174,3 +174,108 @@ def test_export_cli_directions_and_errors(response_model, pipeline_model, tmp_pa
     with pytest.raises(selfcal.InputError, match="LUT_1D_SIZE"):
         write_cube(response_model, tmp_path / "y.cube", size=70000)
     assert not (tmp_path / "y.cube").exists()
+
+
+class _Multilinear:
+    """A stand-in pipeline model whose ``to_raw`` is multilinear in the codes: a table
+    continued along chords must hold it exactly at every node, inside or outside."""
+
+    diagnostics = {"valid_range": (5, 252)}
+
+    @staticmethod
+    def to_raw(x):
+        x = np.asarray(x, dtype=np.float64)
+        r, g, b = x[..., 0], x[..., 1], x[..., 2]
+        return np.stack([0.1 + 0.5 * r - 0.2 * g * b, r * g + 0.3 * b, 0.2 + r * g * b], -1)
+
+    render = to_raw
+
+
+class _SteepTop(_Multilinear):
+    """Per channel ``x`` up to the node at 15/16, then bending up steeply to 1.5 at 255
+    (an ``f⁻¹`` with the shape of a real camera's top codes)."""
+
+    @staticmethod
+    def to_raw(x):
+        x = np.asarray(x, dtype=np.float64)
+        knee = 15 / 16
+        return np.where(x <= knee, x, x + 128.0 * (x - knee) ** 2)
+
+
+def test_code_range_continues_chords_outside(tmp_path):
+    size = 17
+    x = np.linspace(0.0, 1.0, size)
+    b, g, r = np.meshgrid(x, x, x, indexing="ij")
+    nodes = np.stack([r, g, b], axis=-1).reshape(-1, 3)
+    rows, _, _ = cube_table(_Multilinear(), "to-raw", size=size, code_range=(5, 252))
+    np.testing.assert_allclose(rows, _Multilinear.to_raw(nodes), atol=1e-12)
+    # a steep top: every node hold the model, or the top cell follows it to code 250
+    steep = _SteepTop()
+    plain, _, _ = cube_table(steep, "to-raw", size=size, code_range=None)
+    ranged, _, _ = cube_table(steep, "to-raw", size=size, code_range=(0, 250))
+    np.testing.assert_array_equal(plain, steep.to_raw(nodes))
+    inside = (nodes <= 250 / 255).all(axis=1)
+    np.testing.assert_array_equal(ranged[inside], plain[inside])
+    red = np.arange(size) * 1                        # nodes (k, 0, 0): red varies fastest
+    lerp = np.interp(np.arange(256) / 255, x, ranged[red, 0])
+    want = steep.to_raw(np.arange(256) / 255)
+    assert abs(lerp[250] - want[250]) < 1e-12        # the top cell's chord meets code 250
+    err_plain = np.abs(np.interp(np.arange(256) / 255, x, plain[red, 0]) - want)[:251]
+    assert np.abs(lerp - want)[:251].max() < 0.6 * err_plain.max()   # measured 0.47x
+    # the model's own range by default, said in the file; a render table has none
+    path = write_cube(_Multilinear(), tmp_path / "m.cube", direction="to-raw", size=5)
+    assert "codes 5-252" in path.read_text().splitlines()[2]
+    path = write_cube(_Multilinear(), tmp_path / "r.cube", direction="render", size=5)
+    assert "codes" not in path.read_text()
+    for bad in ((0, 256), (9, 9), ("a", 3)):
+        with pytest.raises(selfcal.InputError, match="code range"):
+            cube_table(_Multilinear(), "to-raw", size=5, code_range=bad)
+    with pytest.raises(selfcal.InputError, match="to-raw"):
+        write_cube(_Multilinear(), tmp_path / "x.cube", direction="render", size=5,
+                   code_range=(5, 250))
+    assert not (tmp_path / "x.cube").exists()
+
+
+def test_export_cli_range(pipeline_model, tmp_path, capsys):
+    pipeline_model.save(tmp_path / "pipe.json")
+    assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "a.cube"),
+                 "--size", "5"]) == 0
+    assert "codes" not in (tmp_path / "a.cube").read_text()     # a fitted model: no range
+    assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "b.cube"),
+                 "--size", "5", "--range", "3", "250"]) == 0
+    assert "codes 3-250" in (tmp_path / "b.cube").read_text()
+    assert "3-250" in capsys.readouterr().err                   # messages go to stderr
+    for extra in (["--range", "250", "3"], ["--range", "0", "300"],
+                  ["--direction", "render", "--range", "3", "250"]):
+        with pytest.raises(SystemExit) as info:
+            main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "c.cube"),
+                  *extra])
+        assert info.value.code == 2
+    assert "--range" in capsys.readouterr().err and not (tmp_path / "c.cube").exists()
+
+
+NUS = Path(__file__).resolve().parents[2] / "shared" / "data" / "nus_model_nikon_d7000"
+
+
+@pytest.mark.skipif(not NUS.exists(), reason="../shared/data/nus_model_nikon_d7000 absent")
+@needs_ffmpeg
+def test_nus_to_raw_cube_inside_the_model_range(tmp_path):
+    """The NUS model's to-raw cube (33³, its fitted codes 5-252 by default) by ffmpeg
+    against selfcal's to_raw on the fixture frame, pixels inside that range."""
+    model = selfcal.load_model(NUS)
+    jpg = read_image(FIXTURES / "pair" / "pair.jpg")
+    ours = model.to_raw(jpg)
+    inside = ((jpg >= 5) & (jpg <= 252)).all(axis=2)
+    cube = write_cube(model, tmp_path / "nus.cube", size=33)
+    out = ffmpeg_lut3d(FFMPEG[0], cube, jpg.astype(np.uint16) * 257, "tetrahedral")
+    err = np.abs(out - ours).max(axis=2)[inside]
+    assert np.mean(err <= 0.005) > 0.999 and err.max() < 0.015   # measured 99.97 %, 0.0094
+    plain = write_cube(model, tmp_path / "plain.cube", size=33, code_range=None)
+    out = ffmpeg_lut3d(FFMPEG[0], plain, jpg.astype(np.uint16) * 257, "tetrahedral")
+    assert np.abs(out - ours).max(axis=2)[inside].max() > 0.03    # measured 0.047
+    # the render table holds the reference evaluation at its nodes
+    rows, _, _ = cube_table(model, "render", size=5)
+    x = np.linspace(0.0, 1.0, 5)
+    b, g, r = np.meshgrid(x, x, x, indexing="ij")
+    nodes = np.stack([r, g, b], axis=-1).reshape(-1, 3)
+    np.testing.assert_allclose(rows, model.camera.render(nodes), atol=1e-12)

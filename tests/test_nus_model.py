@@ -96,7 +96,9 @@ def test_to_raw_and_render_cli_with_a_model_folder(nus, tmp_path, capsys):
     assert _rms(got, read_image(tmp_path / "ref.jpg")) < 1.5    # codes
     # export as a 3D LUT
     assert main(["export", str(NUS), "-o", str(tmp_path / "nus.cube"), "--size", "9"]) == 0
-    assert len((tmp_path / "nus.cube").read_text().splitlines()) == 6 + 9 ** 3
+    lines = (tmp_path / "nus.cube").read_text().splitlines()
+    # 6 header lines and the comment on the model's fitted codes (5-252)
+    assert len(lines) == 7 + 9 ** 3 and "codes 5-252" in lines[2]
 
 
 @needs_nus
