@@ -149,7 +149,7 @@ def grey_axis_evidence(model, valid) -> list[list[str]]:
             rows.append([f"to-raw {size}³, range {label}", f"codes {valid[0]}-{valid[1]}",
                          f"{255 * cell / (size - 1):.1f}-{255 * (cell + 1) / (size - 1):.1f}",
                          f"code {worst}", f"{err[inside].max():.4f}",
-                         f"{max(least, 0.0):.4f}", "-"])
+                         f"{abs(least):.4f}", "-"])
         diag = _diagonal(cube_table(model, "render", size=size)[0], size)
         lerp = np.stack([np.interp(raw_axis, nodes, diag[:, c]) for c in range(3)], axis=1)
         err = np.abs(lerp - render).max(axis=1)
