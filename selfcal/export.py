@@ -39,11 +39,16 @@ A 3D table is sampled on a uniform grid of its input, so it is coarse where the 
 is steep: the ``render`` table in the darkest grid cells of linear raw (the tone curve
 rises fastest there), the ``to-raw`` table in the last cell before code 255 (a camera's
 ``f⁻¹`` can climb a fifth of full scale over its last three codes).  A shaper LUT would
-fix both, but neither the 3D-only ``.cube`` files ffmpeg reads nor this module write one;
-``bench/bench_export_cube.py`` measures what is left, and prints the one-dimensional
-evidence of it.  The table holds the model at its nodes: ``to_raw`` / ``render`` of the
-model, or its exact evaluation where the model has one that is not a table itself
-(``render_exact`` of an NUS model folder, whose ``render`` interpolates a table).
+fix both, but neither the 3D-only ``.cube`` files ffmpeg reads nor this module write one.
+Instead, a ``to-raw`` table can follow the model inside a range of codes and extrapolate
+outside it (``code_range``; by default the codes the model was fitted on, when it says:
+an NUS folder's 5-252): the cell holding code 252 then interpolates towards the model at
+252, not at 255.  ``bench/bench_export_cube.py`` measures what is left, and prints the
+one-dimensional evidence of it (the ``render`` table cannot be within 0.5 % in its
+darkest cells whatever its node values).  The table holds the model at its nodes:
+``to_raw`` / ``render`` of the model, or its exact evaluation where the model has one
+that is not a table itself (``render_exact`` of an NUS model folder, whose ``render``
+interpolates a table).
 
 Ours: the choice of what each direction's input and output mean.  The writer is ours too
 (~30 lines): colour-science's ``write_LUT`` writes the same table order but omits the
