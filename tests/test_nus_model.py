@@ -142,6 +142,49 @@ def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper():
     assert table.evaluated == evaluated                 # nothing evaluated twice
 
 
+def _write_small_nus(folder: Path) -> None:
+    """An NUS-format model folder of our own (no data needed): a 3×3 transform per white
+    balance, an RBF of 40 random cones plus an affine part, a gamma-2.2 tone table."""
+    folder.mkdir()
+    rng = np.random.default_rng(3)
+    base = np.array([[1.6, -0.4, -0.2], [-0.2, 1.4, -0.2], [0.0, -0.4, 1.4]])
+    lines = ["1"] + [" ".join(f"{v:.6f}" for v in r) for r in base] + ["14"]
+    lines += [" ".join(f"{v:.6f}" for v in r) for r in base * [1.8, 1.0, 2.0]]
+    lines += ["1.8 1.0 2.0"]
+    centres = rng.uniform(-0.1, 1.2, (40, 3))
+    coefs = np.vstack([rng.normal(0, 0.05, (40, 3)), [[0.01, 0.0, -0.01]], 0.9 * np.eye(3)])
+    table = np.repeat((np.arange(256) / 255.0)[:, None] ** 2.2, 3, axis=1)
+
+    def rows(a):
+        return "\n".join(" ".join(f"{v:.6f}" for v in r) for r in a) + "\n"
+
+    for d in ("raw2jpg", "jpg2raw"):
+        (folder / f"{d}_transform.txt").write_text("\n".join(lines) + "\n")
+        (folder / f"{d}_ctrlPoints.txt").write_text(f"40\n{rows(centres)}")
+        (folder / f"{d}_coefs.txt").write_text(f"44\n{rows(coefs)}")
+        (folder / f"{d}_respFcns.txt").write_text(f"16400.0 0.0 0.0 0.0\n{rows(table)}")
+
+
+def test_render_of_a_small_model_folder_against_its_reference(tmp_path):
+    """The whole render path (lazy table, clip, tone table) without the shared data."""
+    _write_small_nus(tmp_path / "small")
+    model = selfcal.load_model(tmp_path / "small")
+    cam = read_nus_model(tmp_path / "small", wb_code=14)
+    x = np.random.default_rng(4).random((20_000, 3)) ** 2          # dense near black
+    ours = model.render(x)
+    assert ours.dtype == np.float32 and ours.shape == x.shape
+    err = np.abs(ours - cam.render(x)).max(axis=1)
+    assert np.percentile(err, 99.9) < 1e-3 and err.max() < 3e-3    # measured 3.2e-4, 1.0e-3
+    codes = np.round(x * 65535).astype(np.uint16)
+    np.testing.assert_array_equal(model.render(codes), model.render(codes / 65535.0))
+    out, mask = model.render(x[:10].reshape(2, 5, 3), return_mask=True)
+    assert out.shape == (2, 5, 3) and mask is None
+    with pytest.raises(selfcal.InputError, match="3 channels"):
+        model.render(np.zeros((4, 2), np.uint16))
+    with pytest.raises(selfcal.InputError, match="NaN"):
+        model.render(np.full((1, 3), np.nan))
+
+
 def test_cli_names_a_folder_that_is_not_a_model(tmp_path, capsys):
     frame = FIXTURES / "pair" / "pair.jpg"
     code = main(["to-raw", "--model", str(tmp_path), str(frame), "-o", str(tmp_path / "o")])
