@@ -280,26 +280,24 @@ def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: 
     return idx, worst[idx] if idx.size else np.zeros(0)
 
 
-#: Most blocks a frame is reduced to (:func:`working_block_size`).
+#: Blocks a frame is reduced to, about (:func:`working_block_size`).
 TARGET_BLOCKS = 400_000
 
 
 def working_block_size(shape, target_blocks: int = TARGET_BLOCKS) -> int:
-    """Smallest block edge that leaves a frame of ``shape`` at most ``target_blocks`` blocks.
+    """Block edge that brings a frame of ``shape`` near ``target_blocks`` blocks (≥ 1).
 
-    The block grid is what the sampling works on (local contrast, intensity bins, the
-    grey thumbnails of the verdict's motion test), so bounding it bounds that work
-    whatever the frame size: a 1.5 MP frame gets 2×2 blocks (375,000 of them), a 24 MP
-    one 8×8 (375,000), a frame of at most ``target_blocks`` pixels keeps every pixel.
-    The bound is ours (issue 15, Build 4).  The edge used to be rounded down, which kept
-    every pixel of frames up to 1.6 MP: 1.5 million blocks per 1.5 MP frame, slower per
-    pixel than a 24 MP stack.  The same bound also keeps a block's share of the scene
-    about the same at every frame size (2×2 blocks of a frame reduced 4× cover what 8×8
-    blocks cover at full size), so a small copy of a stack gives the curve its full-size
-    frames give (``bench/bench_response_speed.py`` prints the difference).
+    The edge is rounded down, so a frame has at least ``target_blocks`` blocks (when it
+    has that many pixels) and fewer than four times as many; frames under 1.6 MP keep
+    every pixel.  Rounding up instead (at most ``target_blocks``: 2×2 blocks for 1.5 MP
+    frames) was tried for issue 15, Build 4 and not kept: it made a 7-frame 1.5 MP stack
+    calibrate 4× faster, but on 1.5 MP synthetic stacks (``bench_response_synthetic.py
+    --size 1000x1500 --step 10``) the mean f⁻¹ RMSE rose from 0.0077 to 0.0086 (two
+    times known, median 0.0038 to 0.0044).  See ``bench/BENCHMARKS.md``, "JPEG-only
+    path: speed and memory".
     """
     h, w = shape[:2]
-    return max(1, int(np.ceil(np.sqrt(h * w / target_blocks) - 1e-9)))
+    return max(1, int(np.floor(np.sqrt(h * w / target_blocks))))
 
 
 def _dct_factor(block: int) -> int:
@@ -321,9 +319,9 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     sources : sequence of str, optional
         Names for error messages (file names); defaults to ``"array #k"``.
     block : int, optional
-        Block edge in pixels; by default the smallest that leaves a frame at most
-        :data:`TARGET_BLOCKS` blocks (:func:`working_block_size`), for JPEG files rounded
-        up to a multiple of the DCT scaling they are decoded at.
+        Block edge in pixels; by default :func:`working_block_size` (about
+        :data:`TARGET_BLOCKS` blocks per frame), for JPEG files rounded up to a multiple of
+        the DCT scaling they are decoded at (a 24 MP frame: 7 -> 8, read at half size).
     progress : callable, optional
         Called as ``progress(k, n, source)`` after each frame is read.
     loader : callable, optional
@@ -350,7 +348,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
             scalable = loader is None and Path(frame).suffix.lower() in JPEG_SUFFIXES
             if block is None:
                 block = working_block_size(full_shape)
-                if scalable:     # a whole number of reduced pixels per block, rounded up
+                if scalable:     # a whole number of reduced pixels per block (rounded up)
                     f = max(f for f in (1, 2, 4, 8) if f == 1 or f * 3 <= block)
                     block = f * -(-block // f)
             factor = _dct_factor(block) if scalable else 1

@@ -1,4 +1,5 @@
-"""Issue 15, Build 4: small frames get a bounded block grid, and blocks sit where they say.
+"""Issue 15, Build 4: a frame's block grid and sample plan stay bounded, and blocks sit
+where they say they do (also when the JPEG is decoded at half size by DCT scaling).
 
 Synthetic stacks only (:mod:`selfcal.synth`); no shared data.
 """
@@ -27,37 +28,59 @@ def small_jpegs(tmp_path_factory):
     return stack, stack.write(tmp_path_factory.mktemp("small"))
 
 
-def test_block_grid_never_exceeds_the_target_and_is_the_finest_that_does():
+def test_block_grid_stays_near_the_target():
     rng = np.random.default_rng(0)
     shapes = [(int(h), int(w)) for h, w in rng.integers(64, 8000, size=(300, 2))]
     shapes += [(1000, 1500), (864, 1152), (512, 768), (632, 633), (4000, 6000)]
     for h, w in shapes:
         b = working_block_size((h, w))
-        assert (h // b) * (w // b) <= TARGET_BLOCKS, (h, w, b)
-        if b > 1:            # one pixel less per block edge would exceed the target
-            assert h * w / (b - 1) ** 2 > TARGET_BLOCKS, (h, w, b)
-    assert working_block_size((1000, 1500)) == 2      # the issue's 1.5 MP frames
-    assert working_block_size((512, 768)) == 1        # at most TARGET_BLOCKS pixels
+        # rounded down: fewer than four times the target's blocks, and at least the
+        # target's when the frame has that many pixels
+        assert h * w / b ** 2 < 4 * TARGET_BLOCKS, (h, w, b)
+        assert h * w / (b + 1) ** 2 < TARGET_BLOCKS, (h, w, b)
+        if b > 1:
+            assert h * w / b ** 2 >= TARGET_BLOCKS, (h, w, b)
+    assert working_block_size((4000, 6000)) == 7      # read at half size: 8 (below)
+    assert working_block_size((1000, 1500)) == 1
 
 
 def test_small_stack_plan_is_bounded(small_jpegs):
     stack, paths = small_jpegs
     samples = collect_samples(paths, max_samples=DEFAULT_MAX_SAMPLES)
     h, w = stack.images[0].shape[:2]
-    assert samples.block == 2
-    grid = (h // samples.block) * (w // samples.block)
-    assert grid <= TARGET_BLOCKS
+    assert samples.block == working_block_size((h, w)) == 1
+    assert (h // samples.block) * (w // samples.block) < 4 * TARGET_BLOCKS
     assert samples.locations[:, 0].max() < h // samples.block
     assert samples.locations[:, 1].max() < w // samples.block
-    assert max(samples.thumbnails[0].shape) <= min(THUMBNAIL_SIDE, w // samples.block)
-    # the solve's size: stratified locations, at most 48 bins x 6 per frame
+    assert max(samples.thumbnails[0].shape) <= THUMBNAIL_SIDE
+    # the solve's size does not grow with the pixels: at most 48 bins x 6 per frame
     assert 100 <= samples.n_samples <= min(DEFAULT_MAX_SAMPLES, 48 * 6 * len(paths))
     model = selfcal.calibrate_response(paths)
-    assert model.diagnostics["samples"]["block_size"] == 2
+    assert model.diagnostics["samples"]["block_size"] == 1
     assert model.diagnostics["samples"]["locations"] == samples.n_samples
     truth = stack.inverse_response()
     rmse = np.sqrt(np.mean((model.inverse_response()[1:255] - truth[1:255]) ** 2))
     assert rmse < 0.02, rmse
+
+
+def test_a_24_mp_jpeg_block_is_a_whole_number_of_half_size_pixels(tmp_path):
+    """6000x4000 JPEGs: block 7 by the target, read at half size, so 8 (4 reduced px)."""
+    from selfcal.io import encode_image
+
+    rng = np.random.default_rng(3)
+    small = rng.integers(30, 220, size=(50, 75, 3)).astype(np.uint8)
+    big = np.repeat(np.repeat(small, 80, axis=0), 80, axis=1)        # 4000 x 6000
+    paths = []
+    for k, gain in enumerate((0.6, 1.0)):
+        frame = np.clip(big * gain, 0, 255).astype(np.uint8)
+        paths.append(tmp_path / f"f{k}.jpg")
+        paths[-1].write_bytes(encode_image(frame, ".jpg", jpeg_quality=90))
+    samples = collect_samples(paths)
+    assert samples.block == 8
+    r, c = samples.locations[:, 0], samples.locations[:, 1]
+    # every sample's block lies in one flat 80x80 patch; its mean is that patch's code
+    expected = small[(r * 8 + 4) // 80, (c * 8 + 4) // 80] * 1.0
+    assert np.median(np.abs(samples.values[1] * 255 - expected)) < 1.5
 
 
 @pytest.mark.parametrize("block", [4, 6, 7, 8])
