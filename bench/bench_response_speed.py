@@ -15,6 +15,9 @@ imports (cv2; selfcal and cvxpy) happen before the clock starts in both:
 
 Each job runs ``--repeat`` times (fresh processes); the table gives the fastest run's
 seconds and the largest peak RSS.  ns/pixel is the job's seconds over the stack's pixels.
+A second table splits the fastest selfcal run's seconds by stage (timers wrapped around
+``selfcal.response.calibrate``'s calls of ``collect_samples``, ``solve_exposure_equations``
+and ``judge_calibration`` inside the child).
 Last, the small frames' f⁻¹ against the full-size frames' (RMS difference over codes
 1…254): making frames small must not change the curve they give.
 
@@ -40,9 +43,23 @@ import json, resource, sys, time
 sys.path.insert(0, {repo!r})
 paths = {paths!r}
 import cv2
+stages = {{}}
 if {what!r} == "selfcal":
     import cvxpy  # noqa: F401  (imported lazily by the solver; excluded like cv2's import)
     import selfcal
+    from selfcal.response import calibrate as cal
+
+    def timed(name, f):
+        def run(*a, **k):
+            t = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                stages[name] = stages.get(name, 0.0) + time.perf_counter() - t
+        return run
+
+    for name in ("collect_samples", "solve_exposure_equations", "judge_calibration"):
+        setattr(cal, name, timed(name, getattr(cal, name)))
 t0 = time.perf_counter()
 if {what!r} == "decode":
     for p in paths:
@@ -56,7 +73,7 @@ extra = {{}}
 if {what!r} == "selfcal":
     extra = {{"block": model.diagnostics["samples"]["block_size"],
               "locations": model.diagnostics["samples"]["locations"],
-              "inverse": model.inverse_response().tolist()}}
+              "inverse": model.inverse_response().tolist(), "stages": stages}}
 print(json.dumps({{"seconds": seconds, "peak_mb": peak, **extra}}))
 """
 
@@ -107,7 +124,7 @@ def main():
     args = parser.parse_args()
     ntu = sorted(data_dir("ntu_canon_m3").glob("*.JPG"))
     seven = [p for p in ntu if p.stem in SMALL_STEMS]
-    rows, summary, inverse = [], {}, {}
+    rows, summary, inverse, stage_rows = [], {}, {}, []
     with tempfile.TemporaryDirectory(prefix="selfcal-small-") as tmp:
         small = make_small(seven, tmp)
         h, w = (v // SMALL_REDUCE for v in (4000, 6000))
@@ -121,6 +138,12 @@ def main():
             ratio = calib["seconds"] / decode["seconds"]
             summary[key] = (ratio, calib["peak_mb"])
             inverse[key] = np.array(calib["inverse"])
+            st = calib["stages"]
+            parts = [st.get("collect_samples", 0.0), st.get("solve_exposure_equations", 0.0),
+                     st.get("judge_calibration", 0.0)]
+            stage_rows.append([label, *(f"{v:.2f}" for v in parts),
+                               f"{calib['seconds'] - sum(parts):.2f}",
+                               f"{(calib['seconds'] - parts[0]) / decode['seconds']:.2f}"])
             for job, r in (("OpenCV imread (decode only)", decode),
                            ("selfcal.calibrate_response", calib)):
                 rows.append([label, job, f"{r['seconds']:.2f}",
@@ -136,6 +159,13 @@ def main():
           f"{summary['ntu17'][0]:.2f}; 7 × 1.5 MP ≤ 3× decode -> {summary['small7'][0]:.2f}; "
           "selfcal peak ≤ 500 MB -> "
           f"{max(v[1] for v in summary.values()):.0f} MB")
+    print("\nwhere selfcal's seconds go (the same runs): reading and sampling the frames "
+          "(collect_samples, decoding included), every Eq. 8 solve (solve_exposure_equations:"
+          " the fit, the check of the EXIF times and, when they are contradicted, the refit "
+          "that refines them), the verdict (judge_calibration), the rest; and what is not "
+          "reading, over the decode\n")
+    print(table(["stack", "read + sample", "solves", "verdict", "rest",
+                 "(selfcal - read) / decode"], stage_rows))
     diff = inverse["small7"][1:255] - inverse["ntu7"][1:255]
     print("\nf⁻¹ of the 7 small frames against that of the same 7 at full size: RMS "
           f"difference over codes 1…254 and the channels {np.sqrt(np.mean(diff ** 2)):.4f} "
