@@ -115,7 +115,8 @@ def test_render_over_the_whole_cube_and_in_any_order(nus):
     assert fresh.render_exact(x[:5]).shape == (5, 3) and cam_both.wb_code == 14
 
 
-def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper():
+@pytest.mark.parametrize("cells, refine", [(6, 3), (4, 8)])
+def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper(cells, refine):
     """Trilinear interpolation in ``u = ρ^γ`` reproduces a function linear in ``u``
     exactly: any error is in the blocks, the packed indices or the lazy filling."""
     from selfcal.pipeline.nus import _LazyRenderTable
@@ -126,7 +127,8 @@ def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper():
     def linear_in_u(rho):
         return 0.01 + (rho ** gamma) @ a
 
-    table = _LazyRenderTable(linear_in_u, 6, 3, gamma, scale=1000.0, shift=[1, 2, 3, 4])
+    table = _LazyRenderTable(linear_in_u, cells, refine, gamma, scale=1000.0,
+                             shift=[1, 2, 3, 4])
     rng = np.random.default_rng(0)
     q = np.concatenate([rng.integers(0, 65536, (5000, 3)), [[0, 0, 0], [65535] * 3],
                         rng.integers(0, 40, (500, 3))]).astype(np.intp)
@@ -134,8 +136,9 @@ def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper():
     first = table(q)
     np.testing.assert_allclose(first[:, :3], want, atol=2e-3)    # float32 of ~1000
     assert np.all(first[:, 3] == 4)
-    # blocks only where pixels fell, each with at most its 4³ nodes (faces duplicated)
-    assert 0 < table.n_blocks <= 6 ** 3 and table.evaluated <= table.n_blocks * 4 ** 3
+    # blocks only where pixels fell, each with at most its nodes (faces duplicated)
+    assert 0 < table.n_blocks <= cells ** 3
+    assert table.evaluated <= table.n_blocks * (refine + 1) ** 3
     evaluated = table.evaluated
     again = table(q[::-1].copy())
     np.testing.assert_allclose(again[::-1], first, atol=1e-4)

@@ -298,6 +298,7 @@ NUS_RENDER_REFINE = 5
 NUS_RENDER_GAMMA = 0.45
 _RAW_CODES = 65536
 _CHUNK = 1 << 15
+_BITS = 10          # the low bits of a packed index: the cell's offset in its block
 
 
 class _LazyRenderTable:
@@ -316,7 +317,8 @@ class _LazyRenderTable:
     Per pixel: the raw read at 16-bit precision, the grid coordinate from per-code tables
     (one packed integer per channel: coarse cell and offset in the block), one gather of
     the block number and eight 16-byte gathers of the corner rows (``h`` padded to four
-    float32), trilinear interpolation in the shaper's coordinate ``u = ρ^γ``.
+    float32), trilinear interpolation in the shaper's coordinate ``u = ρ^γ`` (seven
+    OpenCV ``blendLinear`` passes).
 
     Parameters
     ----------
@@ -341,10 +343,12 @@ class _LazyRenderTable:
         self.r = r = int(refine)
         self.b = b = r + 1                       # nodes per axis of a block
         self.nb = b ** 3
-        if b * b * (r - 1) + b * (r - 1) + (r - 1) >= 256 or c ** 3 * 256 >= 2 ** 31:
-            raise ValueError("the render grid is too fine for its packed indices")
+        if b * b * (r - 1) + b * (r - 1) + (r - 1) >= 1 << _BITS or c ** 3 << _BITS >= 2 ** 31:
+            raise InputError(f"render grid of {c} coarse cells split {r} ways per axis: too "
+                             "fine for the table's packed indices (at most 127 cells split "
+                             "9 ways; 48 split 5 by default)")
         self.gamma = float(gamma)
-        self.block_of = np.full(c ** 3, -1, dtype=np.int32)
+        self.block_of = np.full(c ** 3, -1, dtype=np.intp)   # first node of its block
         self.coarse_of = np.empty(0, dtype=np.int64)
         self.values = np.zeros((0, 4), dtype=np.float32)
         self.known = np.zeros(0, dtype=bool)    # node evaluated
@@ -355,12 +359,14 @@ class _LazyRenderTable:
         u = np.arange(_RAW_CODES, dtype=np.float64) / (_RAW_CODES - 1)
         u = u ** self.gamma * (c * r)
         i = np.minimum(np.floor(u).astype(np.int64), c * r - 1)
-        self.t = (u - i).astype(np.float32)
+        # the interpolation weights 2^16 (1 - t) and 2^16 t (see __call__)
+        t = (u - i) * 65536.0
+        self.weights = ((65536.0 - t).astype(np.float32), t.astype(np.float32))
         coarse, sub = np.divmod(i, r)
-        # per channel: (coarse-cell contribution << 8) + offset in the block
-        self.packed = [(((coarse * c * c) << 8) + sub * b * b).astype(np.int32),
-                       (((coarse * c) << 8) + sub * b).astype(np.int32),
-                       ((coarse << 8) + sub).astype(np.int32)]
+        # per channel: (coarse-cell contribution << _BITS) + offset in the block
+        self.packed = [(((coarse * c * c) << _BITS) + sub * b * b).astype(np.int32),
+                       (((coarse * c) << _BITS) + sub * b).astype(np.int32),
+                       ((coarse << _BITS) + sub).astype(np.int32)]
 
     def _grow(self, blocks: int):
         cap = self.values.shape[0] // self.nb
@@ -381,7 +387,7 @@ class _LazyRenderTable:
         n0, n = self.n_blocks, coarse.size
         self._grow(n0 + n)
         self.coarse_of[n0:n0 + n] = coarse
-        self.block_of[coarse] = np.arange(n0, n0 + n, dtype=np.int32)
+        self.block_of[coarse] = np.arange(n0, n0 + n, dtype=np.intp) * self.nb
         self.n_blocks = n0 + n
 
     def _fill(self, cells: np.ndarray):
@@ -409,14 +415,12 @@ class _LazyRenderTable:
         key = self.packed[0].take(q[:, 0])
         key += self.packed[1].take(q[:, 1])
         key += self.packed[2].take(q[:, 2])
-        coarse = key >> 8
-        blk = self.block_of.take(coarse)
-        if (blk < 0).any():
-            self._add_blocks(coarse[blk < 0])
-            blk = self.block_of.take(coarse)
-        base = blk.astype(np.intp)
-        base *= self.nb
-        base += key & 255
+        coarse = key >> _BITS
+        base = self.block_of.take(coarse)
+        if (base < 0).any():
+            self._add_blocks(coarse[base < 0])
+            base = self.block_of.take(coarse)
+        base += key & ((1 << _BITS) - 1)
         ready = self.ready.take(base)
         if not ready.all():
             self._fill(base[~ready])
@@ -435,11 +439,8 @@ class _LazyRenderTable:
             # three); the weights are scaled by 2^16 so that the 1e-5 costs < 1e-9
             return cv2.blendLinear(a, b, w[0], w[1], dst=out)
 
-        w = []
-        for k in range(3):
-            tk = self.t.take(q[:, k])
-            tk *= np.float32(65536.0)
-            w.append(((np.float32(65536.0) - tk).reshape(shape[:2]), tk.reshape(shape[:2])))
+        w = [(self.weights[0].take(q[:, k]).reshape(shape[:2]),
+              self.weights[1].take(q[:, k]).reshape(shape[:2])) for k in range(3)]
         out = bufs[5].reshape(shape)
         c0 = lerp(corner(0, 0), corner(1, 1), w[2], bufs[0].reshape(shape))
         c1 = lerp(corner(2, 1), corner(3, 2), w[2], bufs[1].reshape(shape))
@@ -615,7 +616,7 @@ class NUSPipelineModel(PipelineModel):
             # clipped per column with OpenCV (10x numpy's clip with array bounds)
             img = mapped.reshape(1, n, 4)
             cv2.min(cv2.max(img, lo, dst=img), hi, dst=img)
-            out[s:s + _CHUNK] = tone.take(mapped.astype(np.intp))[:, :3]
+            tone.take(mapped[:, :3].astype(np.intp), out=out[s:s + _CHUNK])
         out = out.reshape(shape)
         return (out, None) if return_mask else out
 
