@@ -9,7 +9,7 @@ for ``to_raw`` (JPEG -> raw) and ``render`` (raw -> JPEG):
   the first render of the frame; the count is printed);
 - the time per megapixel of the reference (``NUSCameraModel``, the RBF per pixel,
   timed on a subsample) and of the baked model on a full 24 MP frame once its tables
-  are made (the median of three runs);
+  are made (the median of five runs: the machine is shared);
 - the max, 99.9th percentile and RMS difference (in ``[0, 1]``: raw for to_raw,
   rendered for render) on 50,000 pixels drawn from the frame, the reference ``to_raw``
   clipped to ``[0, 1]`` as every pipeline model's output is.
@@ -41,7 +41,7 @@ def _errors(a, b):
     return d.max(), np.percentile(d.max(axis=-1), 99.9), np.sqrt(np.mean(d ** 2))
 
 
-def _timed(fn, runs: int = 3):
+def _timed(fn, runs: int = 5):
     """The median wall time of ``runs`` calls, and the last result."""
     times = []
     for _ in range(runs):
@@ -97,7 +97,7 @@ def main() -> None:
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     print(f"render: the first render of the frame took {t_first:.1f} s and evaluated "
           f"{nodes:,} nodes of the fine grid ({model._forward.n_blocks:,} blocks of "
-          f"{model._forward.nb}); times: median of 3 runs once the tables are made")
+          f"{model._forward.nb}); times: median of 5 runs once the tables are made")
     print(table(["direction", "bake s (once)", "reference s/MP", "baked s/MP",
                  f"baked s ({mp:.0f} MP)", "max diff", "99.9 % diff", "RMS diff"], rows))
 
