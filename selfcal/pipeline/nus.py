@@ -512,7 +512,8 @@ class NUSPipelineModel(PipelineModel):
     ``bench/bench_nus_model.py``.  The first render of a frame spanning many colours
     costs a few seconds of RBF evaluation (about 20 µs per node; a 24 MP frame needs
     50,000-200,000 nodes), kept for the next frames; an image of random colours over the
-    whole cube would need millions.
+    whole cube would need millions.  The render table grows as it renders: not for
+    several threads at once (one model per thread).
 
     Not saved as a selfcal model file (:meth:`save` refuses): the folder is the model.
 
