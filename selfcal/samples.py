@@ -31,6 +31,15 @@ REJECTION_REASONS = ("clipped", "saturated", "not_flat")
 #: Long side (pixels) of the grey thumbnail kept of each frame: the verdict measures the
 #: frames' motion against each other on it (:mod:`selfcal.response.verdict`).
 THUMBNAIL_SIDE = 1024
+#: A block within this many blocks of a clipped one counts as clipped (its block max/min
+#: taken over the neighbourhood), to keep samples away from JPEG ringing at clipped edges
+#: (issue 15, Build 2).  Off: tried at radius 0 / 1 / 3 / 8 on the tuning split of
+#: ``bench/bench_response_matrix.py`` (256x384 frames, block 1), radius 1 gave 12 (was
+#: 11) of 14 cells with a median f⁻¹ RMSE ≤ 0.005 and 10 (was 7) with p90 ≤ 0.010, but
+#: ``bench_response_synthetic.py --step 10`` went from a median of 0.0044 to 0.0048, the
+#: D7000 rows from 0.0114 / 0.0151 to 0.0117 / 0.0164, and a 192x288 stack with one wrong
+#: EXIF time refined to 0.0074 (0.0034 held): not clearly better, so not on by default.
+NEAR_CLIP_BLOCKS = 0
 
 
 def content_digest(image: np.ndarray) -> str:
@@ -92,6 +101,11 @@ def reduce_frame(image, *, block: int, source: str = "array",
                  digest: str | None = None) -> ReducedFrame:
     """Reduce one frame to ``block``×``block`` means, plus per-block extreme codes.
 
+    With :data:`NEAR_CLIP_BLOCKS` > 0 the extremes are taken over the block and its
+    neighbours within that many blocks, so that a block next to a clipped one counts as
+    clipped (Lin et al. §5 reject clipped pixels; keeping away from the JPEG damage around
+    them is ours; off by default, see the constant).
+
     Parameters
     ----------
     image : numpy.ndarray
@@ -129,6 +143,10 @@ def reduce_frame(image, *, block: int, source: str = "array",
         cmin = cv2.erode(cv2.min(cv2.min(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
         cmax = cmax.astype(np.float32)
         cmin = cmin.astype(np.float32)
+    if NEAR_CLIP_BLOCKS > 0:
+        # JPEG ringing and chroma bleed from a clipped neighbour damage a block's codes
+        near = np.ones((2 * NEAR_CLIP_BLOCKS + 1,) * 2, np.uint8)
+        cmax, cmin = cv2.dilate(cmax, near), cv2.erode(cmin, near)
     blocks = np.ascontiguousarray(blocks, dtype=np.float32)
     return ReducedFrame(blocks=blocks, block_max=cmax, block_min=cmin, max_code=max_code,
                         shape=(h, w), digest=digest, source=source,
