@@ -544,7 +544,9 @@ def _raw_ratios(frames, pair_data, exposure_source, report: _Report):
     """Relative exposures of the frames with raws, from the raws themselves.
 
     :func:`selfcal.pairs.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
-    directly computed by dividing the raw values between two images").  Returns
+    directly computed by dividing the raw values between two images"), on the two halves
+    of :func:`selfcal.pairs.split_thumbnails` (pixels chosen on one, measured on the
+    other: no selection bias).  Returns
     ``(raw_rel, framed)``: frame → (relative exposure, connected set), for the frames whose
     ratio is known, and the frames that have a raw.
     """
@@ -553,7 +555,13 @@ def _raw_ratios(frames, pair_data, exposure_source, report: _Report):
     raw_rel = {}
     if len(framed) >= 2 and exposure_source in ("auto", "raw"):
         try:
-            rel, rep = raw_exposure_ratios([pd_by_rendered[p].thumbnail for p in framed])
+            halves = [pd_by_rendered[p].thumbnail_halves for p in framed]
+            if all(h is not None for h in halves):
+                rel, rep = raw_exposure_ratios([v for v, _ in halves],
+                                               select=[c for _, c in halves],
+                                               statistic="sum", max_side=1024)
+            else:
+                rel, rep = raw_exposure_ratios([pd_by_rendered[p].thumbnail for p in framed])
         except InputError as exc:
             report.warn(f"exposure ratios from the raws failed ({exc}); using EXIF times")
         else:

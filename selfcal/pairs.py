@@ -278,7 +278,10 @@ class PairData:
         In the pixel grids actually compared (see ``raw_shape`` / ``rendered_shape``).
     samples : PairSamples
     thumbnail : numpy.ndarray
-        Small linear raw (see :func:`raw_thumbnail`) for exposure ratios.
+        Small linear raw (see :func:`raw_thumbnail`).
+    thumbnail_halves : tuple of numpy.ndarray or None
+        ``(values, selection)`` of :func:`split_thumbnails`, for exposure ratios free of
+        selection bias.
     raw_exposure : ExposureInfo or None
         EXIF of the raw file, where readable.
     camera_wb : tuple or None
@@ -292,6 +295,7 @@ class PairData:
     raw_exposure: object = None
     camera_wb: tuple | None = None
     raw_shape: tuple = field(default=())
+    thumbnail_halves: tuple | None = field(default=None, repr=False)
 
 
 def _jpeg_reduce_for(path, raw_shape) -> int:
@@ -358,7 +362,8 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
     return PairData(raw_name=str(raw_name), rendered_name=str(rendered_name),
                     registration=reg, samples=samples, thumbnail=thumb,
                     raw_exposure=raw_exposure, camera_wb=camera_wb,
-                    raw_shape=tuple(raw_rgb.shape[:2]))
+                    raw_shape=tuple(raw_rgb.shape[:2]),
+                    thumbnail_halves=split_thumbnails(raw_rgb))
 
 
 # --------------------------------------------------------------------------------------
