@@ -33,7 +33,6 @@ import argparse
 import sys
 import tempfile
 import time
-from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -60,31 +59,13 @@ def _times(frames: int, step: float):
     return [float(2.0 ** (step * k) / 250) for k in range(frames)]
 
 
-def _write(folder: Path, raws, times, with_times: bool):
-    import tifffile
-
-    folder.mkdir(parents=True)
-    paths = []
-    for k, (raw, t) in enumerate(zip(raws, times)):
-        tags = []
-        if with_times:
-            fr = Fraction(t).limit_denominator(100_000)
-            tags = [(33434, 5, 1, (fr.numerator, fr.denominator), False)]
-        path = folder / f"frame_{k}.tif"
-        tifffile.imwrite(path, np.round(np.clip(raw, 0, 1) * 65535).astype(np.uint16),
-                         photometric="rgb", extratags=tags)
-        paths.append(path)
-    return paths
-
-
 def _bracket(scene, times, *, sensor, jitter, seed):
-    """Linear frames of ``scene`` at the jittered ``times`` (the middle frame puts the
-    scene's median at 0.18), and the true exposures."""
+    """The stack of linear frames of ``scene`` at the jittered ``times`` (the middle frame
+    puts the scene's median at 0.18)."""
     from selfcal import synth
 
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=seed), times,
-                                 jitter=jitter, sensor=sensor, seed=seed)
-    return stack.raws, np.asarray(stack.true_exposures, dtype=float)
+    return synth.simulate_stack(scene, synth.default_pipeline(seed=seed), times,
+                                jitter=jitter, sensor=sensor, seed=seed)
 
 
 def _radiance_error(radiance, unmeasured, truth) -> float:
@@ -98,8 +79,9 @@ def _measure(name, split, scene, times, sensor, jitter, seed, with_times, root: 
     import selfcal
     from selfcal.choose_groups import linear_evidence
 
-    raws, true = _bracket(scene, times, sensor=sensor, jitter=jitter, seed=seed)
-    paths = _write(root / name.replace(":", "_"), raws, times, with_times)
+    stack = _bracket(scene, times, sensor=sensor, jitter=jitter, seed=seed)
+    true = np.asarray(stack.true_exposures, dtype=float)
+    paths = stack.write_raws(root / name.replace(":", "_"), with_times=with_times)
     known = list(times) if with_times else [None] * len(times)
     why = linear_evidence(paths, known)
     t0 = time.perf_counter()

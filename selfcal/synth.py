@@ -937,6 +937,13 @@ def _tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
     return out.getvalue()
 
 
+def _refuse_existing(paths, force: bool) -> None:
+    """OutputExistsError for the first of ``paths`` that exists, unless ``force``."""
+    for p in paths if not force else ():
+        if p.exists():
+            raise OutputExistsError(f"{p}: exists already (use --force to overwrite)")
+
+
 @dataclass(eq=False)
 class SyntheticStack:
     """A simulated bracketed exposure stack with its ground truth.
@@ -1062,10 +1069,7 @@ class SyntheticStack:
         folder = Path(folder)
         digits = max(2, len(str(len(self.images) - 1)))
         paths = [folder / f"{prefix}_{i:0{digits}d}.{ext}" for i in range(len(self.images))]
-        if not force:
-            for p in paths:
-                if p.exists():
-                    raise OutputExistsError(f"{p}: exists already (use --force to overwrite)")
+        _refuse_existing(paths, force)
         for i, (path, image) in enumerate(zip(paths, self.images)):
             t = float(self.exposure_times[i])
             meta = {"exposure_time": t, "f_number": self.f_number, "iso": self.iso}
@@ -1085,6 +1089,36 @@ class SyntheticStack:
             else:
                 write_bytes_atomic(path, _tiff_with_exif_tags(image, t, self.f_number,
                                                               self.iso), force=force)
+        return paths
+
+    def write_raws(self, folder, *, with_times: bool = True, force: bool = False,
+                   prefix: str = "raw") -> list[Path]:
+        """Write the frames' linear raws as 16-bit TIFFs, as a raw converter does
+        (``dcraw -4 -T``: no tone curve, black at 0, white = 65535).
+
+        Files are ``{prefix}_{i}.tif``, written atomically; with ``with_times`` they
+        carry the nominal ExposureTime, FNumber and ISO in IFD0, else no exposure data
+        (many converters drop it).
+
+        Returns
+        -------
+        list of pathlib.Path
+
+        Raises
+        ------
+        OutputExistsError
+            When a target file exists and ``force`` is false (nothing is written then).
+        """
+        from .io import write_bytes_atomic
+
+        folder = Path(folder)
+        paths = [folder / f"{prefix}_{i}.tif" for i in range(len(self.raws))]
+        _refuse_existing(paths, force)
+        for i, (path, raw) in enumerate(zip(paths, self.raws)):
+            codes = np.round(np.clip(raw, 0.0, 1.0) * 65535).astype(np.uint16)
+            meta = ((float(self.exposure_times[i]), self.f_number, self.iso) if with_times
+                    else (None, None, None))
+            write_bytes_atomic(path, _tiff_with_exif_tags(codes, *meta), force=force)
         return paths
 
 

@@ -351,29 +351,13 @@ def test_verdict_unusable_writes_nothing_unless_forced(capsys, tmp_path):
 
 def _linear_bracket(folder, times, *, with_times: bool):
     """16-bit linear TIFFs of a simulated bracket (the raws, as a raw converter writes
-    them), with or without ExposureTime tags; and the true relative exposures."""
-    import numpy as np
-    import tifffile
-
+    them), with or without exposure tags; and the stack (its true exposures)."""
     from selfcal import synth
 
     scene = synth.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
     stack = synth.simulate_stack(scene, synth.default_pipeline(seed=3), list(times),
                                  jitter=0.0, seed=3)
-    folder.mkdir()
-    paths = []
-    for k, (raw, t) in enumerate(zip(stack.raws, times)):
-        tags = []
-        if with_times:
-            from fractions import Fraction
-
-            fr = Fraction(t).limit_denominator(100_000)
-            tags = [(33434, 5, 1, (fr.numerator, fr.denominator), False)]
-        path = folder / f"raw_{k}.tif"
-        tifffile.imwrite(path, np.round(np.clip(raw, 0, 1) * 65535).astype(np.uint16),
-                         photometric="rgb", extratags=tags)
-        paths.append(path)
-    return paths, stack
+    return stack.write_raws(folder, with_times=with_times), stack
 
 
 def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
