@@ -42,7 +42,6 @@ ffmpeg's ``DOMAIN_MIN`` / ``DOMAIN_MAX`` cannot narrow the range instead (see
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import tempfile
 from pathlib import Path
@@ -53,7 +52,7 @@ from scipy.optimize import linprog
 from common import data_dir, table
 
 import selfcal
-from selfcal.export import cube_table, write_cube
+from selfcal.export import apply_cube_ffmpeg, cube_table, ffmpeg_binaries, write_cube
 from selfcal.io import read_image
 
 SIZES = (33, 65)
@@ -61,36 +60,9 @@ INTERPS = ("trilinear", "tetrahedral")
 TOL = 0.005
 
 
-def ffmpeg_binaries() -> list[str]:
-    """imageio-ffmpeg's binary and a system ffmpeg, those present."""
-    found = []
-    try:
-        import imageio_ffmpeg
-
-        found.append(imageio_ffmpeg.get_ffmpeg_exe())
-    except (ImportError, RuntimeError):
-        pass
-    system = shutil.which("ffmpeg")
-    if system and system not in found:
-        found.append(system)
-    return found
-
-
 def ffmpeg_version(exe: str) -> str:
     out = subprocess.run([exe, "-version"], capture_output=True, text=True).stdout
     return out.split("\n", 1)[0].split(" Copyright")[0]
-
-
-def ffmpeg_lut3d(exe: str, cube: Path, frame16: np.ndarray, interp: str) -> np.ndarray:
-    """``cube`` applied to a uint16 RGB frame by ffmpeg's lut3d; float64 in [0, 1]."""
-    h, w, _ = frame16.shape
-    cmd = [exe, "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
-           "rgb48le", "-s", f"{w}x{h}", "-i", "-", "-vf",
-           f"lut3d=file={cube.name}:interp={interp}", "-f", "rawvideo", "-pix_fmt",
-           "rgb48le", "-"]
-    res = subprocess.run(cmd, input=frame16.astype("<u2").tobytes(), capture_output=True,
-                         cwd=cube.parent, check=True, timeout=600)
-    return np.frombuffer(res.stdout, "<u2").reshape(h, w, 3) / 65535.0
 
 
 def _score(err: np.ndarray, mask: np.ndarray) -> list[str]:
@@ -179,7 +151,7 @@ def domain_check(exe: str, folder: Path) -> list[list[str]]:
         np.savetxt(fh, vals, fmt="%.7f")
     probe = np.array([0.1, 0.3, 0.5, 0.7, 0.9])
     frame = np.round(np.repeat(probe[None, :, None], 3, axis=2) * 65535).astype(np.uint16)
-    out = ffmpeg_lut3d(exe, path, frame, "trilinear")[0, :, 0]
+    out = apply_cube_ffmpeg(exe, path, frame, "trilinear")[0, :, 0]
     return [[f"{p:.1f}", f"{p:.3f}", f"{lo + p * (hi - lo):.3f}", f"{o:.3f}"]
             for p, o in zip(probe, out)]
 
@@ -221,7 +193,7 @@ def main() -> None:
                         frame16, ours = raw16, ours_render
                         no_end = (raw16 >= 65535.0 / (size - 1)).all(axis=2)
                     for interp in INTERPS:
-                        out = ffmpeg_lut3d(exe, cube, frame16, interp)
+                        out = apply_cube_ffmpeg(exe, cube, frame16, interp)
                         err = np.abs(out - ours).max(axis=2)
                         everything = np.ones(err.shape, dtype=bool)
                         rows.append([f"{label} {interp}"

@@ -67,6 +67,7 @@ from .errors import InputError
 from .io import atomic_output, check_output_path
 
 __all__ = ["DIRECTIONS", "DEFAULT_3D_SIZE", "cube_table", "write_cube", "read_cube_header",
+           "ffmpeg_binaries", "apply_cube_ffmpeg",
            "model_code_range"]
 
 DIRECTIONS = ("linearize", "to-raw", "render")
@@ -306,3 +307,45 @@ def read_cube_header(path) -> dict:
             break
         out[key] = value.strip()
     return out
+
+
+# ---- checking a cube with ffmpeg ----------------------------------------------------
+
+def ffmpeg_binaries() -> list:
+    """The ffmpeg executables present: imageio-ffmpeg's, then one on PATH (either may be
+    missing; ``pip install imageio-ffmpeg`` provides the first)."""
+    import shutil
+
+    found = []
+    try:
+        import imageio_ffmpeg
+
+        found.append(imageio_ffmpeg.get_ffmpeg_exe())
+    except (ImportError, RuntimeError):
+        pass
+    system = shutil.which("ffmpeg")
+    if system and system not in found:
+        found.append(system)
+    return found
+
+
+def apply_cube_ffmpeg(exe: str, cube, frame16: np.ndarray, interp: str = "tetrahedral",
+                      *, timeout: float = 600) -> np.ndarray:
+    """``cube`` applied to a uint16 ``HxWx3`` RGB frame by ffmpeg's ``lut3d`` filter (an
+    independent implementation of the format), as float64 on [0, 1].
+
+    ``interp`` is ffmpeg's: ``nearest``, ``trilinear`` or ``tetrahedral``.  Raises
+    :class:`subprocess.CalledProcessError` when ffmpeg fails.
+    """
+    import subprocess
+
+    cube = Path(cube)
+    h, w, _ = frame16.shape
+    cmd = [exe, "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
+           "rgb48le", "-s", f"{w}x{h}", "-i", "-", "-vf",
+           f"lut3d=file={cube.name}:interp={interp}", "-f", "rawvideo", "-pix_fmt",
+           "rgb48le", "-"]
+    res = subprocess.run(cmd, input=frame16.astype("<u2").tobytes(), capture_output=True,
+                         cwd=cube.parent, check=True, timeout=timeout)
+    return np.frombuffer(res.stdout, "<u2").reshape(h, w, 3) / 65535.0
+

@@ -9,15 +9,14 @@ interpolation of the table it read.
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import selfcal
-from selfcal.export import cube_table, read_cube_header, write_cube
+from selfcal.export import (apply_cube_ffmpeg, cube_table, ffmpeg_binaries, read_cube_header,
+                            write_cube)
 from selfcal.io import read_image
 from selfcal.pipeline import fit_pipeline
 from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT
@@ -28,35 +27,9 @@ colour = pytest.importorskip("colour", reason="colour-science (the independent .
                              "reader) is not installed")
 
 
-def _ffmpeg_binaries() -> list[str]:
-    found = []
-    try:
-        import imageio_ffmpeg
-
-        found.append(imageio_ffmpeg.get_ffmpeg_exe())
-    except (ImportError, RuntimeError):
-        pass
-    system = shutil.which("ffmpeg")
-    if system and system not in found:
-        found.append(system)
-    return found
-
-
-FFMPEG = _ffmpeg_binaries()
+FFMPEG = ffmpeg_binaries()
 needs_ffmpeg = pytest.mark.skipif(not FFMPEG, reason="no ffmpeg: neither imageio-ffmpeg "
                                   "(pip install imageio-ffmpeg) nor ffmpeg on PATH")
-
-
-def ffmpeg_lut3d(exe: str, cube: Path, frame16: np.ndarray, interp: str) -> np.ndarray:
-    """Apply ``cube`` to a uint16 RGB frame with ffmpeg's lut3d; float64 in [0, 1]."""
-    h, w, _ = frame16.shape
-    cmd = [exe, "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
-           "rgb48le", "-s", f"{w}x{h}", "-i", "-", "-vf",
-           f"lut3d=file={cube.name}:interp={interp}", "-f", "rawvideo", "-pix_fmt",
-           "rgb48le", "-"]
-    res = subprocess.run(cmd, input=frame16.astype("<u2").tobytes(), capture_output=True,
-                         cwd=cube.parent, check=True, timeout=60)
-    return np.frombuffer(res.stdout, "<u2").reshape(h, w, 3) / 65535.0
 
 
 @pytest.fixture(scope="module")
@@ -110,7 +83,7 @@ def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
     by_colour = colour.read_LUT(str(cube)).apply(jpg / 255.0)
     inner = ((jpg >= 8) & (jpg <= 247)).all(axis=2)    # not in a cell touching a clip face
     for interp in ("trilinear", "tetrahedral"):
-        out = ffmpeg_lut3d(exe, cube, jpg.astype(np.uint16) * 257, interp)
+        out = apply_cube_ffmpeg(exe, cube, jpg.astype(np.uint16) * 257, interp)
         if interp == "trilinear":   # ffmpeg reads the file as colour-science does
             assert np.abs(out - by_colour).max() < 2e-4
         err = np.abs(out - ours).max(axis=2)
@@ -124,16 +97,16 @@ def test_3d_render_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
     cube = write_cube(pipeline_model, tmp_path / "render.cube", direction="render")
     raw16 = read_image(FIXTURES / "pair" / "pair.tiff")
     by_colour = colour.read_LUT(str(cube)).apply(raw16 / 65535.0)
-    out = ffmpeg_lut3d(exe, cube, raw16, "trilinear")
+    out = apply_cube_ffmpeg(exe, cube, raw16, "trilinear")
     assert np.abs(out - by_colour).max() < 2e-4
     # at the table's nodes ffmpeg gives selfcal's render (no interpolation error)
     k = np.random.default_rng(1).integers(0, 33, (64, 64, 3))
     nodes16 = np.round(k / 32 * 65535).astype(np.uint16)
-    out = ffmpeg_lut3d(exe, cube, nodes16, "tetrahedral")
+    out = apply_cube_ffmpeg(exe, cube, nodes16, "tetrahedral")
     assert np.abs(out - pipeline_model.render(nodes16)).max() < 2e-3
     # between nodes: a uniform 33³ grid of linear raw is coarse where the tone curve is
     # steep (the fixture's median raw is 0.045); half the pixels within 0.5 %
-    out = ffmpeg_lut3d(exe, cube, raw16, "tetrahedral")
+    out = apply_cube_ffmpeg(exe, cube, raw16, "tetrahedral")
     err = np.abs(out - pipeline_model.render(raw16)).max(axis=2)
     assert np.median(err) < 0.005
 
@@ -267,11 +240,11 @@ def test_nus_to_raw_cube_inside_the_model_range(tmp_path):
     ours = model.to_raw(jpg)
     inside = ((jpg >= 5) & (jpg <= 252)).all(axis=2)
     cube = write_cube(model, tmp_path / "nus.cube", size=33)
-    out = ffmpeg_lut3d(FFMPEG[0], cube, jpg.astype(np.uint16) * 257, "tetrahedral")
+    out = apply_cube_ffmpeg(FFMPEG[0], cube, jpg.astype(np.uint16) * 257, "tetrahedral")
     err = np.abs(out - ours).max(axis=2)[inside]
     assert np.mean(err <= 0.005) > 0.999 and err.max() < 0.015   # measured 99.97 %, 0.0094
     plain = write_cube(model, tmp_path / "plain.cube", size=33, code_range=None)
-    out = ffmpeg_lut3d(FFMPEG[0], plain, jpg.astype(np.uint16) * 257, "tetrahedral")
+    out = apply_cube_ffmpeg(FFMPEG[0], plain, jpg.astype(np.uint16) * 257, "tetrahedral")
     assert np.abs(out - ours).max(axis=2)[inside].max() > 0.03    # measured 0.047
     # the render table holds the reference evaluation at its nodes
     rows, _, _ = cube_table(model, "render", size=5)
