@@ -555,13 +555,10 @@ def _raw_ratios(frames, pair_data, exposure_source, report: _Report):
     raw_rel = {}
     if len(framed) >= 2 and exposure_source in ("auto", "raw"):
         try:
-            halves = [pd_by_rendered[p].thumbnail_halves for p in framed]
-            if all(h is not None for h in halves):
-                rel, rep = raw_exposure_ratios([v for v, _ in halves],
-                                               select=[c for _, c in halves],
-                                               statistic="sum", max_side=1024)
-            else:
-                rel, rep = raw_exposure_ratios([pd_by_rendered[p].thumbnail for p in framed])
+            halves = [pd_by_rendered[p].thumbnail for p in framed]
+            rel, rep = raw_exposure_ratios([v for v, _ in halves],
+                                           select=[c for _, c in halves],
+                                           statistic="sum", max_side=1024)
         except InputError as exc:
             report.warn(f"exposure ratios from the raws failed ({exc}); using EXIF times")
         else:

@@ -277,11 +277,9 @@ class PairData:
     registration : Registration
         In the pixel grids actually compared (see ``raw_shape`` / ``rendered_shape``).
     samples : PairSamples
-    thumbnail : numpy.ndarray
-        Small linear raw (see :func:`raw_thumbnail`).
-    thumbnail_halves : tuple of numpy.ndarray or None
-        ``(values, selection)`` of :func:`split_thumbnails`, for exposure ratios free of
-        selection bias.
+    thumbnail : tuple of numpy.ndarray
+        Small linear raw as ``(values, selection)`` of :func:`split_thumbnails`, for
+        exposure ratios free of selection bias.
     raw_exposure : ExposureInfo or None
         EXIF of the raw file, where readable.
     camera_wb : tuple or None
@@ -291,11 +289,10 @@ class PairData:
     rendered_name: str
     registration: Registration
     samples: PairSamples
-    thumbnail: np.ndarray
+    thumbnail: tuple
     raw_exposure: object = None
     camera_wb: tuple | None = None
     raw_shape: tuple = field(default=())
-    thumbnail_halves: tuple | None = field(default=None, repr=False)
 
 
 def _jpeg_reduce_for(path, raw_shape) -> int:
@@ -358,12 +355,10 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
         reg = Registration.identity(ren.shape)
     samples = pair_samples(raw_rgb, ren, reg, block=block, n_max=n_max, seed=seed,
                            **sample_options)
-    thumb = raw_thumbnail(raw_rgb)
     return PairData(raw_name=str(raw_name), rendered_name=str(rendered_name),
-                    registration=reg, samples=samples, thumbnail=thumb,
-                    raw_exposure=raw_exposure, camera_wb=camera_wb,
-                    raw_shape=tuple(raw_rgb.shape[:2]),
-                    thumbnail_halves=split_thumbnails(raw_rgb))
+                    registration=reg, samples=samples,
+                    thumbnail=split_thumbnails(raw_rgb), raw_exposure=raw_exposure,
+                    camera_wb=camera_wb, raw_shape=tuple(raw_rgb.shape[:2]))
 
 
 # --------------------------------------------------------------------------------------
