@@ -18,19 +18,6 @@ RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
 
 # ------------------------------------------------------------------------- merge
 
-def _linear_frames(images, times) -> str | None:
-    """Why TIFF frames are linear data (:func:`selfcal.choose_groups.linear_evidence`), or
-    None: linear TIFFs are merged as they are, never calibrated as rendered frames."""
-    from selfcal.choose_groups import linear_evidence
-    from selfcal.io import effective_exposure_times, read_exposure_info
-
-    if not all(p.suffix.lower() in (".tif", ".tiff") for p in images):
-        return None
-    if times is None:
-        times = effective_exposure_times([read_exposure_info(p) for p in images])
-    return linear_evidence(images, times)
-
-
 def cmd_merge(args) -> int:
     import numpy as np
 
@@ -63,18 +50,13 @@ def cmd_merge(args) -> int:
             raise selfcal.CalibrationError(
                 f"{images[0]}: one frame and no model: give --model (a response needs at "
                 "least two frames to calibrate), or --linear for a linear image")
-        why = _linear_frames(images, args.times)
-        if why:
-            names = ", ".join(p.name for p in images[:4]) + (", …" if len(images) > 4 else "")
-            say(f"{names} are linear data ({why}): merged as they are, no response fitted "
-                "(give --model or their --times if they are rendered frames after all)")
-            args.linear = True
 
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost,
                        reference=args.reference, linear=args.linear,
                        linear_exposures=args.linear_exposures,
                        progress=progress_bar("merge"))
+    args.linear = args.linear or "linear_evidence" in result.diagnostics
     if model is None and not args.linear:
         say_verdict(getattr(result.model, "diagnostics", None) or
                     {"verdict": result.diagnostics.get("model_verdict")},

@@ -135,3 +135,19 @@ def test_split_halves_remove_the_selection_bias_of_noisy_ratios():
     assert abs(self_chosen[1] / 4 - 1) > 0.02
     assert abs(split[1] / 4 - 1) < 0.01
     assert report["pairs"][0][3] > 1000
+
+
+def test_merge_hdr_takes_linear_tiffs_for_linear_without_being_told(tmp_path):
+    """The library, not only the CLI: linear TIFFs are not calibrated as rendered frames."""
+    paths, stack = _bracket(tmp_path, with_times=True)
+    result = selfcal.merge_hdr(paths)
+    assert "follow the exposure times" in result.diagnostics["linear_evidence"]
+    assert any("are linear data" in w for w in result.warnings)
+    assert result.model is None and result.exposure_source == "measured+exif"
+    true = _ratios(stack.true_exposures)
+    assert np.max(np.abs(_ratios(result.exposures) / true - 1)) < 0.01
+    # rendered 16-bit TIFFs of the same scene are still calibrated
+    rendered = synth.simulate_stack(stack.radiance, stack.pipeline, list(TIMES), seed=7,
+                                    bit_depth=16, jpeg_quality=None)
+    files = rendered.write(tmp_path / "rendered", fmt="tif")
+    assert "linear_evidence" not in selfcal.merge_hdr(files).diagnostics

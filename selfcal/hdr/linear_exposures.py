@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..frames import _given_exposures
+from ..frames import _Frames, _given_exposures
 from ..pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
-           "MEASURE_SIDE", "REPORT_DIFFERENCE"]
+           "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE"]
 
 #: Long side (pixels) of the area-averaged thumbnails the ratios are measured on.
 MEASURE_SIDE = 512
@@ -188,7 +188,7 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
     """:func:`measure_linear_exposures` for :func:`selfcal.merge_hdr`: the times (given,
     else EXIF) read, the summary put in ``diagnostics["linear_exposures"]`` and the
     warnings that say what was used.  Returns ``(exposures, source)``."""
-    from ..frames import _given_exposures
+    from ..frames import _Frames, _given_exposures
 
     times, times_source = _given_exposures(frames, exposure_times)
     lin = measure_linear_exposures(frames, times, times_source, use=use,
@@ -210,3 +210,41 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
                             f"pixels by up to {100 * worst[0]:.1f}% (at {name}); kept as "
                             "given (linear_exposures='measured' uses the pixels')")
     return lin.exposures, lin.source
+
+
+def linear_tiff_evidence(images, exposure_times=None) -> str | None:
+    """Why ``images`` -- every one a TIFF path -- are linear data rather than rendered
+    frames (:func:`selfcal.choose_groups.linear_evidence`), or None.
+
+    ``exposure_times`` (None: EXIF ``t · ISO/100 / N²``) make the test decisive: linear
+    ratios follow them to the power 1.
+    """
+    from ..choose_groups import linear_evidence
+    from ..io import _is_path, effective_exposure_times, read_exposure_info
+
+    if not images or not all(_is_path(p) and Path(p).suffix.lower() in (".tif", ".tiff")
+                             for p in images):
+        return None
+    paths = [Path(p) for p in images]
+    if exposure_times is None:
+        exposure_times = effective_exposure_times([read_exposure_info(p) for p in paths])
+    return linear_evidence(paths, list(exposure_times))
+
+
+def stack_frames(images, exposure_times, model, linear: bool, warnings: list,
+                 diagnostics: dict) -> _Frames:
+    """The stack's frames for :func:`selfcal.merge_hdr`, linear when the caller says so,
+    for raw files, and for TIFFs that show linear data (:func:`linear_tiff_evidence`;
+    said in ``warnings`` and ``diagnostics["linear_evidence"]``) -- which would otherwise
+    be calibrated as rendered frames, with a bent curve and wrong ratios."""
+    why = None if linear or model is not None else linear_tiff_evidence(images,
+                                                                        exposure_times)
+    if why:
+        names = ", ".join(Path(p).name for p in images[:4]) + (", …" if len(images) > 4
+                                                               else "")
+        warnings.append(f"{names} are linear data ({why}): merged as they are, no "
+                        "response fitted (give a model or their times if they are "
+                        "rendered frames after all)")
+        diagnostics["linear_evidence"] = why
+    return _Frames(images, linear or bool(why))
+

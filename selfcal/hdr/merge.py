@@ -99,7 +99,7 @@ from ..frames import (
 from ..io import JPEG_SUFFIXES, _cv2, _is_path, read_image
 from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
 from ..samples import collect_samples
-from .linear_exposures import USES, resolve_linear_exposures
+from .linear_exposures import USES, resolve_linear_exposures, stack_frames
 from .deghost import (
     _ghost_mask,
     _misalignment_warning,
@@ -251,7 +251,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     reference : int, optional
         Index of the reference frame; default the middle one by exposure.
     linear : bool
-        The frames are linear already (no model; a given model is an error).
+        Linear frames (raw files and TIFFs showing linear data are, with a warning).
     noise : NoiseModel, optional
         For ``weighting="noise"`` and deghosting.  Default :data:`.weights.DEFAULT_NOISE`.
     clip_margin : float
@@ -294,12 +294,12 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     (dtype('float32'), (256, 384, 3))
     """
     align, noise = _check_options(weighting, align, linear, model, linear_exposures, noise)
-    frames = _Frames(images, linear)
-    linear = frames.linear  # raw files are linear
-    n = len(frames)
     warnings: list[str] = []
     diagnostics: dict = {"weighting": weighting if isinstance(weighting, str)
                          else getattr(weighting, "__name__", "callable")}
+    frames = stack_frames(images, exposure_times, model, linear, warnings, diagnostics)
+    linear = frames.linear  # raw files, and TIFFs that show linear data, are linear
+    n = len(frames)
 
     fresh, transforms, ref0 = False, None, None
     if model is None and not linear:
