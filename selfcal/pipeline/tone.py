@@ -273,7 +273,9 @@ class _ToneQP:
         self.z.value = np.linalg.solve(u.T, q)
         for solver in ("CLARABEL", "OSQP", "SCS"):
             try:
-                self.problem.solve(solver=solver)
+                # no warm start: the problem is shared by every fit in the process, so a
+                # warm start made a model depend on the fits before it (by up to 3e-5)
+                self.problem.solve(solver=solver, warm_start=False)
             except (cp.error.SolverError, ValueError):
                 continue
             if self.problem.status in ("optimal", "optimal_inaccurate") and \

@@ -1,0 +1,584 @@
+"""Reading and writing images, EXIF exposure data, and atomic output files.
+
+Arrays are RGB (not OpenCV's BGR), channel last.  Decoding goes through OpenCV, which is the
+fastest decoder available here; file structure is checked first so that a truncated JPEG is
+an error instead of a silently grey-padded image.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io as _io
+import os
+import tempfile
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, OutputExistsError, SelfcalError
+
+IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
+JPEG_SUFFIXES = {".jpg", ".jpeg"}
+
+
+def _cv2():
+    """OpenCV, with OpenEXR enabled and its own log lines silenced.
+
+    The library never prints: OpenCV would otherwise log libtiff warnings (e.g. for
+    exposure tags in a TIFF's IFD0) to stderr; errors still come back as failed reads.
+    """
+    os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
+    import cv2
+
+    try:
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    except AttributeError:  # builds without the logging module
+        pass
+    return cv2
+
+
+def _is_path(x) -> bool:
+    """True for what names a file (``str`` or ``os.PathLike``), False for an array."""
+    return isinstance(x, (str, os.PathLike))
+
+
+# --------------------------------------------------------------------------------------
+# reading
+# --------------------------------------------------------------------------------------
+
+def _check_structure(path: Path, data: bytes) -> None:
+    """Raise InputError when the bytes are plainly not a complete image file."""
+    if len(data) == 0:
+        raise InputError("the file is empty", path)
+    if data[:2] == b"\xff\xd8":
+        # A complete JPEG ends with the EOI marker; cameras may pad after it, some (the
+        # Sony ILCE-6400) with tens of kilobytes of zeros.
+        if b"\xff\xd9" not in data.rstrip(b"\x00")[-4096:]:
+            raise InputError("truncated JPEG (no end-of-image marker)", path)
+    elif data[:8] == b"\x89PNG\r\n\x1a\n":
+        if b"IEND" not in data[-64:]:
+            raise InputError("truncated PNG (no IEND chunk)", path)
+    elif data[:4] in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+"):
+        pass
+    else:
+        raise InputError("not an image file selfcal reads (JPEG, PNG or TIFF)", path)
+
+
+def read_image(path, *, reduce: int = 1) -> np.ndarray:
+    """Read an image file as an RGB array, channel last.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A JPEG, PNG or TIFF file, 8 or 16 bits per channel.
+    reduce : {1, 2, 4, 8}
+        For JPEG files, decode at 1/reduce of the size with libjpeg's DCT scaling (each
+        output pixel is a local mean of reduce×reduce pixels), several times faster than
+        a full decode; ignored for other formats.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``HxWx3`` array of dtype ``uint8`` or ``uint16`` (16-bit files keep their depth).
+        Grey images are repeated over three channels; an alpha channel is dropped.
+
+    Raises
+    ------
+    InputError
+        When the file is missing, empty, truncated, or not a decodable image.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not an image", path) from None
+    except OSError as exc:
+        raise InputError(f"cannot be read ({exc.strerror})", path) from None
+    _check_structure(path, data)
+    cv2 = _cv2()
+    buf = np.frombuffer(data, dtype=np.uint8)
+    flags = cv2.IMREAD_UNCHANGED
+    if reduce > 1 and data[:2] == b"\xff\xd8":
+        flags = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4,
+                 8: cv2.IMREAD_REDUCED_COLOR_8}[reduce]
+    image = cv2.imdecode(buf, flags | cv2.IMREAD_IGNORE_ORIENTATION)
+    if image is None:
+        raise InputError("the image data cannot be decoded (corrupt file?)", path)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"unsupported sample type {image.dtype} (8 or 16-bit needed)", path)
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    elif image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGB)
+    elif image.shape[2] == 3:
+        # in place: a second full-size frame would cost as much memory as the decode
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB, dst=image)
+    else:
+        raise InputError(f"unsupported channel count {image.shape[2]}", path)
+    return image
+
+
+def read_image_size(path) -> tuple[int, int]:
+    """Return ``(height, width)`` of an image file from its header, without decoding it."""
+    from PIL import Image
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            width, height = im.size
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, not an image", path) from None
+    except Exception as exc:  # Pillow raises several types for bad headers
+        try:       # the cause in words when it is plain: empty, truncated, not an image
+            _check_structure(path, path.read_bytes())
+        except InputError as plain:
+            raise plain from None
+        except OSError:
+            pass
+        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
+    return height, width
+
+
+# --------------------------------------------------------------------------------------
+# EXIF
+# --------------------------------------------------------------------------------------
+
+_EXIF_IFD = 0x8769
+_TAG_EXPOSURE_TIME = 0x829A
+_TAG_FNUMBER = 0x829D
+_TAG_ISO = 0x8827
+_TAG_SHUTTER_APEX = 0x9201
+
+
+@dataclass(frozen=True)
+class ExposureInfo:
+    """Exposure settings read from a file's EXIF; ``None`` where the tag is absent."""
+
+    exposure_time: float | None
+    f_number: float | None
+    iso: float | None
+
+    @property
+    def relative_exposure(self) -> float | None:
+        """Exposure time × ISO / N², the quantity pixel values scale with (None if no time)."""
+        if self.exposure_time is None:
+            return None
+        scale = 1.0
+        if self.iso:
+            scale *= self.iso / 100.0
+        if self.f_number:
+            scale /= self.f_number**2
+        return self.exposure_time * scale
+
+
+def effective_exposure_times(infos) -> list:
+    """Exposure times scaled to the first timed frame's ISO and aperture.
+
+    Pixel values scale with t · ISO / N², so a frame shot at another ISO or f-number is
+    given the time that would have exposed it equally at the first frame's settings; the
+    result stays in seconds.  ``None`` where a frame has no time.
+    """
+    ref = next((i for i in infos if i.exposure_time is not None), None)
+    out = []
+    for info in infos:
+        t = info.exposure_time
+        if t is not None and ref is not None:
+            if info.iso and ref.iso:
+                t *= info.iso / ref.iso
+            if info.f_number and ref.f_number:
+                t *= (ref.f_number / info.f_number) ** 2
+        out.append(t)
+    return out
+
+
+def _rational(value) -> float | None:
+    try:
+        if isinstance(value, tuple):  # (num, den) as some writers give
+            num, den = value
+            return float(num) / float(den) if den else None
+        result = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return result if np.isfinite(result) else None
+
+
+def read_exposure_info(path) -> ExposureInfo:
+    """Read exposure time, f-number and ISO from a file's EXIF.
+
+    Falls back to the APEX ShutterSpeedValue (t = 2^-Tv) when ExposureTime is missing.
+    Never raises for missing tags; raises InputError only when the file cannot be opened.
+    """
+    from PIL import Image
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            sub = exif.get_ifd(_EXIF_IFD)
+            exif = dict(exif)
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except Exception as exc:
+        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
+
+    def tag(code):
+        # TIFF/EP writers put the exposure tags in IFD0 rather than the EXIF sub-IFD
+        value = sub.get(code)
+        return exif.get(code) if value is None else value
+
+    time = _rational(tag(_TAG_EXPOSURE_TIME))
+    if time is None or time <= 0:
+        apex = _rational(tag(_TAG_SHUTTER_APEX))
+        time = float(2.0 ** (-apex)) if apex is not None else None
+    fnum = _rational(tag(_TAG_FNUMBER))
+    iso = tag(_TAG_ISO)
+    if isinstance(iso, tuple):
+        iso = iso[0] if iso else None
+    iso = _rational(iso)
+    return ExposureInfo(
+        exposure_time=time if time and time > 0 else None,
+        f_number=fnum if fnum and fnum > 0 else None,
+        iso=iso if iso and iso > 0 else None,
+    )
+
+
+def _exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth"):
+    import piexif
+
+    def rat(x, max_den=1_000_000):
+        fr = Fraction(float(x)).limit_denominator(max_den)
+        return (fr.numerator, fr.denominator)
+
+    exif_ifd = {}
+    if exposure_time is not None:
+        exif_ifd[piexif.ExifIFD.ExposureTime] = rat(exposure_time)
+    if f_number is not None:
+        exif_ifd[piexif.ExifIFD.FNumber] = rat(f_number, 100)
+    if iso is not None:
+        exif_ifd[piexif.ExifIFD.ISOSpeedRatings] = int(round(iso))
+    zeroth = {piexif.ImageIFD.Make: make.encode(), piexif.ImageIFD.Model: model.encode()}
+    return piexif.dump({"0th": zeroth, "Exif": exif_ifd})
+
+
+# --------------------------------------------------------------------------------------
+# writing (atomic, never over an existing file unless asked)
+# --------------------------------------------------------------------------------------
+
+class OutputWriteError(SelfcalError, OSError):
+    """An output file cannot be written (its folder is missing, not a folder, read-only,
+    or the disk refused); the message names the output asked for, never a temporary file."""
+
+
+def _reason(exc: OSError) -> str:
+    """The cause of an OS error in words, without the file name it carries."""
+    return (exc.strerror or str(exc) or type(exc).__name__).rstrip(".").lower()
+
+
+def _hidden_temp_names(text: str, folder: Path, target: Path) -> str:
+    """``text`` with every hidden temporary file of ``folder`` (``/.name.xxxx.ext``)
+    replaced by ``target``: messages name the output asked for."""
+    import re
+
+    return re.sub(re.escape(str(folder)) + r"/\.[^\s:'\"()]+", str(target), text)
+
+
+def _first_blocker(folder: Path):
+    """Walk up from ``folder`` to the first path that exists: ``(existing, missing)``,
+    where ``missing`` are the folders below it to be created (deepest last)."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return folder, missing[::-1]
+
+
+def check_output_path(path, *, force: bool = False, inputs=(), create_folder: bool = False):
+    """Check before any work that ``path`` can be written; raise what writing it would.
+
+    The checks: not one of ``inputs``; not a directory; not an existing file unless
+    ``force``; its folder exists (or, with ``create_folder``, can be created: the nearest
+    existing ancestor is a folder) and a file can really be created in it (a temporary
+    file is made and removed: permissions alone do not tell for root or read-only
+    mounts).  Nothing is left behind.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` is an input, or exists and ``force`` is false.
+    OutputWriteError
+        ``path`` is a directory, its folder is missing or is a file, or cannot be written.
+    """
+    path = Path(path)
+    resolved = path.resolve()
+    for inp in inputs:
+        if Path(inp).resolve() == resolved:
+            raise OutputExistsError(f"{path}: refusing to write over an input file")
+    if path.is_dir():
+        raise OutputWriteError(f"{path}: cannot be written (it is a directory)")
+    if path.exists() and not force:
+        raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
+    folder = path.parent
+    existing, missing = _first_blocker(folder)
+    if not existing.is_dir():
+        raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
+                               "folder)")
+    if missing and not create_folder:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {missing[0]} does "
+                               "not exist)")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".selfcal-check.", dir=existing)
+    except OSError as exc:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {existing}: "
+                               f"{_reason(exc)})") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def _temporary_beside(path: Path) -> Path:
+    """An empty hidden temporary file in the output's folder (so the final rename is
+    atomic), with the permissions an ordinary new file gets (mkstemp makes 0600)."""
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
+                                   dir=path.parent)
+    except OSError as exc:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
+                               f"{_reason(exc)})") from None
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
+    return Path(tmp)
+
+
+@contextlib.contextmanager
+def atomic_output(path, *, force: bool = False, inputs=()):
+    """Context manager giving a temporary path that is renamed onto ``path`` on success.
+
+    The temporary file sits in the same folder (a rename, never a copy); on any failure it
+    is removed and errors name ``path``, not the temporary file.  Missing folders are
+    created.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The final output file.
+    force : bool
+        Allow replacing an existing file.  Never allows replacing one of ``inputs``.
+    inputs : iterable of paths
+        Input files of the current job; writing over one of them is always refused.
+
+    Raises
+    ------
+    OutputExistsError
+        When ``path`` exists and ``force`` is false, or when it is one of the inputs.
+    OutputWriteError
+        When the folder cannot be created or written, or the rename fails (the message
+        names ``path`` and the cause).
+    """
+    path = Path(path)
+    resolved = path.resolve()
+    for inp in inputs:
+        if Path(inp).resolve() == resolved:
+            raise OutputExistsError(f"{path}: refusing to write over an input file")
+    if path.exists() and not force:
+        raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
+    existing, _ = _first_blocker(path.parent)
+    if not existing.is_dir():
+        raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
+                               "folder)")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
+                               f"{_reason(exc)})") from None
+    tmp = _temporary_beside(path)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        if isinstance(exc, SelfcalError) and str(tmp) in str(exc):
+            # a writer's own error about the temporary file: the same error, named right
+            raise type(exc)(_hidden_temp_names(str(exc), path.parent, path)) from None
+        if isinstance(exc, OSError) and not isinstance(exc, SelfcalError):
+            raise OutputWriteError(f"{path}: cannot be written ({_reason(exc)})") from None
+        raise
+
+
+class StagedOutputs:
+    """Several output files written so that they all appear at the end, or none does.
+
+    Each output is written to a temporary file beside it (:meth:`write`); :meth:`commit`
+    renames them all onto their targets, and :meth:`discard` (or leaving the ``with``
+    block by an exception) removes the temporary files and the folders this object
+    created.  If a rename fails in :meth:`commit`, the outputs already renamed that did
+    not exist before are removed again.  Errors name the output, not the temporary file.
+
+    Parameters
+    ----------
+    force : bool
+        Allow replacing existing files.
+    inputs : iterable of paths
+        Never written over.
+
+    Examples
+    --------
+    >>> with StagedOutputs(force=False) as out:                 # doctest: +SKIP
+    ...     out.write("model.json", lambda tmp: model.save(tmp, force=True))
+    ...     out.write("plot.png", lambda tmp: plot_response(model, tmp, force=True))
+    """
+
+    def __init__(self, *, force: bool = False, inputs=()):
+        self.force = force
+        self.inputs = [Path(p) for p in inputs]
+        self._staged: list[tuple[Path, Path]] = []
+        self._created_dirs: list[Path] = []
+        self.written: list[Path] = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, exc, tb):
+        if kind is None:
+            self.commit()
+        else:
+            self.discard()
+        return False
+
+    def _stage(self, target: Path) -> Path:
+        check_output_path(target, force=self.force, inputs=self.inputs, create_folder=True)
+        _, missing = _first_blocker(target.parent)
+        try:
+            for folder in missing:
+                folder.mkdir()
+                self._created_dirs.append(folder)
+        except OSError as exc:
+            raise OutputWriteError(f"{target}: cannot be written (the folder "
+                                   f"{target.parent}: {_reason(exc)})") from None
+        tmp = _temporary_beside(target)
+        self._staged.append((tmp, target))
+        return tmp
+
+    def write(self, target, writer):
+        """Call ``writer(tmp)`` to write ``target``'s content to a temporary file (the
+        writer must be allowed to replace ``tmp``, e.g. ``force=True``); returns what the
+        writer returns."""
+        target = Path(target)
+        tmp = self._stage(target)
+        try:
+            return writer(tmp)
+        except SelfcalError as exc:
+            if str(tmp.parent) in str(exc):
+                raise type(exc)(_hidden_temp_names(str(exc), tmp.parent, target)) from None
+            raise
+        except OSError as exc:
+            raise OutputWriteError(f"{target}: cannot be written ({_reason(exc)})") from None
+
+    def commit(self) -> list[Path]:
+        """Rename every staged file onto its target; returns the targets."""
+        done: list[tuple[Path, bool]] = []
+        try:
+            for tmp, target in self._staged:
+                if target.exists() and not self.force:
+                    raise OutputExistsError(
+                        f"{target}: exists already (use --force to overwrite)")
+                existed = target.exists()
+                try:
+                    os.replace(tmp, target)
+                except OSError as exc:
+                    raise OutputWriteError(f"{target}: cannot be written "
+                                           f"({_reason(exc)})") from None
+                done.append((target, existed))
+        except BaseException:
+            for target, existed in done:
+                if not existed:
+                    with contextlib.suppress(OSError):
+                        os.unlink(target)
+            self._staged = [(t, g) for t, g in self._staged
+                            if g not in {d for d, _ in done}]
+            self.discard()
+            raise
+        self.written = [target for _, target in self._staged]
+        self._staged = []
+        self._created_dirs = []
+        return self.written
+
+    def discard(self) -> None:
+        """Remove every staged file and the (now empty) folders created for them."""
+        for tmp, _ in self._staged:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        self._staged = []
+        for folder in reversed(self._created_dirs):
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+        self._created_dirs = []
+
+
+def write_bytes_atomic(path, data: bytes, *, force: bool = False, inputs=()) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_output`)."""
+    with atomic_output(path, force=force, inputs=inputs) as tmp:
+        Path(tmp).write_bytes(data)
+    return Path(path)
+
+
+def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
+                 exposure_time=None, f_number=None, iso=None) -> bytes:
+    """Encode an RGB array (uint8, uint16 or float32) into the bytes of a ``suffix`` file.
+
+    JPEG and PNG take uint8 (PNG and TIFF also uint16); TIFF also takes float32.  When any
+    of ``exposure_time``, ``f_number``, ``iso`` is given, a JPEG gets an EXIF block with them.
+    """
+    cv2 = _cv2()
+    suffix = suffix.lower()
+    image = np.asarray(image)
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise InputError(f"expected an HxWx3 RGB array, got shape {image.shape}")
+    bgr = np.ascontiguousarray(image[:, :, ::-1])
+    if suffix in JPEG_SUFFIXES:
+        if image.dtype != np.uint8:
+            raise InputError("JPEG output needs uint8 data")
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)])
+        data = buf.tobytes()
+        if any(v is not None for v in (exposure_time, f_number, iso)):
+            import piexif
+
+            out = _io.BytesIO()
+            piexif.insert(_exif_bytes(exposure_time, f_number, iso), data, out)
+            data = out.getvalue()
+    elif suffix == ".png":
+        if image.dtype not in (np.uint8, np.uint16):
+            raise InputError("PNG output needs uint8 or uint16 data")
+        ok, buf = cv2.imencode(".png", bgr)
+        data = buf.tobytes()
+    elif suffix in (".tif", ".tiff"):
+        import tifffile
+
+        if image.dtype not in (np.uint8, np.uint16, np.float32):
+            raise InputError("TIFF output needs uint8, uint16 or float32 data")
+        out = _io.BytesIO()
+        tifffile.imwrite(out, image, photometric="rgb")
+        data = out.getvalue()
+        ok = True
+    else:
+        raise InputError(f"unsupported output format {suffix!r}")
+    if not ok:
+        raise InputError(f"OpenCV could not encode the image as {suffix}")
+    return data
+
+
+def write_image(path, image: np.ndarray, *, force: bool = False, inputs=(), **kwargs) -> Path:
+    """Encode ``image`` by the suffix of ``path`` and write it atomically.
+
+    See :func:`encode_image` for the formats and keyword arguments.
+    """
+    path = Path(path)
+    return write_bytes_atomic(path, encode_image(image, path.suffix, **kwargs),
+                              force=force, inputs=inputs)

@@ -1,0 +1,616 @@
+"""RAW+JPEG pairs: block-mean correspondences, and exposure ratios from raws.
+
+The RAW calibration path (Gong et al., *Rank-based radiometric calibration*, paper 000,
+§3, and the colour mapping of Lin, Kim, Süsstrunk & Brown, ICCV 2011, paper 002, §6) fits
+``P = f(Γ(M ρ))`` to corresponding raw and rendered colours.  Each pair is first
+registered (:func:`selfcal.pipeline.registration.register_raw_jpeg`: an isotropic scale and a
+shift, since cameras' JPEGs are often a little cropped or scaled against what LibRaw
+decodes), then sampled with block means that skip clipped blocks and high-gradient
+blocks, where demosaicing, sharpening and JPEG compression make the two images differ
+(:func:`pair_samples`; the same outlier reasoning as Lin et al. §5: clipped pixels carry
+no information about the curve).  :func:`raw_exposure_ratios` gives a bracketed
+session's exposure ratios from its raws (Lin et al. §5).
+
+Coordinates are those of :mod:`selfcal.pipeline.registration`: pixel centres, ``x`` to the right,
+``y`` down, ``raw_xy = scale * rendered_xy + shift``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.images import JPEG_SUFFIXES, _cv2, _is_path, read_image, read_image_size
+from ..io.raw import read_raw_linear
+from .registration import (Registration, _as_float_rendered, _check_raw, _inside_mask,
+                           _warp, register_raw_jpeg)
+
+__all__ = ["PairSamples", "PairData", "pair_samples", "sample_raw_jpeg_pair",
+           "collect_pair_samples", "raw_thumbnail", "split_thumbnails", "raw_exposure_ratios",
+           "REJECTION_REASONS"]
+
+#: Rejection reasons of :func:`pair_samples`, in the order they are tested.
+REJECTION_REASONS = ("outside", "clipped_raw", "clipped_rendered", "high_gradient")
+
+#: Raws whose long side is shorter than this are read at full size even when half size is
+#: asked for (there are few enough pixels already).
+HALF_SIZE_MIN_SIDE = 2000
+
+
+# --------------------------------------------------------------------------------------
+# samples
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class PairSamples:
+    """Corresponding block means of a raw and its rendering.
+
+    Attributes
+    ----------
+    raw : numpy.ndarray
+        ``(n, 3)`` float64 linear camera RGB in ``[0, 1]``.
+    rendered : numpy.ndarray
+        ``(n, 3)`` float64 rendered RGB in ``[0, 1]``.
+    counts : dict
+        Blocks by outcome: ``total``, one entry per :data:`REJECTION_REASONS` (first
+        failing test wins), ``valid`` (passed every test) and ``used`` (after ``n_max``).
+    block : int
+        Block side in rendered pixels.
+    positions : numpy.ndarray
+        ``(n, 2)`` block centres (x, y) in rendered pixels.
+    gradient_threshold : float
+        The high-gradient threshold applied (after adaptation).
+    groups : numpy.ndarray
+        ``(n,)`` int: the pair each sample comes from (its index among the pairs joined by
+        :meth:`concatenate`; 0 for one pair).  :func:`selfcal.pipeline.fit_pipeline`
+        takes it as ``groups`` to choose its regulariser weights by leave-one-scene-out.
+    """
+
+    raw: np.ndarray
+    rendered: np.ndarray
+    counts: dict
+    block: int
+    positions: np.ndarray
+    gradient_threshold: float = float("nan")
+    groups: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.groups is None:
+            self.groups = np.zeros(len(self.raw), dtype=np.intp)
+        else:
+            self.groups = np.asarray(self.groups, dtype=np.intp).reshape(-1)
+
+    def __len__(self) -> int:
+        return int(self.raw.shape[0])
+
+    @staticmethod
+    def concatenate(parts) -> "PairSamples":
+        """Join several pairs' samples (counts are summed; block is the first part's;
+        ``groups`` numbers the parts 0, 1, ...)."""
+        parts = list(parts)
+        if not parts:
+            return PairSamples(np.zeros((0, 3)), np.zeros((0, 3)), {}, 0, np.zeros((0, 2)))
+        counts: dict = {}
+        for p in parts:
+            for k, v in p.counts.items():
+                counts[k] = counts.get(k, 0) + int(v)
+        return PairSamples(np.concatenate([p.raw for p in parts]),
+                           np.concatenate([p.rendered for p in parts]), counts,
+                           parts[0].block, np.concatenate([p.positions for p in parts]),
+                           parts[0].gradient_threshold,
+                           np.concatenate([np.full(len(p), k, dtype=np.intp)
+                                           for k, p in enumerate(parts)]))
+
+
+def _auto_block(shape, target_blocks=40_000) -> int:
+    h, w = shape[:2]
+    return int(np.clip(round(math.sqrt(h * w / target_blocks)), 4, 64))
+
+
+def _raw_on_rendered_grid(raw, reg: Registration, shape):
+    """Resample ``raw`` (HxWxC float) onto the rendered pixel grid (area-averaged first when
+    the raw is finer), plus the mask of rendered pixels that lie inside the raw."""
+    cv2 = _cv2()
+    hr, wr = raw.shape[:2]
+    s = reg.scale
+    src = raw.astype(np.float32)
+    fx = fy = 1.0
+    if s > 1.25:
+        nw, nh = max(1, int(round(wr / s))), max(1, int(round(hr / s)))
+        src = cv2.resize(src, (nw, nh), interpolation=cv2.INTER_AREA)
+        fx, fy = wr / nw, hr / nh
+    # rendered x -> raw x = s x + t -> resized raw x' = (s x + t + .5) / f - .5
+    m = np.array([[s / fx, 0.0, (reg.shift[0] + 0.5) / fx - 0.5],
+                  [0.0, s / fy, (reg.shift[1] + 0.5) / fy - 0.5]])
+    out = _warp(src, m, shape)
+    if out.ndim == 2 and src.ndim == 3:
+        out = out[:, :, None]
+    inside = _inside_mask(m, src.shape[:2], shape)
+    return out, inside
+
+
+def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
+                 block: int | None = None, n_max: int | None = None, seed: int = 0,
+                 raw_clip: float = 0.98, rendered_low: float = 1 / 255,
+                 rendered_high: float = 254 / 255, gradient_threshold: float = 0.01,
+                 min_keep_fraction: float = 0.25, keep_clipped: bool = False) -> PairSamples:
+    """Block-mean raw↔rendered correspondences of a registered pair, clipped and
+    high-gradient blocks skipped.
+
+    The data of the RAW path (Gong et al., rank-based radiometric calibration, §3: raw–sRGB
+    correspondences; Lin et al. ICCV 2011 §6: sRGB–RAW control points).  The raw is
+    resampled onto the rendered grid (area-averaged when finer); the rendered image is cut
+    into ``block × block`` blocks; a block is rejected when (first failing test named):
+
+    * ``outside`` -- part of it falls outside the raw;
+    * ``clipped_raw`` -- a raw pixel contributing to it has a channel ``≥ raw_clip``;
+    * ``clipped_rendered`` -- a rendered pixel has a channel ``≥ rendered_high`` or
+      ``≤ rendered_low`` (clipped codes say nothing about the curve: Lin et al. §5);
+    * ``high_gradient`` -- the mean gradient magnitude of the rendered grey image
+      (Gaussian σ = 1 px, per pixel, on the ``[0, 1]`` scale) exceeds the threshold:
+      demosaicing, sharpening, JPEG and any misregistration differ there.  The threshold
+      is ``max(gradient_threshold, q)`` with ``q`` the ``min_keep_fraction`` quantile of
+      the remaining blocks, so a textured scene keeps its flattest blocks.
+
+    Parameters
+    ----------
+    raw_rgb : numpy.ndarray
+        ``HxWx3`` float linear camera RGB in ``[0, 1]``.
+    rendered : numpy.ndarray
+        ``HxWx3`` uint8 (or uint16, or float in ``[0, 1]``) rendered RGB.
+    registration : Registration, optional
+        From :func:`~selfcal.pipeline.registration.register_raw_jpeg`; None: the images must have
+        the same size and are taken as aligned.
+    block : int, optional
+        Block side in rendered pixels; default adapts to the size (about 40,000 blocks,
+        4 to 64 px).
+    n_max : int, optional
+        Keep at most this many valid blocks, drawn at random (seeded).
+    seed : int
+    raw_clip, rendered_low, rendered_high, gradient_threshold, min_keep_fraction : float
+        The rejection thresholds above.
+    keep_clipped : bool
+        Keep blocks clipped *throughout*: every pixel clipped in the raw, or a rendered
+        channel at code 0 (or 255) in every pixel.  Their means are exact (a camera
+        renders the clipped raw it recorded, and its rendering is bounded by 0 and 255),
+        and they are the only samples of the colours a camera renders out of gamut
+        (saturated colours with a channel at 0); :func:`selfcal.pipeline.fit_pipeline`
+        leaves rendered-clipped samples out of its backward fits and learns ``E[ρ | P]``
+        from them.  Blocks clipped in part are rejected either way (their means mix the
+        two sides of the clip).
+
+    Returns
+    -------
+    PairSamples
+    """
+    cv2 = _cv2()
+    raw = _check_raw(raw_rgb)
+    ren_f = _as_float_rendered(rendered)
+    h, w = ren_f.shape[:2]
+    if registration is None:
+        if raw.shape[:2] != (h, w):
+            raise InputError(
+                f"raw {raw.shape[1]}x{raw.shape[0]} and rendered {w}x{h} differ in size: "
+                "register them first (register_raw_jpeg)")
+        registration = Registration.identity((h, w))
+    b = int(block) if block else _auto_block((h, w))
+    if b < 1:
+        raise InputError(f"block must be a positive integer, got {block!r}")
+    ny, nx = h // b, w // b
+    counts = {"total": int(ny * nx)}
+    for k in REJECTION_REASONS:
+        counts[k] = 0
+    if ny == 0 or nx == 0:
+        counts.update(valid=0, used=0)
+        return PairSamples(np.zeros((0, 3)), np.zeros((0, 3)), counts, b, np.zeros((0, 2)))
+
+    clipped = (raw.max(axis=2) >= raw_clip).astype(np.float32)
+    stacked = np.concatenate([raw.astype(np.float32), clipped[:, :, None]], axis=2)
+    on_grid, inside = _raw_on_rendered_grid(stacked, registration, (h, w))
+    raw_on = on_grid[..., :3]
+    clip_on = on_grid[..., 3]
+
+    grey = cv2.GaussianBlur(ren_f.mean(axis=2), (0, 0), 1.0)
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3, scale=1 / 8)
+    grad = np.sqrt(gx * gx + gy * gy)
+
+    def blocks(a):
+        a = a[:ny * b, :nx * b]
+        return a.reshape(ny, b, nx, b, *a.shape[2:])
+
+    raw_mean = blocks(raw_on).mean(axis=(1, 3), dtype=np.float64).reshape(-1, 3)
+    ren_blocks = blocks(ren_f)
+    ren_mean = ren_blocks.mean(axis=(1, 3), dtype=np.float64).reshape(-1, 3)
+    ren_max = ren_blocks.max(axis=(1, 3)).reshape(-1, 3)
+    ren_min = ren_blocks.min(axis=(1, 3)).reshape(-1, 3)
+    outside = ~blocks(inside).all(axis=(1, 3)).reshape(-1)
+    clip_frac = blocks(clip_on).mean(axis=(1, 3), dtype=np.float64).reshape(-1)
+    touched = (ren_max >= rendered_high - 1e-6) | (ren_min <= rendered_low + 1e-6)
+    if keep_clipped:   # only blocks clipped in part of them are rejected
+        clip_raw = (clip_frac > 1e-6) & (clip_frac < 1 - 1e-6)
+        whole = (ren_min >= 254.5 / 255) | (ren_max <= 0.5 / 255)
+        clip_ren = (touched & ~whole).any(axis=1)
+    else:
+        clip_raw = clip_frac > 1e-6
+        clip_ren = touched.any(axis=1)
+    g = blocks(grad).mean(axis=(1, 3), dtype=np.float64).reshape(-1)
+
+    reason = np.zeros(ny * nx, dtype=np.int8)   # 0 = valid
+    for code, mask in ((1, outside), (2, clip_raw), (3, clip_ren)):
+        reason[(reason == 0) & mask] = code
+    remaining = reason == 0
+    thr = float(gradient_threshold)
+    if remaining.any():
+        thr = max(thr, float(np.quantile(g[remaining], min_keep_fraction)))
+    reason[remaining & (g > thr)] = 4
+    for code, name in enumerate(REJECTION_REASONS, start=1):
+        counts[name] = int(np.sum(reason == code))
+    valid = np.flatnonzero(reason == 0)
+    counts["valid"] = int(valid.size)
+    if n_max is not None and valid.size > int(n_max):
+        rng = np.random.default_rng(np.random.SeedSequence(seed))
+        valid = np.sort(rng.choice(valid, size=int(n_max), replace=False))
+    counts["used"] = int(valid.size)
+    by, bx = np.divmod(valid, nx)
+    positions = np.stack([(bx + 0.5) * b - 0.5, (by + 0.5) * b - 0.5], axis=1).astype(float)
+    return PairSamples(raw=np.clip(raw_mean[valid], 0.0, 1.0), rendered=ren_mean[valid],
+                       counts=counts, block=b, positions=positions, gradient_threshold=thr)
+
+
+# --------------------------------------------------------------------------------------
+# a pair from files or arrays
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class PairData:
+    """One RAW+rendered pair after registration and sampling.
+
+    Attributes
+    ----------
+    raw_name, rendered_name : str
+        File paths, or ``"array #k"``.
+    registration : Registration
+        In the pixel grids actually compared (see ``raw_shape`` / ``rendered_shape``).
+    samples : PairSamples
+    thumbnail : tuple of numpy.ndarray
+        Small linear raw as ``(values, selection)`` of :func:`split_thumbnails`, for
+        exposure ratios free of selection bias.
+    raw_exposure : ExposureInfo or None
+        EXIF of the raw file, where readable.
+    camera_wb : tuple or None
+    """
+
+    raw_name: str
+    rendered_name: str
+    registration: Registration
+    samples: PairSamples
+    thumbnail: tuple
+    raw_exposure: object = None
+    camera_wb: tuple | None = None
+    raw_shape: tuple = field(default=())
+
+
+def _jpeg_reduce_for(path, raw_shape) -> int:
+    """Largest libjpeg DCT reduction keeping the JPEG at least ~0.9× the raw's size."""
+    if Path(path).suffix.lower() not in JPEG_SUFFIXES:
+        return 1
+    hj, wj = read_image_size(path)
+    reduce = 1
+    for r in (2, 4, 8):
+        if wj / r >= 0.9 * raw_shape[1] and hj / r >= 0.9 * raw_shape[0]:
+            reduce = r
+    return reduce
+
+
+def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
+                         half_size: bool = True, block: int | None = None,
+                         n_max: int | None = None, seed: int = 0,
+                         register: bool | None = None, **sample_options) -> PairData:
+    """Read (when paths), register and sample one RAW+rendered pair.
+
+    Paths are read with :func:`selfcal.io.raw.read_raw_linear` (``half_size``: 2×2 binned, no
+    demosaicing, a quarter of the pixels -- for raws whose long side is at least
+    :data:`HALF_SIZE_MIN_SIDE`) and :func:`selfcal.io.read_image` (a JPEG is
+    decoded at a DCT-reduced size no smaller than ~0.9× the raw's), registered with
+    :func:`~selfcal.pipeline.registration.register_raw_jpeg` (a mismatch raises InputError naming
+    both files) and sampled with :func:`pair_samples`.  Arrays are taken as aligned when their sizes agree (set
+    ``register=True`` to register anyway).
+
+    Returns
+    -------
+    PairData
+    """
+    raw_exposure = camera_wb = None
+    if _is_path(raw):
+        raw_name = raw_name or str(raw)
+        img = read_raw_linear(raw, half_size=half_size)
+        if half_size and 2 * max(img.rgb.shape[:2]) < HALF_SIZE_MIN_SIDE:
+            img = read_raw_linear(raw, half_size=False)   # small raw: keep every pixel
+        raw_rgb, raw_exposure, camera_wb = img.rgb, img.exposure, img.camera_wb
+        del img
+    else:
+        raw_rgb = _check_raw(raw)
+        if not np.all(np.isfinite(raw_rgb)):
+            raise InputError("the raw array contains NaN or infinite values", raw_name)
+    if _is_path(rendered):
+        rendered_name = rendered_name or str(rendered)
+        reduce = _jpeg_reduce_for(rendered, raw_rgb.shape)
+        ren = read_image(rendered, reduce=reduce)
+    else:
+        ren = np.asarray(rendered)
+    if register is None:
+        register = _is_path(raw) or _is_path(rendered) or raw_rgb.shape[:2] != ren.shape[:2]
+    if register:
+        reg = register_raw_jpeg(raw_rgb, ren, raw_name=raw_name, rendered_name=rendered_name,
+                                strict=True)
+    else:
+        if raw_rgb.shape[:2] != ren.shape[:2]:
+            raise InputError("raw and rendered sizes differ; cannot take them as aligned",
+                             rendered_name)
+        reg = Registration.identity(ren.shape)
+    samples = pair_samples(raw_rgb, ren, reg, block=block, n_max=n_max, seed=seed,
+                           **sample_options)
+    return PairData(raw_name=str(raw_name), rendered_name=str(rendered_name),
+                    registration=reg, samples=samples,
+                    thumbnail=split_thumbnails(raw_rgb), raw_exposure=raw_exposure,
+                    camera_wb=camera_wb, raw_shape=tuple(raw_rgb.shape[:2]))
+
+
+# --------------------------------------------------------------------------------------
+# exposure ratios from raws (Lin et al. §5)
+# --------------------------------------------------------------------------------------
+
+def raw_thumbnail(raw_rgb, *, max_side: int = 512, clip_level: float = 0.98) -> np.ndarray:
+    """An area-averaged small copy of a linear raw, NaN where a clipped pixel contributed.
+
+    Per channel: a thumbnail pixel is NaN when any raw pixel averaged into it has that
+    channel ``≥ clip_level``, so the ratios of :func:`raw_exposure_ratios` never mix
+    clipped values in.
+    """
+    cv2 = _cv2()
+    raw = _check_raw(raw_rgb).astype(np.float32)
+    h, w = raw.shape[:2]
+    f = max(1.0, max(h, w) / float(max_side))
+    clip = (raw >= clip_level).astype(np.float32)
+    if f > 1.0:
+        size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
+        small = cv2.resize(raw, size, interpolation=cv2.INTER_AREA)
+        clip = cv2.resize(clip, size, interpolation=cv2.INTER_AREA)
+    else:
+        small = raw.copy()
+    small[clip > 1e-6] = np.nan
+    return small
+
+
+def split_thumbnails(raw_rgb, *, max_side: int = 512, clip_level: float = 0.98):
+    """Thumbnails of a linear raw from two disjoint sets of its pixels, for unbiased ratios.
+
+    The even and the odd columns are reduced apart (:func:`raw_thumbnail`, NaN where a
+    clipped value went in) and stacked twice, ``values = [even; odd]`` and ``selection =
+    [odd; even]``: row for row the two show the same scene with independent noise.  Pass
+    them to :func:`raw_exposure_ratios` (``select=``) and a pixel is chosen (unclipped,
+    well exposed) by one half and measured on the other.  Choosing pixels by the very
+    values whose ratio is taken prefers those the noise pushed into the band -- up at its
+    dark end, down at its bright end -- which lowers the measured ratio, by a few per cent
+    at high ISO on small frames (this split is ours).
+
+    Returns
+    -------
+    values, selection : numpy.ndarray
+        Float32 arrays of one shape, ``(2h, w, 3)``.
+    """
+    raw = _check_raw(raw_rgb)
+    width = raw.shape[1] - raw.shape[1] % 2
+    if width < 2:
+        raise InputError("a frame one pixel wide has no two halves to measure on")
+    even = raw_thumbnail(raw[:, 0:width:2], max_side=max_side, clip_level=clip_level)
+    odd = raw_thumbnail(raw[:, 1:width:2], max_side=max_side, clip_level=clip_level)
+    return np.concatenate([even, odd]), np.concatenate([odd, even])
+
+
+def _pair_log_ratio(vi, vj, both, statistic: str):
+    """log(v_j / v_i) over the chosen values: the median of the log ratios, or (``"sum"``)
+    the log ratio of the values' sums -- values at or below zero included, as leaving
+    them out would bias it -- after dropping log ratios beyond 5 robust deviations of the
+    median (a moving object, a hot pixel); and the median absolute deviation of the log
+    ratios."""
+    vi, vj = vi[both], vj[both]
+    positive = (vi > 0) & (vj > 0)
+    d = np.log(vj[positive]) - np.log(vi[positive])
+    med = float(np.median(d))
+    mad = float(np.median(np.abs(d - med)))
+    if statistic == "median":
+        return med, mad
+    keep = ~positive
+    keep[positive] = np.abs(d - med) <= 5.0 * 1.4826 * max(mad, 1e-6)
+    return float(np.log(vj[keep].sum() / vi[keep].sum())), mad
+
+
+def raw_exposure_ratios(raws, *, low: float = 0.02, high: float = 0.9,
+                        min_count: int = 100, max_side: int = 512, select=None,
+                        statistic: str = "median"):
+    """Relative exposures of aligned raw frames from the ratios of their values.
+
+    Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), §5: "with RAW images, the exposure
+    ratio can be directly computed by dividing the raw values between two images" -- which
+    also fixes the exponential ambiguity of a response solved with unknown exposures and
+    the inaccuracy of shutter speeds.  For every pair of frames, the log ratio is the median
+    of ``log(raw_j / raw_i)`` over the thumbnail pixels and channels unclipped and
+    well exposed (``low ≤ value ≤ high``) in both; the log exposures then follow by
+    weighted least squares over all pairs with at least ``min_count`` such values (weight
+    = count), frame by frame within each connected set of frames.
+
+    Parameters
+    ----------
+    raws : sequence of numpy.ndarray
+        ``HxWx3`` linear raws of one scene, all the same size (full images, or thumbnails
+        from :func:`raw_thumbnail`, NaN marking clipped values).
+    low, high : float
+        The well-exposed band of raw values.
+    min_count : int
+        Fewest shared values for a pair to count.
+    max_side : int
+        Larger inputs are reduced with :func:`raw_thumbnail` first.
+    select : sequence of numpy.ndarray, optional
+        Per frame, values of the same shape as the (reduced) raws that decide which are
+        unclipped and well exposed (default: the raws themselves); the other half of
+        :func:`split_thumbnails` makes the choice independent of the measured values'
+        noise.
+    statistic : {"median", "sum"}
+        Per pair, the median of the log ratios (Lin et al.'s), or the log of the ratio
+        of the chosen values' sums (unbiased under noise when the choice is independent of
+        it; ours), after dropping outliers.
+
+    Returns
+    -------
+    exposures : numpy.ndarray
+        ``(n,)`` relative exposures; within each connected set the first frame is 1
+        (``component`` tells the sets apart); NaN for a frame with no usable pair.
+    report : dict
+        ``component`` (per frame, -1 when isolated), ``pairs`` (``(i, j, ratio, count)``),
+        ``spread`` (per pair, median absolute deviation of the log ratios).
+    """
+    if statistic not in ("median", "sum"):
+        raise InputError(f"statistic must be 'median' or 'sum', got {statistic!r}")
+
+    def reduced(arrays):
+        out = []
+        for r in arrays:
+            r = np.asarray(r, dtype=np.float32)
+            if max(r.shape[:2]) > max_side:
+                r = raw_thumbnail(r, max_side=max_side)
+            out.append(r)
+        return out
+
+    thumbs = reduced(raws)
+    n = len(thumbs)
+    if n == 0:
+        return np.zeros(0), {"component": [], "pairs": [], "spread": []}
+    chooser = thumbs if select is None else reduced(select)
+    shape = thumbs[0].shape
+    for k, (t, c) in enumerate(zip(thumbs, chooser)):
+        if t.shape != shape or c.shape != shape:
+            raise InputError(f"raw #{k} has size {t.shape[:2]}, raw #0 {shape[:2]}: the "
+                             "exposure ratios need frames of the same size")
+    values, chosen = [], []
+    for t, c in zip(thumbs, chooser):
+        v = t.reshape(-1).astype(np.float64)
+        c = c.reshape(-1).astype(np.float64)
+        values.append(v)
+        chosen.append(np.isfinite(c) & (c >= low) & (c <= high) & np.isfinite(v)
+                      & ((v > 0) if statistic == "median" else True))
+    edges, spreads = [], []
+    for i in range(n):
+        for j in range(i + 1, n):
+            both = chosen[i] & chosen[j]
+            cnt = int(both.sum())
+            if cnt < min_count or not ((values[i][both] > 0) & (values[j][both] > 0)).any():
+                continue
+            med, mad = _pair_log_ratio(values[i], values[j], both, statistic)
+            edges.append((i, j, med, cnt))
+            spreads.append(mad)
+    # connected components
+    parent = list(range(n))
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for i, j, _, _ in edges:
+        parent[find(i)] = find(j)
+    roots = {}
+    component = []
+    for k in range(n):
+        has_edge = any(k in (i, j) for i, j, _, _ in edges)
+        if not has_edge:
+            component.append(-1)
+            continue
+        component.append(roots.setdefault(find(k), len(roots)))
+    exposures = np.full(n, np.nan)
+    for c in range(len(roots)):
+        members = [k for k in range(n) if component[k] == c]
+        index = {k: q for q, k in enumerate(members)}
+        rows, rhs, wts = [], [], []
+        for i, j, med, cnt in edges:
+            if i in index and j in index:
+                row = np.zeros(len(members))
+                row[index[j]], row[index[i]] = 1.0, -1.0
+                rows.append(row)
+                rhs.append(med)
+                wts.append(math.sqrt(cnt))
+        # pin the first member at log exposure 0
+        row = np.zeros(len(members))
+        row[0] = 1.0
+        rows.append(row)
+        rhs.append(0.0)
+        wts.append(1e3)
+        a = np.array(rows) * np.array(wts)[:, None]
+        bvec = np.array(rhs) * np.array(wts)
+        sol, *_ = np.linalg.lstsq(a, bvec, rcond=None)
+        sol -= sol[0]
+        exposures[members] = np.exp(sol)
+    report = {"component": component,
+              "pairs": [(i, j, math.exp(med), cnt) for i, j, med, cnt in edges],
+              "spread": spreads}
+    return exposures, report
+
+
+def collect_pair_samples(raws, rendered, *, seed: int = 0, max_samples: int | None = 20_000,
+                         half_size: bool = True, block: int | None = None, progress=None,
+                         names=None, **sample_options):
+    """Register and sample several RAW+rendered pairs and join their samples.
+
+    Each pair goes through :func:`sample_raw_jpeg_pair`; ``max_samples`` is shared equally
+    among the pairs (each pair's draw seeded from ``seed`` and its index).
+
+    Parameters
+    ----------
+    raws, rendered : sequence
+        Equal-length sequences of raw paths / ``HxWx3`` float linear arrays, and rendered
+        paths / ``HxWx3`` uint8 arrays.
+    seed : int
+    max_samples : int or None
+        Total number of samples kept (None: all valid blocks).
+    half_size : bool
+        Read raw files at half size.
+    block : int, optional
+        Block side (rendered pixels); default adaptive.
+    progress : callable, optional
+        ``progress("pairs", done, total, name)``.
+    names : sequence of (str, str), optional
+        Names of array inputs for messages (default ``"raw array #k"``, ...).
+
+    Returns
+    -------
+    samples : PairSamples
+        All pairs' samples, concatenated.
+    pairs : list of PairData
+    """
+    raws, rendered = list(raws), list(rendered)
+    if len(raws) != len(rendered):
+        raise InputError(f"{len(raws)} raws but {len(rendered)} rendered images: they go in "
+                         "pairs")
+    if not raws:
+        raise InputError("no RAW+rendered pairs given")
+    n = len(raws)
+    per_pair = None if max_samples is None else max(1, int(math.ceil(max_samples / n)))
+    seeds = np.random.SeedSequence(seed).generate_state(n)
+    out = []
+    for k, (r, j) in enumerate(zip(raws, rendered)):
+        rname = str(r) if _is_path(r) else (names[k][0] if names else f"raw array #{k}")
+        jname = str(j) if _is_path(j) else (names[k][1] if names else f"rendered array #{k}")
+        if progress is not None:
+            progress("pairs", k, n, f"{Path(rname).name} + {Path(jname).name}")
+        out.append(sample_raw_jpeg_pair(r, j, raw_name=rname, rendered_name=jname,
+                                        half_size=half_size, block=block, n_max=per_pair,
+                                        seed=int(seeds[k]), **sample_options))
+    if progress is not None:
+        progress("pairs", n, n, "")
+    return PairSamples.concatenate([p.samples for p in out]), out

@@ -1,0 +1,173 @@
+"""A simulated photo library with ground truth: card dumps of bracketed sessions.
+
+For the batch's tests and benchmark: camera bodies (each a :class:`selfcal.sim`
+pipeline, i.e. a known response), sessions of bracketed JPEGs of different scenes, with
+the EXIF a camera writes (make, model, body serial, lens, DateTimeOriginal with
+sub-seconds, exposure time, f-number, ISO, exposure bias, auto-bracket mode), all frames
+flat in ``DCIM/1NN...`` folders of a fixed number of files each, as a card dump is.
+Ours; the simulator is :func:`selfcal.sim.simulate_stack`.
+"""
+
+from __future__ import annotations
+
+import io as _io
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from . import synth
+
+#: The bracket of every simulated session (seconds), darkest first.
+DEFAULT_TIMES = (1 / 250, 1 / 60, 1 / 15, 1 / 4, 1.0)
+
+
+@dataclass
+class SimulatedBody:
+    """A camera body: what EXIF says of it, and the pipeline (its true response)."""
+
+    make: str
+    model: str
+    serial: str
+    lens: str
+    pipeline: object
+    prefix: str = "IMG_"
+
+    def inverse_response(self, max_code: int = 255) -> np.ndarray:
+        """The true f⁻¹ per channel at every code, ``(max_code + 1, 3)``."""
+        return self.pipeline.inverse_response(np.arange(max_code + 1), max_code)
+
+
+@dataclass
+class SimulatedSession:
+    """One written session: its body, frames (in shot order), truth."""
+
+    body: SimulatedBody
+    frames: list
+    exposure_times: list
+    start: datetime
+    pipeline: object
+    seed: int
+
+
+@dataclass
+class SimulatedLibrary:
+    """What :func:`write_library` wrote."""
+
+    root: Path
+    sessions: list = field(default_factory=list)
+    extra: list = field(default_factory=list)
+
+
+def _rational(x: float, max_den: int = 1_000_000) -> tuple:
+    fr = Fraction(float(x)).limit_denominator(max_den)
+    return fr.numerator, fr.denominator
+
+
+def camera_exif(body: SimulatedBody, *, when: datetime, exposure_time: float,
+                f_number: float = 8.0, iso: float = 100.0, bias: float = 0.0) -> bytes:
+    """An EXIF block as a camera writes it for one frame of an auto bracket (piexif)."""
+    import piexif
+
+    stamp = when.strftime("%Y:%m:%d %H:%M:%S").encode()
+    zeroth = {piexif.ImageIFD.Make: body.make.encode(),
+              piexif.ImageIFD.Model: body.model.encode(),
+              piexif.ImageIFD.DateTime: stamp}
+    bias_r = Fraction(bias).limit_denominator(3)
+    exif = {piexif.ExifIFD.ExposureTime: _rational(exposure_time),
+            piexif.ExifIFD.FNumber: _rational(f_number, 100),
+            piexif.ExifIFD.ISOSpeedRatings: int(round(iso)),
+            piexif.ExifIFD.DateTimeOriginal: stamp,
+            piexif.ExifIFD.SubSecTimeOriginal: f"{when.microsecond // 10000:02d}".encode(),
+            piexif.ExifIFD.ExposureBiasValue: (bias_r.numerator, bias_r.denominator),
+            piexif.ExifIFD.ExposureMode: 2,
+            piexif.ExifIFD.BodySerialNumber: body.serial.encode(),
+            piexif.ExifIFD.LensModel: body.lens.encode()}
+    return piexif.dump({"0th": zeroth, "Exif": exif})
+
+
+def default_bodies() -> list:
+    """Two bodies of one make with different responses (film-like curves; sRGB)."""
+    return [
+        SimulatedBody("Simcam", "S1", "1001", "Simlens 35mm F2",
+                      synth.default_pipeline(seed=1), prefix="IMG_"),
+        SimulatedBody("Simcam", "S2", "2002", "Simlens 50mm F1.8",
+                      synth.default_pipeline(curves=synth.ToneCurve.gamma(2.2), seed=2),
+                      prefix="DSC_"),
+    ]
+
+
+def write_library(root, *, bodies=None, sessions_per_body=3, height: int = 128,
+                  width: int = 192, times=DEFAULT_TIMES, per_folder: int = 12,
+                  start=datetime(2024, 5, 1, 10, 0, 0), session_gap: float = 120.0,
+                  seed: int = 0, pipelines=None, jpeg_quality: int = 90) -> SimulatedLibrary:
+    """Write a card dump of bracketed JPEG sessions, two or more bodies shooting in turn.
+
+    Session ``k`` of body ``b`` starts at ``start + k·session_gap + b·7 s``; its frames
+    are shot 0.3 s apart after the previous frame's exposure, with exposure bias
+    ``log2(t / t_middle)``.  Frames are numbered per body (``IMG_0001.JPG``,
+    ``DSC_0001.JPG``, ...) in shot order and filed ``per_folder`` at a time per body in
+    ``DCIM/100SIMCM``, ``DCIM/101SIMCM``, ... (so sessions cross folders).
+
+    Parameters
+    ----------
+    root : path
+        Created if missing.
+    bodies : list of SimulatedBody, optional
+        Default :func:`default_bodies`.
+    sessions_per_body : int
+    height, width : int
+        Frame size.
+    times : sequence of float
+        The bracket.
+    per_folder : int
+        Frames per DCIM folder.
+    seed : int
+        Scenes and noise derive from it.
+    pipelines : dict, optional
+        ``(body index, session index) -> pipeline`` to render a session with another
+        pipeline than its body's (a picture style EXIF does not tell).
+    jpeg_quality : int
+
+    Returns
+    -------
+    SimulatedLibrary
+    """
+    import piexif
+
+    root = Path(root)
+    bodies = default_bodies() if bodies is None else list(bodies)
+    pipelines = pipelines or {}
+    lib = SimulatedLibrary(root=root)
+    counters = [0] * len(bodies)
+    mid = float(np.sqrt(times[0] * times[-1]))
+    for k in range(sessions_per_body):
+        for b, body in enumerate(bodies):
+            s_seed = seed * 1000 + 10 * k + b
+            pipe = pipelines.get((b, k), body.pipeline)
+            scene = synth.make_scene(height, width, seed=s_seed)
+            stack = synth.simulate_stack(scene, pipe, list(times), seed=s_seed,
+                                         jpeg_quality=jpeg_quality)
+            when = start + timedelta(seconds=k * session_gap + 7 * b)
+            frames = []
+            for i, t in enumerate(stack.exposure_times):
+                counters[b] += 1
+                n = counters[b]
+                folder = root / "DCIM" / f"{100 + (n - 1) // per_folder}SIMCM"
+                folder.mkdir(parents=True, exist_ok=True)
+                path = folder / f"{body.prefix}{n:04d}.JPG"
+                exif = camera_exif(body, when=when, exposure_time=float(t),
+                                   bias=round(float(np.log2(t / mid)) * 3) / 3)
+                out = _io.BytesIO()
+                piexif.insert(exif, stack._encoded[i], out)
+                path.write_bytes(out.getvalue())
+                frames.append(path)
+                when += timedelta(seconds=float(t) + 0.3)
+            lib.sessions.append(SimulatedSession(
+                body=body, frames=frames, exposure_times=[float(t) for t in
+                                                          stack.exposure_times],
+                start=start + timedelta(seconds=k * session_gap + 7 * b), pipeline=pipe,
+                seed=s_seed))
+    return lib

@@ -1,0 +1,484 @@
+"""A stack's frames as the merge and the alignment read them: decoding, linearising, exposures.
+
+The rooms above -- :mod:`selfcal.stack.align`, the response path's "align, then calibrate"
+(:func:`selfcal.response.calibrate.calibrate_aligned`) and the merge of :mod:`selfcal.hdr`
+-- all see a bracketed stack through the pieces here:
+
+* :class:`_Frames`: the frames, arrays used as they are or paths decoded one at a time
+  (JPEG/PNG/TIFF through :mod:`selfcal.io`, camera raw through :mod:`selfcal.io.raw`), with
+  their sizes and sample types checked before any pixel work;
+* :class:`_Lineariser`: what a response model makes of codes, as a table of the inverse
+  response ``f⁻¹`` at every code (a :class:`~selfcal.ResponseModel` of Lin, Kim, Süsstrunk
+  & Brown, *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011, §5,
+  Eq. 7) and of its slope, or the backward map ``to_raw`` of a pipeline model, or nothing
+  for linear data;
+* :func:`_clip_limits`: which codes count as clipped (the calibration's rule,
+  :func:`selfcal.stack.samples.frame_masks`);
+* the relative exposure ``e_j`` of each frame (:func:`_resolve_exposures`): given times,
+  or EXIF ``t · ISO/100 / N²`` so that several brackets of one session come out on one
+  radiance scale.
+
+Ours, not the papers': the exposure resolution -- the given or EXIF exposures set the
+scale, and a model's estimated exposures replace them where the model refined them or
+found them contradicted by the pixels, scaled to the given units by the median ratio over
+the frames it did not contradict -- and the middle exposure as the default reference.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import CalibrationError, InputError
+from ..io.images import _cv2, _is_path, read_exposure_info, read_image, read_image_size
+from ..io.raw import RAW_SUFFIXES, read_raw_exposure_info, read_raw_linear
+
+#: Codes (on the 8-bit scale) within this distance of 0 or of the maximum count as clipped
+#: -- the same rule as the calibration's (``selfcal.stack.samples.frame_masks``).
+DEFAULT_CLIP_MARGIN = 2.0
+
+#: Rows per strip are chosen so that a strip holds about this many pixels.
+_STRIP_PIXELS = 1 << 20
+
+
+# --------------------------------------------------------------------------------------
+# frames
+# --------------------------------------------------------------------------------------
+
+class _Frames:
+    """The stack's frames: arrays (used as they are) or paths (decoded when needed)."""
+
+    def __init__(self, images, linear: bool):
+        self.items = list(images)
+        if not self.items:
+            raise InputError("no frames given")
+        self.raw_files = [_is_raw_file(f) for f in self.items]
+        if any(self.raw_files):
+            if not all(self.raw_files):
+                raise InputError("raw files and rendered images cannot be merged together: "
+                                 "merge the raws alone (linear), or the JPEGs alone")
+            # raw files are linear camera RGB: merged directly, no response needed
+            linear = True
+        self.linear = linear
+        self.sources = [str(f) if _is_path(f) else f"array #{k}"
+                        for k, f in enumerate(self.items)]
+        self.paths = [Path(f) if _is_path(f) else None for f in self.items]
+        self._check()
+
+    def __len__(self):
+        return len(self.items)
+
+    def _check(self):
+        shape = dtype = None
+        for k, item in enumerate(self.items):
+            src = self.sources[k]
+            if self.raw_files[k]:
+                hw = _raw_size(item)
+                dt = None
+            elif _is_path(item):
+                hw = read_image_size(item)
+                dt = None
+            else:
+                arr = np.asarray(item)
+                if arr.ndim != 3 or arr.shape[2] != 3:
+                    raise InputError(f"expected an HxWx3 RGB image, got shape {arr.shape}", src)
+                hw = arr.shape[:2]
+                dt = arr.dtype
+                if np.issubdtype(dt, np.floating):
+                    if not self.linear:
+                        raise InputError(
+                            "float arrays are not camera codes: pass uint8/uint16 images, or "
+                            "linear=True for linear raw values", src)
+                    if not np.all(np.isfinite(arr)):
+                        raise InputError("the array holds NaN or infinite values", src)
+                elif dt not in (np.uint8, np.uint16):
+                    raise InputError(f"unsupported dtype {dt} (uint8, uint16, or float "
+                                     "with linear=True)", src)
+            if shape is None:
+                shape, first = tuple(hw), src
+            elif tuple(hw) != shape:
+                raise InputError(f"frame size {hw[1]}x{hw[0]} differs from {first} "
+                                 f"({shape[1]}x{shape[0]})", src)
+            if dt is not None:
+                if dtype is None:
+                    dtype, dfirst = dt, src
+                elif dt != dtype:
+                    raise InputError(f"sample type {dt} differs from {dfirst} ({dtype})", src)
+        self.shape = shape
+
+    def load(self, k, *, reduce: int = 1) -> np.ndarray:
+        item = self.items[k]
+        if self.raw_files[k]:
+            arr = read_raw_linear(item).rgb
+            if arr.shape[:2] != self.shape:
+                raise InputError(f"raw decoded to {arr.shape[1]}x{arr.shape[0]}, not the "
+                                 f"{self.shape[1]}x{self.shape[0]} its header gave",
+                                 self.sources[k])
+            return arr
+        if _is_path(item):
+            arr = read_image(item, reduce=reduce)
+            if arr.shape[:2] != self.shape and reduce == 1:
+                raise InputError("frame size changed while reading", self.sources[k])
+            return arr
+        return np.asarray(item)
+
+
+def _raw_size(path) -> tuple:
+    """(height, width) LibRaw will output for a raw file, from its header."""
+    import rawpy
+
+    try:
+        with rawpy.imread(str(path)) as raw:
+            return (int(raw.sizes.height), int(raw.sizes.width))
+    except Exception as exc:  # LibRaw raises several types
+        raise InputError(f"not a raw file LibRaw can read ({exc})", path) from None
+
+
+def _is_raw_file(item) -> bool:
+    return _is_path(item) and Path(item).suffix.lower().lstrip(".") in {
+        x.lstrip(".") for x in RAW_SUFFIXES}
+
+
+def _max_code(arr) -> int | None:
+    if arr.dtype == np.uint8:
+        return 255
+    if arr.dtype == np.uint16:
+        return 65535
+    return None
+
+
+# --------------------------------------------------------------------------------------
+# linearisers: codes -> linear values per frame, and per-frame LUTs
+# --------------------------------------------------------------------------------------
+
+class _Lineariser:
+    """What a model (or linear data) makes of codes.
+
+    kinds: ``"lut"`` (per-channel inverse response tables; ResponseModel or anything with
+    ``inverse_response(codes)``), ``"to_raw"`` (a model with ``to_raw(rendered)``; its
+    per-channel slopes are taken along the grey axis), ``"linear"`` (linear data).
+    """
+
+    def __init__(self, model, linear: bool, max_code: int | None):
+        self.max_code = max_code
+        if linear:
+            self.kind = "linear"
+        elif hasattr(model, "inverse_response"):
+            self.kind = "lut"
+        elif hasattr(model, "to_raw"):
+            self.kind = "to_raw"
+        else:
+            raise InputError("the model must have inverse_response(codes) (a ResponseModel) "
+                             "or to_raw(rendered) (a pipeline model)")
+        self.model = model
+        self.table = None       # (K, 3) f⁻¹ at every code, float64
+        self.slope = None       # (K, 3) d f⁻¹ / dz at every code
+        if max_code is None:
+            return
+        codes = np.arange(max_code + 1)
+        if self.kind == "linear":
+            table = np.repeat((codes / max_code)[:, None], 3, axis=1)
+        elif self.kind == "lut":
+            mc = getattr(model, "max_code", max_code) or max_code
+            table = np.asarray(model.inverse_response(codes * (mc / max_code)), dtype=np.float64)
+            if table.shape != (max_code + 1, 3) or not np.all(np.isfinite(table)):
+                raise InputError("the model's inverse response is not a finite (K, 3) table")
+        else:
+            dtype = np.uint8 if max_code == 255 else np.uint16
+            ramp = np.repeat(codes.astype(dtype)[:, None, None], 3, axis=2)
+            table = np.asarray(model.to_raw(ramp), dtype=np.float64).reshape(-1, 3)
+        self.table = table
+        z = codes / max_code
+        self.slope = np.abs(np.gradient(table, z, axis=0))
+
+    def code_std(self) -> float | None:
+        """Code noise in normalised units (None: the noise model's JPEG-like default)."""
+        if self.kind == "linear":
+            q = 1.0 / self.max_code if self.max_code else 0.0
+            return q / math.sqrt(12.0)
+        return None
+
+    def values(self, strip: np.ndarray) -> np.ndarray:
+        """Linear values of a strip, float32 (for kinds without a LUT path)."""
+        if self.kind == "to_raw":
+            return np.asarray(self.model.to_raw(strip), dtype=np.float32)
+        if self.max_code is not None:
+            return strip.astype(np.float32) * np.float32(1.0 / self.max_code)
+        return np.asarray(strip, dtype=np.float32)
+
+
+def _apply_lut(codes: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None):
+    """Per-channel table lookup: ``out[..., c] = lut[codes[..., c], c]`` as float32.
+
+    uint8 codes go through ``cv2.LUT`` (one pass, multi-threaded); uint16 through numpy
+    indexing.  ``out``, when given, is filled (a contiguous float32 buffer of the shape).
+    """
+    if codes.dtype == np.uint8:
+        if out is None:
+            return _cv2().LUT(codes, lut.reshape(1, 256, 3))
+        return _cv2().LUT(codes, lut.reshape(1, 256, 3), dst=out)
+    if out is None:
+        out = np.empty(codes.shape, dtype=np.float32)
+    for c in range(3):
+        out[..., c] = lut[:, c][codes[..., c]]
+    return out
+
+
+def _clip_limits(max_code, clip_margin: float, linear: bool):
+    """(lo, hi): values ≤ lo or ≥ hi are clipped.
+
+    Codes: within ``clip_margin`` (8-bit scale) of 0 or the maximum.  Linear data: 0 (black
+    clip) and, for integer data, within ``clip_margin/255`` of white; float data clip at
+    ``1 − 1e-4`` (white = 1).
+    """
+    if max_code is None:  # linear float data, white = 1
+        return 0.0, 1.0 - 1e-4
+    m = clip_margin * max_code / 255.0
+    return (0.0 if linear else m), max_code - m
+
+
+#: Two frames whose exposures differ by at least this factor, and a code that moves by less
+#: than ``STUCK_CODES`` (8-bit scale) between them, does not respond to the exposure: the
+#: calibration's stuck-sample test (``selfcal.response.equations._build_pairs``).
+STUCK_RATIO = 1.5
+STUCK_CODES = 1.0
+#: ... and, for the black floor, by less than this fraction of the code itself: the toe of a
+#: curve without a floor (γ ≈ 2.2: code z moves about 0.2 z for 1.5x the exposure) is not
+#: a floor, however few codes it moves by (ours).
+STUCK_FRACTION = 0.1
+
+
+def stuck_code_levels(values, log_exposures, *, clip_margin: float = DEFAULT_CLIP_MARGIN,
+                      min_count: int = 10) -> dict:
+    """Per channel, the black floor and the stuck ceiling of a stack's codes.
+
+    The calibration drops a sample pair whose code does not move between two frames whose
+    exposures differ by :data:`STUCK_RATIO` or more (``_build_pairs``, selfcal's addition
+    to the clipping test of Lin et al., ICCV 2011, §5).  This turns the same test into code
+    levels the merge can use: for each frame ``a`` and the next frame ``b`` at least
+    ``STUCK_RATIO`` brighter, the move ``I_b − I_a`` of every sample, pooled over the
+    pairs and binned by the code in ``a`` (one bin per 8-bit code); walking up from the
+    lowest bin, every bin whose median move is at most :data:`STUCK_CODES` and at most
+    :data:`STUCK_FRACTION` of its code is at the **floor**, and the walk stops at the first
+    bin that moves; walking down from the highest unclipped bin, the bins that move less
+    than :data:`STUCK_CODES` are at a **ceiling**.  A black floor is the code a scanned film or a camera
+    with a black pedestal writes for no light (memorial's short frames sit at codes
+    12-18); codes at or below it are bounds, not measurements, like clipped codes.
+    Ours, not a paper's.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        ``(F, n, 3)`` codes normalised to [0, 1] (block means of sample locations, as
+        :class:`selfcal.stack.samples.SampleSet` holds them, or subsampled pixels).
+    log_exposures : array_like
+        ``(F,)`` log exposure of each frame (NaN where unknown: such frames are skipped).
+    clip_margin : float
+        Codes (8-bit scale) within this distance of 0 or the maximum are clipped and not
+        looked at.
+    min_count : int
+        Bins with fewer samples are passed over.
+
+    Returns
+    -------
+    dict
+        ``{"floor": [R, G, B], "ceiling": [R, G, B]}`` as normalised codes: the highest
+        code that does not move up (0 when none) and the lowest code that does not move
+        up (1 when none).
+    """
+    v = np.asarray(values, dtype=np.float64) * 255.0
+    le = np.asarray(log_exposures, dtype=np.float64)
+    floor = [0.0, 0.0, 0.0]
+    ceiling = [1.0, 1.0, 1.0]
+    known = np.flatnonzero(np.isfinite(le))
+    order = known[np.argsort(le[known], kind="stable")]
+    pairs = []
+    for i, a in enumerate(order):
+        later = [b for b in order[i + 1:] if le[b] - le[a] >= math.log(STUCK_RATIO)]
+        if later:
+            pairs.append((a, later[0]))
+    for c in range(v.shape[2]):
+        # the moves of every pair, pooled by the code in the darker frame
+        codes, moves = [], []
+        for a, b in pairs:
+            va, vb = v[a, :, c], v[b, :, c]
+            ok = (va > clip_margin) & (va < 255.0 - clip_margin)
+            codes.append(np.floor(va[ok]).astype(int))
+            moves.append(vb[ok] - va[ok])
+        if not codes:
+            continue
+        code, move = np.concatenate(codes), np.concatenate(moves)
+        med = {}
+        for z in np.unique(code):
+            m = move[code == z]
+            if m.size >= min_count:
+                med[int(z)] = float(np.median(m))
+        zs = sorted(med)
+        for z in zs:                               # up from the bottom
+            if med[z] > min(STUCK_CODES, STUCK_FRACTION * z) + 1e-3:   # float block means
+                break
+            floor[c] = (z + 1) / 255.0
+        for z in reversed(zs):                     # down from the top
+            if med[z] >= STUCK_CODES or (z + 1) / 255.0 <= floor[c]:
+                break
+            ceiling[c] = z / 255.0
+    return {"floor": floor, "ceiling": ceiling}
+
+
+# --------------------------------------------------------------------------------------
+# exposures and the reference frame
+# --------------------------------------------------------------------------------------
+
+def _default_reference(exposures) -> int:
+    """The middle frame by exposure (the lower middle for an even count)."""
+    order = np.argsort(np.asarray(exposures, dtype=float), kind="stable")
+    return int(order[(len(order) - 1) // 2])
+
+
+def _given_exposures(frames: _Frames, exposure_times):
+    """The caller's times (checked) or EXIF ``t · ISO/100 / N²``; None where unknown."""
+    n = len(frames)
+    given = [None] * n
+    source = "given"
+    if exposure_times is not None:
+        times = list(exposure_times)
+        if len(times) != n:
+            raise InputError(f"{len(times)} exposure times given for {n} frames")
+        for k, t in enumerate(times):
+            if t is None:
+                continue
+            try:
+                tf = float(t)
+            except (TypeError, ValueError):
+                raise InputError(f"exposure time {t!r} is not a number",
+                                 frames.sources[k]) from None
+            if not math.isfinite(tf) or tf <= 0:
+                raise InputError(f"exposure time {t!r} must be a positive number",
+                                 frames.sources[k])
+            given[k] = tf
+    elif any(p is not None for p in frames.paths):
+        source = "exif"
+        for k, p in enumerate(frames.paths):
+            if p is not None and frames.raw_files[k]:
+                given[k] = read_raw_exposure_info(p).relative_exposure
+            elif p is not None:
+                given[k] = read_exposure_info(p).relative_exposure
+    return given, source
+
+
+def _name_arrays(text: str, sources) -> str:
+    """Replace ``array #k`` in a message by the k-th frame's name."""
+    for k in range(len(sources) - 1, -1, -1):
+        text = text.replace(f"array #{k}", str(sources[k]))
+    return text
+
+
+def _model_frame_index(model, frames: _Frames, fresh: bool):
+    """Index of each frame in the model's sources (None where it is not there)."""
+    n = len(frames)
+    sources = list(getattr(model, "sources", []) or [])
+    exposures = getattr(model, "exposures", None)
+    if exposures is None or len(sources) != len(np.atleast_1d(exposures)):
+        return [None] * n
+    if fresh:
+        return list(range(n))
+    lookup = {}
+    for i, s in enumerate(sources):
+        if s.startswith("array #"):
+            continue
+        lookup[str(Path(s))] = i
+        try:
+            lookup[str(Path(s).resolve())] = i
+        except OSError:
+            pass
+    out = []
+    for p in frames.paths:
+        if p is None:
+            out.append(None)
+            continue
+        out.append(lookup.get(str(p), lookup.get(str(p.resolve()))))
+    return out
+
+
+def _resolve_exposures(frames: _Frames, exposure_times, model, fresh: bool, warnings):
+    """Relative exposure e_j of each frame, and where it came from.
+
+    Given times (the caller's) or EXIF ``t · ISO/100 / N²`` set the scale; the model's
+    estimates replace them where it refined them or found them contradicted by the pixels
+    (scaled to the given/EXIF units by the median ratio over the frames it did not
+    contradict), and fill frames whose time is unknown.
+    """
+    n = len(frames)
+    given, source = _given_exposures(frames, exposure_times)
+
+    # the model's estimates, in its own units
+    idx = _model_frame_index(model, frames, fresh) if model is not None else [None] * n
+    est = [None] * n
+    contradicted = set()
+    refined = False
+    if any(i is not None for i in idx):
+        mexp = np.asarray(model.exposures, dtype=float)
+        diag = getattr(model, "diagnostics", {}) or {}
+        refined = bool(diag.get("refine_exposures", False))
+        contra = {str(c.get("frame")): c.get("estimated")
+                  for c in diag.get("contradicting_times", []) or []}
+        msources = list(model.sources)
+        for k, i in enumerate(idx):
+            if i is None or not math.isfinite(mexp[i]) or mexp[i] <= 0:
+                continue
+            est[k] = float(mexp[i])
+            c = contra.get(msources[i])
+            if c is not None and math.isfinite(float(c)) and float(c) > 0:
+                est[k] = float(c)
+                contradicted.add(k)
+
+    use_model = set(contradicted)
+    if refined:
+        use_model |= {k for k in range(n) if est[k] is not None}
+    use_model |= {k for k in range(n) if given[k] is None and est[k] is not None}
+    missing = [frames.sources[k] for k in range(n) if given[k] is None and est[k] is None]
+    if missing:
+        raise CalibrationError(
+            f"{missing[0]}: no exposure time (give exposure_times, or a model calibrated on "
+            "these frames)" + (f"; {len(missing) - 1} more frames lack one"
+                               if len(missing) > 1 else ""))
+    if not use_model:
+        return np.array(given, dtype=float), source
+
+    # scale the model's estimates to the given/EXIF units
+    anchor = [k for k in range(n) if given[k] is not None and est[k] is not None
+              and k not in contradicted]
+    if not anchor:
+        anchor = [k for k in range(n) if given[k] is not None and est[k] is not None]
+    if anchor:
+        factor = math.exp(float(np.median([math.log(given[k] / est[k]) for k in anchor])))
+    else:
+        factor = 1.0
+        warnings.append("no exposure times known: the radiance is on a relative scale "
+                        "(the model's estimated exposures)")
+    out = np.array(given, dtype=object)
+    changed = []
+    for k in sorted(use_model):
+        new = est[k] * factor
+        if given[k] is not None:
+            dev = abs(math.log(new / given[k]))
+            if dev > 1e-6:          # any change is said (issue 13), not only above 1 %
+                changed.append((dev, k, given[k], new))
+        out[k] = new
+    label = {"given": "given times", "exif": "EXIF exposures"}[source]
+    if contradicted:
+        names = ", ".join(Path(frames.sources[k]).name for k in sorted(contradicted))
+        warnings.append(f"the model found the {label} of {names} contradicted by the pixels: "
+                        "using the model's estimated exposures for them")
+    elif changed:
+        dev, k, g, new = max(changed)
+        warnings.append(f"using the model's refined exposures instead of the {label} "
+                        f"for {len(changed)} frame(s) (largest difference "
+                        f"{100 * (math.exp(dev) - 1):.2g}% at {Path(frames.sources[k]).name})")
+    if any(g is None for g in given) and anchor:
+        unknown = [Path(frames.sources[k]).name for k in range(n) if given[k] is None]
+        warnings.append(f"no exposure time for {', '.join(unknown)}: using the model's "
+                        "estimates")
+    return np.array(out, dtype=float), (source + "+model" if anchor else "model")

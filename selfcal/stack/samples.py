@@ -1,0 +1,448 @@
+"""Pixel correspondences across an exposure stack, and outlier masks with reasons.
+
+The JPEG-only path (Lin et al., ICCV 2011, §5) needs intensity pairs (I, I') at the same
+scene point in differently exposed frames.  This module reads a stack *streaming*: each
+frame is decoded, reduced at once to block means on a coarse grid (``cv2.resize`` with
+``INTER_AREA``), and dropped, so a stack of 24 MP frames never sits in memory as float
+copies.  Block means of flat regions average JPEG and sensor noise away; blocks that are not
+flat (edges, texture, demosaicing and sharpening artefacts) are avoided when the sample
+locations are chosen.
+
+Locations are chosen after the pass, from all reduced frames together: for every frame the
+intensity range is cut into bins and the flattest blocks of each bin are taken, so that
+every part of every frame's range is represented (stratified over intensity, preferring
+flat regions).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.images import _cv2
+
+#: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
+REJECTION_REASONS = ("clipped", "saturated", "not_flat")
+#: Long side (pixels) of the grey thumbnail kept of each frame: the verdict measures the
+#: frames' motion against each other on it (:mod:`selfcal.response.verdict`).
+THUMBNAIL_SIDE = 1024
+#: A block within this many blocks of a clipped one counts as clipped (its block max/min
+#: taken over the neighbourhood), to keep samples away from JPEG ringing at clipped edges
+#: (issue 15, Build 2).  Off: tried at radius 0 / 1 / 3 / 8 on the tuning split of
+#: ``bench/bench_response_matrix.py`` (256x384 frames, block 1), radius 1 gave 12 (was
+#: 11) of 14 cells with a median f⁻¹ RMSE ≤ 0.005 and 10 (was 7) with p90 ≤ 0.010, but
+#: ``bench_response_synthetic.py --step 10`` went from a median of 0.0044 to 0.0048, the
+#: D7000 rows from 0.0114 / 0.0151 to 0.0117 / 0.0164, and a 192x288 stack with one wrong
+#: EXIF time refined to 0.0074 (0.0034 held): not clearly better, so not on by default.
+NEAR_CLIP_BLOCKS = 0
+
+
+def content_digest(image: np.ndarray) -> str:
+    """Hash of every pixel of ``image`` (with its shape and dtype): equal for identical frames.
+
+    Frames are judged duplicates on their full content, not on a subsample: two frames
+    that are almost entirely white differ in a few dozen pixels only.  SHA-1, not for
+    security (nothing here is adversarial) but for speed: with the CPU's SHA instructions
+    it hashes about three times faster than BLAKE2b, and the digest reads every pixel of
+    every frame (on a 1.5 MP stack it cost half as much as decoding it).
+    """
+    h = hashlib.sha1(usedforsecurity=False)
+    h.update(f"{image.shape}{image.dtype}".encode())
+    h.update(memoryview(np.ascontiguousarray(image)).cast("B"))
+    return h.hexdigest()[:32]
+
+
+def _grey_thumbnail(blocks: np.ndarray, max_code: int) -> np.ndarray:
+    """The block means as a grey uint8 image, long side at most :data:`THUMBNAIL_SIDE`."""
+    cv2 = _cv2()
+    h, w = blocks.shape[:2]
+    scale = THUMBNAIL_SIDE / max(h, w)
+    if scale < 1:
+        blocks = cv2.resize(blocks, (max(1, round(w * scale)), max(1, round(h * scale))),
+                            interpolation=cv2.INTER_AREA)
+    grey = cv2.transform(blocks, np.full((1, 3), 255.0 / (3 * max_code)))
+    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+
+
+@dataclass
+class ReducedFrame:
+    """A frame reduced to block means, with what the full frame told about itself."""
+
+    blocks: np.ndarray        # (h, w, 3) float32 block means, in codes
+    block_max: np.ndarray     # (h, w) float32: highest code of any channel in the block's area
+    block_min: np.ndarray     # (h, w) float32: lowest code of any channel
+    max_code: int
+    shape: tuple              # full frame (H, W)
+    digest: str               # content hash of every decoded pixel, to find duplicate frames
+    source: str               # file name or "array #k"
+    thumbnail: np.ndarray | None = None   # grey uint8, long side <= THUMBNAIL_SIDE blocks
+
+
+def _as_image_array(image, source: str) -> np.ndarray:
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] != 3:
+        raise InputError(f"expected an HxWx3 RGB image, got shape {arr.shape}", source)
+    if arr.dtype == np.uint8 or arr.dtype == np.uint16:
+        return arr
+    if np.issubdtype(arr.dtype, np.floating):
+        if not np.all(np.isfinite(arr)):
+            raise InputError("the array holds NaN or infinite values", source)
+        raise InputError(
+            "float arrays are not camera codes; pass uint8 or uint16 images", source)
+    raise InputError(f"unsupported dtype {arr.dtype} (uint8 or uint16 needed)", source)
+
+
+def reduce_frame(image, *, block: int, source: str = "array",
+                 digest: str | None = None) -> ReducedFrame:
+    """Reduce one frame to ``block``×``block`` means, plus per-block extreme codes.
+
+    With :data:`NEAR_CLIP_BLOCKS` > 0 the extremes are taken over the block and its
+    neighbours within that many blocks, so that a block next to a clipped one counts as
+    clipped (Lin et al. §5 reject clipped pixels; keeping away from the JPEG damage around
+    them is ours; off by default, see the constant).
+
+    Parameters
+    ----------
+    image : numpy.ndarray
+        ``HxWx3`` uint8 or uint16 RGB.
+    block : int
+        Block edge in pixels (1 keeps every pixel).
+    source : str
+        Name used in error messages.
+    digest : str, optional
+        The frame's :func:`content_digest` when known (computed from ``image`` otherwise).
+    """
+    cv2 = _cv2()
+    arr = _as_image_array(image, source)
+    max_code = 255 if arr.dtype == np.uint8 else 65535
+    h, w = arr.shape[:2]
+    hb, wb = max(1, h // block), max(1, w // block)
+    crop = arr[: hb * block, : wb * block]
+    digest = content_digest(arr) if digest is None else digest
+    if block == 1:
+        blocks = crop.astype(np.float32)
+        c0, c1, c2 = cv2.split(np.ascontiguousarray(crop))
+        cmax = cv2.max(cv2.max(c0, c1), c2).astype(np.float32)
+        cmin = cv2.min(cv2.min(c0, c1), c2).astype(np.float32)
+    else:
+        # INTER_AREA to a grid twice as fine, in the frame's own integer type (a float
+        # copy of a 24 MP frame costs more than its decode); the 2x2 means of that grid
+        # keep quarter-code precision, and its max/min catch partly clipped blocks
+        fine = crop if block == 2 else cv2.resize(crop, (wb * 2, hb * 2),
+                                                  interpolation=cv2.INTER_AREA)
+        blocks = cv2.resize(fine.astype(np.float32), (wb, hb), interpolation=cv2.INTER_AREA)
+        # OpenCV's per-channel max/min and 2x2 morphology beat numpy's strided reductions
+        c0, c1, c2 = cv2.split(fine)
+        kernel = np.ones((2, 2), np.uint8)
+        cmax = cv2.dilate(cv2.max(cv2.max(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
+        cmin = cv2.erode(cv2.min(cv2.min(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
+        cmax = cmax.astype(np.float32)
+        cmin = cmin.astype(np.float32)
+    if NEAR_CLIP_BLOCKS > 0:
+        # JPEG ringing and chroma bleed from a clipped neighbour damage a block's codes
+        near = np.ones((2 * NEAR_CLIP_BLOCKS + 1,) * 2, np.uint8)
+        cmax, cmin = cv2.dilate(cmax, near), cv2.erode(cmin, near)
+    blocks = np.ascontiguousarray(blocks, dtype=np.float32)
+    return ReducedFrame(blocks=blocks, block_max=cmax, block_min=cmin, max_code=max_code,
+                        shape=(h, w), digest=digest, source=source,
+                        thumbnail=_grey_thumbnail(blocks, max_code))
+
+
+@dataclass
+class SampleSet:
+    """Intensity samples at fixed locations across a stack.
+
+    Attributes
+    ----------
+    values : ndarray, shape (F, n, 3)
+        Block-mean codes normalised to [0, 1] (divided by ``max_code``).
+    block_max, block_min : ndarray, shape (F, n)
+        Extreme codes (normalised) inside each block: a block touching a clipped code is
+        clipped even when its mean is not.
+    flatness : ndarray, shape (n,)
+        Local contrast of each block (lower is flatter), on the frame that chose it.
+    locations : ndarray, shape (n, 2)
+        Block row and column.
+    max_code : int
+    sources : list of str
+    block : int
+        Block edge in frame pixels.
+    frame_shape : tuple
+        ``(H, W)`` of the frames.
+    digests : list of str
+        :func:`content_digest` of each frame (every decoded pixel).
+    thumbnails : list of ndarray
+        Per frame, the block means as a grey uint8 image (long side at most
+        :data:`THUMBNAIL_SIDE`), for the motion test of the verdict.
+    thumbnail_pixel : float
+        Frame pixels per thumbnail pixel.
+    """
+
+    values: np.ndarray
+    block_max: np.ndarray
+    block_min: np.ndarray
+    flatness: np.ndarray
+    locations: np.ndarray
+    max_code: int
+    sources: list
+    block: int
+    frame_shape: tuple
+    digests: list = field(default_factory=list)
+    thumbnails: list = field(default_factory=list)
+    thumbnail_pixel: float = 1.0
+
+    @property
+    def n_frames(self) -> int:
+        return self.values.shape[0]
+
+    @property
+    def n_samples(self) -> int:
+        return self.values.shape[1]
+
+
+def hsv_saturation(rgb: np.ndarray) -> np.ndarray:
+    """HSV saturation ``(max - min) / max`` of RGB values (0 where max is 0).
+
+    A numpy expression rather than ``skimage.color.rgb2hsv``: only S is needed, and the
+    full conversion is several times slower.
+    """
+    cmax = rgb.max(axis=-1)
+    cmin = rgb.min(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sat = np.where(cmax > 0, (cmax - cmin) / np.where(cmax > 0, cmax, 1), 0.0)
+    return sat
+
+
+def _local_contrast(blocks: np.ndarray) -> np.ndarray:
+    """Spread of the codes over a block, its 8 neighbours *and* the three channels, over level.
+
+    The spread is taken across channels too, so a flat but strongly coloured block ranks
+    as less flat than a flat neutral one: flatness and neutrality together decide which
+    blocks of an intensity bin are taken first.  That is deliberate.  Lin et al. (ICCV
+    2011, §5) reject highly saturated pixels because the camera's colour processing moves
+    them off the per-channel curves, and the same holds, more weakly, below β.  A per-
+    channel spatial spread alone picks more coloured blocks and, measured on every 20th
+    DoRF curve of acceptance 1 (see ``bench/BENCHMARKS.md``), raised the median f⁻¹ RMSE
+    from 0.0050 to 0.0084.
+    """
+    cv2 = _cv2()
+    # per-channel reductions through OpenCV: numpy's axis=2 reductions of an (h, w, 3)
+    # array are strided and cost more than the rest of the sampling
+    c0, c1, c2 = cv2.split(np.ascontiguousarray(blocks, dtype=np.float32))
+    mean = (c0 + c1 + c2) / 3.0
+    cmax = cv2.max(cv2.max(c0, c1), c2)
+    cmin = cv2.min(cv2.min(c0, c1), c2)
+    if blocks.shape[0] > 2:
+        kernel = np.ones((3, 3), np.uint8)
+        # max over channels commutes with the 3x3 max filter
+        cmax = cv2.dilate(cmax, kernel)
+        cmin = cv2.erode(cmin, kernel)
+    return (cmax - cmin) / np.maximum(mean, 1.0)
+
+
+def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: int = 6,
+                     max_samples: int = 6000, clip_margin: float = 2.0,
+                     seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Choose sample blocks stratified over intensity in every frame, flattest first.
+
+    Returns
+    -------
+    flat_index : ndarray of int
+        Indices into the flattened block grid.
+    flatness : ndarray
+        The local contrast of the chosen blocks (max over frames).
+    """
+    rng = np.random.default_rng(seed)
+    max_code = reduced[0].max_code
+    # flatness: the worst local contrast over frames, ignoring frames where a block is
+    # clipped (clipped areas look flat but tell nothing); a running maximum, so no
+    # frames-by-blocks float copy is made
+    valid = []
+    worst = None
+    for r in reduced:
+        ok = ((r.block_max < max_code - clip_margin * max_code / 255)
+              & (r.block_min > clip_margin * max_code / 255)).ravel()
+        masked = np.where(ok, _local_contrast(r.blocks).ravel(), -np.inf)
+        worst = masked if worst is None else np.maximum(worst, masked, out=worst)
+        valid.append(ok)
+    worst[~np.isfinite(worst)] = np.inf
+    # a tie-breaking jitter keeps equal-contrast blocks (synthetic flat patches) spread out
+    order_key = worst + rng.uniform(0, 1e-6, worst.shape)
+    flattest_first = np.argsort(order_key)
+    flattest_first = flattest_first[np.isfinite(worst[flattest_first])]
+    chosen: set[int] = set()
+    for r, ok in zip(reduced, valid):
+        cand = flattest_first[ok[flattest_first]]
+        if cand.size == 0:
+            continue
+        # the grey level of every block, then gathered: the channel mean of the block
+        # means in the same float32 order as ``blocks.mean(axis=-1)``, on whole planes
+        c0, c1, c2 = _cv2().split(r.blocks)
+        level = ((c0 + c1 + c2) / np.float32(3)).ravel()[cand] / max_code
+        bins = np.minimum((level * n_bins).astype(np.int16), n_bins - 1)
+        # a stable sort by bin keeps the flattest-first order inside each bin
+        by_bin = np.argsort(bins, kind="stable")
+        cand, cb = cand[by_bin], bins[by_bin]
+        starts = np.searchsorted(cb, np.arange(n_bins))
+        ends = np.searchsorted(cb, np.arange(n_bins), side="right")
+        for s, e in zip(starts, ends):
+            chosen.update(cand[s: min(e, s + per_bin)].tolist())
+    idx = np.array(sorted(chosen), dtype=np.int64)
+    if idx.size > max_samples:
+        idx = np.sort(rng.choice(idx, size=max_samples, replace=False))
+    return idx, worst[idx] if idx.size else np.zeros(0)
+
+
+#: Blocks a frame is reduced to, about (:func:`working_block_size`).
+TARGET_BLOCKS = 400_000
+
+
+def working_block_size(shape, target_blocks: int = TARGET_BLOCKS) -> int:
+    """Block edge that brings a frame of ``shape`` near ``target_blocks`` blocks (≥ 1).
+
+    The edge is rounded down, so a frame has at least ``target_blocks`` blocks (when it
+    has that many pixels) and fewer than four times as many; frames under 1.6 MP keep
+    every pixel.  Rounding up instead (at most ``target_blocks``: 2×2 blocks for 1.5 MP
+    frames) was tried for issue 15, Build 4 and not kept: a 7-frame 1.5 MP stack then
+    calibrated in 0.35 s instead of 1.51 s, but on 1.5 MP synthetic stacks (``bench_response_synthetic.py
+    --size 1000x1500 --step 10``) the mean f⁻¹ RMSE rose from 0.0077 to 0.0086 (two
+    times known, median 0.0038 to 0.0044).  See ``bench/BENCHMARKS.md``, "JPEG-only
+    path: speed and memory".
+    """
+    h, w = shape[:2]
+    return max(1, int(np.floor(np.sqrt(h * w / target_blocks))))
+
+
+def _dct_factor(block: int) -> int:
+    """The JPEG DCT scaling (1, 2, 4, 8) a ``block`` is read at: the largest dividing it
+    that leaves at least 3 reduced pixels per block edge."""
+    return max(f for f in (1, 2, 4, 8) if f == 1 or (f * 3 <= block and block % f == 0))
+
+
+def collect_samples(frames, *, sources=None, block: int | None = None,
+                    n_bins: int = 48, per_bin: int = 6, max_samples: int = 6000,
+                    clip_margin: float = 2.0, seed: int = 0, progress=None,
+                    loader=None) -> SampleSet:
+    """Read a stack streaming and return samples at stratified flat locations.
+
+    Parameters
+    ----------
+    frames : sequence
+        ``HxWx3`` uint8/uint16 arrays, or paths (then ``loader`` decodes them one at a time).
+    sources : sequence of str, optional
+        Names for error messages (file names); defaults to ``"array #k"``.
+    block : int, optional
+        Block edge in pixels; by default :func:`working_block_size` (about
+        :data:`TARGET_BLOCKS` blocks per frame), for JPEG files rounded up to a multiple of
+        the DCT scaling they are decoded at (a 24 MP frame: 7 -> 8, read at half size).
+    progress : callable, optional
+        Called as ``progress(k, n, source)`` after each frame is read.
+    loader : callable, optional
+        ``loader(path) -> array``; defaults to :func:`selfcal.io.read_image`.
+
+    Raises
+    ------
+    InputError
+        Frames of different sizes or bit depths, unreadable files (named).
+    """
+    from ..io.images import JPEG_SUFFIXES, read_image, read_image_size
+
+    n = len(frames)
+    if sources is None:
+        sources = [str(f) if isinstance(f, (str, os.PathLike)) else f"array #{k}"
+                   for k, f in enumerate(frames)]
+    reduced: list[ReducedFrame] = []
+    for k, frame in enumerate(frames):
+        src = sources[k]
+        if isinstance(frame, (str, os.PathLike)):
+            full_shape = read_image_size(frame)
+            # JPEGs decode straight to local means (DCT scaling) when blocks are large:
+            # only block means are kept, and the full decode is the cost that dominates
+            scalable = loader is None and Path(frame).suffix.lower() in JPEG_SUFFIXES
+            if block is None:
+                block = working_block_size(full_shape)
+                if scalable:     # a whole number of reduced pixels per block (rounded up)
+                    f = max(f for f in (1, 2, 4, 8) if f == 1 or f * 3 <= block)
+                    block = f * -(-block // f)
+            factor = _dct_factor(block) if scalable else 1
+            image = (loader or read_image)(frame) if factor == 1 else read_image(
+                frame, reduce=factor)
+        else:
+            image = frame
+            full_shape = None
+            factor = 1
+        arr = _as_image_array(image, src)
+        digest = content_digest(arr)      # every decoded pixel, before the crop below
+        if full_shape is None:
+            full_shape = arr.shape[:2]
+            if block is None:
+                block = working_block_size(full_shape)
+        if reduced and tuple(full_shape) != reduced[0].shape:
+            raise InputError(
+                f"frame size {full_shape[1]}x{full_shape[0]} differs from the first frame's "
+                f"{reduced[0].shape[1]}x{reduced[0].shape[0]} ({reduced[0].source})", src)
+        # reduced decodes may round their size up; crop to the common block grid
+        hb, wb = full_shape[0] // block, full_shape[1] // block
+        step = block // factor
+        arr = arr[: hb * step, : wb * step]
+        r = reduce_frame(arr, block=step, source=src, digest=digest)
+        r.shape = tuple(full_shape)
+        if reduced and r.max_code != reduced[0].max_code:
+            raise InputError("bit depth differs from the first frame's "
+                             f"({reduced[0].source})", src)
+        reduced.append(r)
+        del image, arr
+        if progress is not None:
+            progress(k + 1, n, src)
+    idx, flatness = choose_locations(reduced, n_bins=n_bins, per_bin=per_bin,
+                                     max_samples=max_samples, clip_margin=clip_margin,
+                                     seed=seed)
+    max_code = reduced[0].max_code
+    values = np.stack([r.blocks.reshape(-1, 3)[idx] for r in reduced]) / max_code
+    bmax = np.stack([r.block_max.ravel()[idx] for r in reduced]) / max_code
+    bmin = np.stack([r.block_min.ravel()[idx] for r in reduced]) / max_code
+    wb = reduced[0].blocks.shape[1]
+    locations = np.stack([idx // wb, idx % wb], axis=1)
+    return SampleSet(values=values.astype(np.float64), block_max=bmax, block_min=bmin,
+                     flatness=flatness, locations=locations, max_code=max_code,
+                     sources=list(sources), block=block, frame_shape=reduced[0].shape,
+                     digests=[r.digest for r in reduced],
+                     thumbnails=[r.thumbnail for r in reduced],
+                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]))
+
+
+def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
+                saturation_threshold: float = 0.5, propagate: bool = True) -> dict:
+    """Per-frame outlier masks of Lin et al. (ICCV 2011, §5), with their reasons.
+
+    A sample is *clipped* in a frame when any channel of its block touches 0 or the
+    maximum code (within ``clip_margin`` codes, on the 8-bit scale), and *saturated* when
+    the HSV saturation of its block mean exceeds ``saturation_threshold`` (β).
+
+    With ``propagate``, clipping also follows exposure: a scene point clipped white in a
+    frame is clipped in every brighter frame, and one clipped black in every darker frame
+    (frames ordered by their mean code, which rises with exposure).  JPEG ringing and
+    quantisation leave saturated highlights at codes a few below the maximum in some
+    frames; those would otherwise pass as valid and pair with codes they have no relation
+    to.
+
+    Returns
+    -------
+    dict of str -> ndarray of bool, shape (F, n)
+        ``"clipped"`` and ``"saturated"`` masks (True = rejected for that reason).
+    """
+    margin = clip_margin / 255.0
+    white = samples.block_max >= 1.0 - margin
+    black = samples.block_min <= margin
+    if propagate and samples.values.shape[0] > 1:
+        order = np.argsort(samples.values.mean(axis=(1, 2)), kind="stable")
+        white[order] = np.logical_or.accumulate(white[order], axis=0)
+        black[order[::-1]] = np.logical_or.accumulate(black[order[::-1]], axis=0)
+    clipped = white | black
+    saturated = hsv_saturation(samples.values) > saturation_threshold
+    return {"clipped": clipped, "saturated": saturated & ~clipped}
