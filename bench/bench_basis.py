@@ -13,7 +13,7 @@ with N = 3..8 components of
 The error is the RMSE of ``f^-1`` in the linear domain over the 1024 grid points on [0, 1].
 
 ``--calibrate`` adds the issue-18 comparison: calibrations of synthetic stacks, each DoRF
-forward curve (``201_CRF_data.mat``) rendered by :mod:`selfcal.synth` into a 6-shot stack
+forward curve (``201_CRF_data.mat``) rendered by :mod:`selfcal.sim` into a 6-shot stack
 (1/250 … 1/8 s, ±3 % shutter jitter, noise, smooth gamut, JPEG q90, as
 ``bench_response_synthetic.py`` at a smaller size), calibrated with nominal times with the
 built-in basis and with ``--basis invemor.txt``.  Score: RMSE of f⁻¹ over codes 1…254.
@@ -50,7 +50,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from selfcal.errors import InputError  # noqa: E402
-from selfcal.metrics import rmse  # noqa: E402
+from selfcal.sim.scoring import rmse  # noqa: E402
 from selfcal.response.basis import builtin_basis, read_dorf_mat, read_invemor  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "dorf_emor"
@@ -77,14 +77,14 @@ def _calibrate_one(task):
     import warnings
 
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
     from selfcal.response import priors
 
     priors.ESTIMATED_PRIOR_SCALE = scale
-    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=seed)
-    scene = synth.make_scene(*size, seed=seed)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=seed)
+    curve = sim.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
+    pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
+    scene = sim.make_scene(*size, seed=seed)
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=seed)
     truth = stack.inverse_response()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

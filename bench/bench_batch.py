@@ -1,6 +1,6 @@
 """``selfcal batch`` throughput and the per-camera curve (issue 17).
 
-A simulated card dump (:func:`selfcal.batch.simulate.write_library`): two camera bodies
+A simulated card dump (:func:`selfcal.sim.cards.write_library`): two camera bodies
 (film-like curves; gamma 2.2), ``--sessions`` bracketed sessions in all, ``--frames``
 JPEG frames of ``--height`` × ``--width`` each (default 5 × ~1 MP), EXIF as cameras write
 it.  Then, on the same library:
@@ -18,7 +18,7 @@ camera, merge + preview per session), each into its own folder.
 3. **Curves**: each body's pooled curve (``cameras/<camera>/model.json`` of the cluster
    run) against the simulator's truth, and single-session curves
    (``selfcal.calibrate_response`` of ``--curve-sessions`` sessions per body, spread over
-   the library) against the same truth: ``selfcal.metrics.best_scale_rmse`` of f⁻¹ over
+   the library) against the same truth: ``selfcal.sim.scoring.best_scale_rmse`` of f⁻¹ over
    codes 1..254, mean of R, G, B.
 
     python bench/bench_batch.py --sessions 200          # the issue's size
@@ -66,7 +66,7 @@ def _times(frames: int):
 
 
 def _write_body(args):
-    from selfcal.batch.simulate import default_bodies, write_library
+    from selfcal.sim.cards import default_bodies, write_library
 
     root, b, per_body, height, width, frames = args
     body = default_bodies()[b]
@@ -152,8 +152,8 @@ def run_cluster(root: Path, out: Path, workers: int, trim: bool = False) -> dict
 def curve_errors(root: Path, out: Path, rows, cameras, n_single: int):
     """Per body: the pooled curve's error and single-session curves' errors vs truth."""
     import selfcal
-    from selfcal.batch.simulate import default_bodies
-    from selfcal.metrics import best_scale_rmse
+    from selfcal.sim.cards import default_bodies
+    from selfcal.sim.scoring import best_scale_rmse
 
     def err(est, truth):
         codes = slice(1, 255)

@@ -41,7 +41,7 @@ def oracle(truth: np.ndarray, known_to: int) -> np.ndarray:
 
 
 def main():
-    from selfcal.metrics import best_scale_rmse, rmse
+    from selfcal.sim.scoring import best_scale_rmse, rmse
     from selfcal.pipeline.nus import read_nus_model
 
     if not NUS.is_dir():

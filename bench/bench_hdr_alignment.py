@@ -30,7 +30,7 @@ LO, HI = 8, 247
 
 def residual(model, frames, exposures, transforms, ref):
     """Per frame: RMS log residual against the reference, and pixels compared."""
-    from selfcal.align import warp_to_reference
+    from selfcal.stack.align import warp_to_reference
 
     lut = np.log(np.maximum(model.inverse_response(), 1e-6))
     ref_img = frames[ref]
@@ -55,7 +55,7 @@ def residual(model, frames, exposures, transforms, ref):
 
 def main():
     import selfcal
-    from selfcal.align import estimate_alignment
+    from selfcal.stack.align import estimate_alignment
     from selfcal.hdr import merge_hdr
     from selfcal.io import read_exposure_info, read_image
 

@@ -1,6 +1,6 @@
 """HDR radiance accuracy on hard synthetic stacks with known radiance (issue 13).
 
-Stacks (``selfcal.synth``, one per response curve):
+Stacks (``selfcal.sim``, one per response curve):
 
 * scene: ``make_scene(H, W, saturation=0.9, dynamic_range_stops=14, seed)`` -- saturated
   colours (channel ratios up to ~11:1 before the colour matrix), a 14-stop range;
@@ -12,7 +12,7 @@ Stacks (``selfcal.synth``, one per response curve):
   ``ToneCurve.from_table`` cannot invert);
 * shots: 1/250 … 1/8 s (6 frames), ±3 % shutter jitter, shot and read noise
   (``SensorModel()``), 8-bit, JPEG through OpenCV with its default 4:2:0 chroma
-  subsampling, quality 85, 90 or 95 (by seed).  ``selfcal.synth`` has no sharpening, so
+  subsampling, quality 85, 90 or 95 (by seed).  ``selfcal.sim`` has no sharpening, so
   none is simulated.
 
 Splits: curve ``i`` even → seed ``i`` (tuning: seeds < 1000, even curves); curve ``i`` odd
@@ -190,17 +190,17 @@ def one_stack(task):
     import scipy.io as sio
 
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
     from selfcal.response.model import ResponseModel
 
     t0 = time.perf_counter()
     mat = sio.loadmat(data_dir("dorf_emor", "201_CRF_data.mat"))
-    curve = synth.ToneCurve.from_table(mat["I"][index], mat["B"][index], name=f"dorf{index}")
+    curve = sim.ToneCurve.from_table(mat["I"][index], mat["B"][index], name=f"dorf{index}")
     h, w = size
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=seed)
-    scene = synth.make_scene(h, w, dynamic_range_stops=14.0, saturation=SATURATION, seed=seed)
+    pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
+    scene = sim.make_scene(h, w, dynamic_range_stops=14.0, saturation=SATURATION, seed=seed)
     quality = QUALITIES[seed % len(QUALITIES)]
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=quality,
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=quality,
                                  seed=seed)
     e_true, scored, clipped_all, shortest_all, readable, visible = truth_masks(stack)
     images = stack.images

@@ -3,9 +3,9 @@ from the pixels, and the HDR merge, against the simulator's truth.
 
 Each case is a bracket of linear frames written as 16-bit TIFFs (what ``dcraw -4 -T`` or a
 raw converter writes: no tone curve, black at 0), with a shutter jitter of ±``--jitter``
-per shot, through :class:`selfcal.synth.SensorModel` (shot and read noise, white clip):
+per shot, through :class:`selfcal.sim.SensorModel` (shot and read noise, white clip):
 
-* ``synth<seed>``: :func:`selfcal.synth.make_scene` scenes of 8–14 stops, saturation
+* ``synth<seed>``: :func:`selfcal.sim.make_scene` scenes of 8–14 stops, saturation
   0.2–0.9, 3–7 frames 1–2 stops apart, full wells 3,000–40,000 e⁻ (high to low ISO), read
   noise 0.05–0.3 % of white; a third of them with EXIF ExposureTime tags (nominal times);
 * ``raw:<file>``: the shared DNGs (``../shared/data/raw``) read linear with rawpy as the
@@ -13,14 +13,14 @@ per shot, through :class:`selfcal.synth.SensorModel` (shot and read noise, white
   folder).
 
 Per case: whether the bracket is recognised as linear
-(:func:`selfcal.choose_groups.linear_evidence`, what ``selfcal merge`` acts on), the
+(:func:`selfcal.choose.groups.linear_evidence`, what ``selfcal merge`` acts on), the
 largest error of the exposure ratios (to the first frame) measured by
 :func:`selfcal.merge_hdr` (``linear=True``; :mod:`selfcal.hdr.linear_exposures`) against the
 true, jittered ones, that of the nominal times, and the radiance's median relative error
 (best scale, pixels lit in the truth) merged with each.
 
 Tuning split: seeds < 1000 (nothing was tuned on this bench: the measurement's thresholds
-are those of :func:`selfcal.pairs.raw_exposure_ratios`, set for the RAW+JPEG path); held
+are those of :func:`selfcal.pipeline.pairs.raw_exposure_ratios`, set for the RAW+JPEG path); held
 out: seeds ≥ 1000 and the two real raws.
 
     python bench/bench_linear_bracket.py                 # both splits
@@ -62,9 +62,9 @@ def _times(frames: int, step: float):
 def _bracket(scene, times, *, sensor, jitter, seed):
     """The stack of linear frames of ``scene`` at the jittered ``times`` (the middle frame
     puts the scene's median at 0.18)."""
-    from selfcal import synth
+    from selfcal import sim
 
-    return synth.simulate_stack(scene, synth.default_pipeline(seed=seed), times,
+    return sim.simulate_stack(scene, sim.default_pipeline(seed=seed), times,
                                 jitter=jitter, sensor=sensor, seed=seed)
 
 
@@ -77,7 +77,7 @@ def _radiance_error(radiance, unmeasured, truth) -> float:
 
 def _measure(name, split, scene, times, sensor, jitter, seed, with_times, root: Path):
     import selfcal
-    from selfcal.choose_groups import linear_evidence
+    from selfcal.choose.groups import linear_evidence
 
     stack = _bracket(scene, times, sensor=sensor, jitter=jitter, seed=seed)
     true = np.asarray(stack.true_exposures, dtype=float)
@@ -103,14 +103,14 @@ def _measure(name, split, scene, times, sensor, jitter, seed, with_times, root: 
 
 
 def synthetic_cases(seeds, split, args, root):
-    from selfcal import synth
+    from selfcal import sim
 
     rows = []
     for seed in seeds:
         p = _case_params(seed)
-        scene = synth.make_scene(args.height, args.width, dynamic_range_stops=p["stops"],
+        scene = sim.make_scene(args.height, args.width, dynamic_range_stops=p["stops"],
                                  saturation=p["saturation"], seed=seed)
-        sensor = synth.SensorModel(full_well_electrons=p["full_well"],
+        sensor = sim.SensorModel(full_well_electrons=p["full_well"],
                                    read_noise=p["read_noise"])
         rows.append(_measure(f"synth{seed}", split, scene, _times(p["frames"], p["step"]),
                              sensor, args.jitter, seed, p["with_times"], root))
@@ -118,8 +118,8 @@ def synthetic_cases(seeds, split, args, root):
 
 
 def raw_cases(args, root):
-    from selfcal import synth
-    from selfcal.raw import read_raw_linear
+    from selfcal import sim
+    from selfcal.io.raw import read_raw_linear
 
     folder = SHARED_DATA / "raw"
     if not folder.is_dir():
@@ -129,7 +129,7 @@ def raw_cases(args, root):
     for k, dng in enumerate(sorted(folder.glob("*.dng"))):
         scene = read_raw_linear(dng, half_size=True).rgb.astype(np.float32)
         scene = np.maximum(scene, 0) + 1e-5          # rawpy's black-subtracted zeros
-        sensor = synth.SensorModel(full_well_electrons=15000.0, read_noise=0.001)
+        sensor = sim.SensorModel(full_well_electrons=15000.0, read_noise=0.001)
         rows.append(_measure(f"raw:{dng.name}", "held-out", scene, _times(5, 1.5), sensor,
                              args.jitter, 2000 + k, k % 2 == 0, root))
     return rows
@@ -140,19 +140,19 @@ def rendered_controls(seeds, split, args, root):
     colour matrix, gamut map, tone curves; and a pure gamma 2.2), which must not be said
     linear.  Without times a pure power law cannot be told from linear data (the
     exponential ambiguity), so gamma 2.2 is run with times only."""
-    from selfcal import synth
-    from selfcal.choose_groups import linear_evidence
+    from selfcal import sim
+    from selfcal.choose.groups import linear_evidence
 
     rows = []
     for seed in seeds:
         p = _case_params(seed)
-        scene = synth.make_scene(args.height, args.width, dynamic_range_stops=p["stops"],
+        scene = sim.make_scene(args.height, args.width, dynamic_range_stops=p["stops"],
                                  saturation=p["saturation"], seed=seed)
         times = _times(p["frames"], p["step"])
         for label, pipeline, timed in (
-                ("default camera", synth.default_pipeline(seed=seed), p["with_times"]),
-                ("gamma 2.2", synth.CameraPipeline(matrix=np.eye(3), curves=synth.ToneCurve.gamma(2.2), gamut="none"), True)):
-            stack = synth.simulate_stack(scene, pipeline, times, jitter=args.jitter,
+                ("default camera", sim.default_pipeline(seed=seed), p["with_times"]),
+                ("gamma 2.2", sim.CameraPipeline(matrix=np.eye(3), curves=sim.ToneCurve.gamma(2.2), gamut="none"), True)):
+            stack = sim.simulate_stack(scene, pipeline, times, jitter=args.jitter,
                                          seed=seed, bit_depth=16, jpeg_quality=None)
             folder = root / f"rendered{seed}-{label.replace(' ', '')}"
             paths = stack.write(folder, fmt="tif")

@@ -1,7 +1,7 @@
 """Issue 4 (RAW path): the fitted camera pipeline against baselines, stability and speed.
 
 Data
-  (a) selfcal.synth RAW+JPEG pairs (smooth gamut mapping, JPEG q95), seeds 0-2;
+  (a) selfcal.sim RAW+JPEG pairs (smooth gamut mapping, JPEG q95), seeds 0-2;
   (b) the real Nikon D7000 in-camera model of NUS (../shared/data/nus_model_nikon_d7000,
       read by selfcal.pipeline.nus, white-balance setting 14) applied to the real raws in
       ../shared/data/raw: each DNG is read as linear camera RGB (raw_image_visible, black
@@ -40,7 +40,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import Timer, data_dir, table  # noqa: E402
 
-from selfcal.metrics import rmse  # noqa: E402
+from selfcal.sim.scoring import rmse  # noqa: E402
 
 WB_CODE = 14          # the NUS D7000 model's fluorescent setting (its sample images' one)
 TRAIN_SIZES = (1500, 140)
@@ -92,11 +92,11 @@ def jpeg(codes: np.ndarray, quality: int = 95) -> np.ndarray:
 
 
 def synthetic_datasets():
-    from selfcal import synth
+    from selfcal import sim
 
     out = []
     for seed in (0, 1, 2):
-        p = synth.simulate_raw_jpeg_pair(seed=seed)
+        p = sim.simulate_raw_jpeg_pair(seed=seed)
         out.append({"name": f"synth seed {seed}", "group": "a",
                     "raw": p["raw"].astype(np.float64),
                     "truth": p["pipeline"].render(p["raw"]), "rendered": p["rendered"]})

@@ -7,11 +7,11 @@ bench_pipeline.py), quantised to 8 bits and JPEG q95-compressed:
 
   chart, blackmagic   the two real raws of ../shared/data/raw (2x2 superpixels, then 2x /
                       4x block means: about 130k pixels each);
-  sim-*               selfcal.synth.make_scene (a chart, texture, neutral ramp, hue x chroma
+  sim-*               selfcal.sim.make_scene (a chart, texture, neutral ramp, hue x chroma
                       and hue x luminance ramps; saturation 0.6 / 0.9) and
-                      selfcal.synth_conditions.natural_scene (sky and sun, foliage with
+                      selfcal.sim.conditions.natural_scene (sky and sun, foliage with
                       flowers, a ColorChecker, skin spheres, a shadow ramp; palette
-                      colourful / saturated), through selfcal.synth.SensorModel;
+                      colourful / saturated), through selfcal.sim.SensorModel;
   ssf-*               physically made raws: smooth reflectances (sums of one to three
                       Gaussians; for ssf-D65-cc the 24 BabelColor ColorChecker spectra and 56
                       such) under CIE D65 or A (colour.SDS_ILLUMINANTS), integrated against
@@ -20,7 +20,7 @@ bench_pipeline.py), quantised to 8 bits and JPEG q95-compressed:
                       white-balanced on the illuminant's white.
 
 Protocol: calibrate on scene A's pair the way selfcal.calibrate_pipeline does
-(selfcal.pairs.collect_pair_samples block means, then selfcal.pipeline.fit_pipeline), test
+(selfcal.pipeline.pairs.collect_pair_samples block means, then selfcal.pipeline.fit_pipeline), test
 on every pixel of scene B.  Forward RMSE (raw -> rendered, 0-255) against the camera's
 continuous rendering; backward RMSE (JPEG -> raw, raw in [0, 1]) over pixels with no JPEG
 channel at 0 or 255 (a clipped code does not determine its raw).  Pixels are reported
@@ -114,7 +114,7 @@ def ssf_scene(illuminant, reflectances, seed, gains, size=SIZE):
     illuminant's white, then divided by the camera model's WB gains."""
     import colour
 
-    from selfcal.synth import SensorModel, _unit_noise
+    from selfcal.sim.synth import SensorModel, _unit_noise
 
     wl, ssf = ssf_table()
     sd = colour.SDS_ILLUMINANTS[illuminant]
@@ -147,17 +147,18 @@ def ssf_scene(illuminant, reflectances, seed, gains, size=SIZE):
 def synth_scene(kind, seed, gains, size=SIZE):
     """make_scene (kind "ramps-<saturation>") or natural_scene (kind "outdoor-<palette>")
     as white-balanced camera RGB, exposed by SensorModel, divided by the WB gains."""
-    from selfcal import synth, synth_conditions
+    from selfcal import sim
+    from selfcal.sim import conditions as synth_conditions
 
     h, w = size
     if kind.startswith("ramps"):
-        scene = synth.make_scene(h, w, dynamic_range_stops=8.0,
+        scene = sim.make_scene(h, w, dynamic_range_stops=8.0,
                                  saturation=float(kind.split("-")[1]), seed=seed)
         exposure = 0.6
     else:
         scene = synth_conditions.natural_scene(h, w, palette=kind.split("-")[1], seed=seed)
         exposure = 0.35
-    raw = synth.SensorModel().expose(scene, exposure, np.random.default_rng(seed + 7))
+    raw = sim.SensorModel().expose(scene, exposure, np.random.default_rng(seed + 7))
     return raw.astype(np.float64) / gains
 
 
@@ -203,7 +204,7 @@ def load_scene(name, cam, cache: Path):
 
 def training_samples(scenes, names, seed=0):
     """What calibrate_pipeline fits: block means of the pairs, joined (and their groups)."""
-    from selfcal.pairs import collect_pair_samples
+    from selfcal.pipeline.pairs import collect_pair_samples
 
     return collect_pair_samples([scenes[n]["image_raw"] for n in names],
                                 [scenes[n]["image_rendered"] for n in names], seed=seed)[0]
@@ -514,7 +515,7 @@ def swap_table(scenes, hulls, fits, cam):
 
 
 def _saturation(rgb):
-    from selfcal.samples import hsv_saturation
+    from selfcal.stack.samples import hsv_saturation
 
     return hsv_saturation(rgb)
 
@@ -592,7 +593,7 @@ def diagnose_table(scenes, hulls):
     blocks clipped throughout (pair_samples keep_clipped)."""
     import copy
 
-    from selfcal.pairs import collect_pair_samples
+    from selfcal.pipeline.pairs import collect_pair_samples
     from selfcal.pipeline.lattice import lattice_regression_lut
 
     rows, cols = [], {k: [] for k in ("pixel", "sample", "affine", "clipped")}

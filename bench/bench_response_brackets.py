@@ -17,11 +17,11 @@ scaling, ``read_image(reduce=2)``, for Robertson's sake; the Fujifilm frames at 
 colour-hdri's): per method and camera, every curve is normalised to a mean of 1 over codes
 1…254 per channel, the camera's median curve is taken code by code and normalised to 1 at
 its maximum, and each scene's curve is scored by its best-scale RMSE against that median
-over codes 1…254 (``selfcal.metrics.best_scale_rmse``), per channel.  The table gives the
+over codes 1…254 (``selfcal.sim.scoring.best_scale_rmse``), per channel.  The table gives the
 mean and the largest score over the camera's scenes and channels.
 
 **Cross-scene linearisation** (reported, not a target: the metric's minimiser is biased,
-``bench_response_tradeoff.py``): ``selfcal.metrics.log_linearisation_error`` of each scene's
+``bench_response_tradeoff.py``): ``selfcal.sim.scoring.log_linearisation_error`` of each scene's
 curve on each *other* scene of its camera (mean over the pairs), next to the same score of
 each scene's curve on its own scene.
 
@@ -78,7 +78,7 @@ def curves_of_scene(paths, times, reduce: int):
 
 def spread(curves) -> tuple[float, float]:
     """(mean, max) best-scale RMSE of each scene's curve from the camera's median curve."""
-    from selfcal.metrics import best_scale_rmse
+    from selfcal.sim.scoring import best_scale_rmse
 
     norm = [c[CODES] / np.mean(c[CODES], axis=0, keepdims=True) for c in curves]
     median = np.median(np.stack(norm), axis=0)
@@ -93,7 +93,7 @@ def non_monotone(curves) -> int:
 
 def cross_scene(curves, stacks) -> tuple[float, float]:
     """(own scene, mean over other scenes) log linearisation error of each scene's curve."""
-    from selfcal.metrics import log_linearisation_error
+    from selfcal.sim.scoring import log_linearisation_error
 
     own, other = [], []
     for i, curve in enumerate(curves):

@@ -1,6 +1,6 @@
 """Issue 3: do neutral and coloured pixels ask for the same per-channel curve on memorial and piccante?
 
-The acceptance-2 metric (``selfcal.metrics.log_linearisation_error``) scores the residual
+The acceptance-2 metric (``selfcal.sim.scoring.log_linearisation_error``) scores the residual
 r = log f⁻¹(I′) − log f⁻¹(I) − log(t′/t) of every adjacent exposure pair, over pixels with
 all channels in [25, 235] in both frames.  If one per-channel curve could hold for all
 pixels, r would centre on 0 at every code whatever the pixel's colour.  This script
@@ -26,7 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import opencv_inverse_response, read_real_stacks, table  # noqa: E402
 
-from selfcal.samples import hsv_saturation  # noqa: E402
+from selfcal.stack.samples import hsv_saturation  # noqa: E402
 
 LO, HI = 25, 235
 # stack -> (channel, darker frame's codes [lo, hi]): where the first table looks

@@ -6,7 +6,7 @@ Each row changes one setting of the shipped method and scores it on
   curve, and ``--srgb`` sRGB stacks; 384×576, 6 shots 1/250 … 1/8 s, ±3 % jitter, noise,
   smooth gamut map, JPEG q90): the median RMSE of f⁻¹ over codes 1 … 254;
 * the real stacks memorial and piccante with the acceptance-2 metric
-  (``selfcal.metrics.log_linearisation_error``, nominal times), where the shipped method
+  (``selfcal.sim.scoring.log_linearisation_error``, nominal times), where the shipped method
   stays above OpenCV Robertson (bench_response_real.py).
 
 Knobs that are arguments of the solver (``solve_exposure_equations``) or of the sampling
@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, read_real_stacks, table  # noqa: E402
 
-from selfcal.metrics import log_linearisation_error, rmse  # noqa: E402
+from selfcal.sim.scoring import log_linearisation_error, rmse  # noqa: E402
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 REAL = ("memorial", "piccante")
@@ -73,7 +73,7 @@ def _per_channel_contrast(blocks):
 def knob(key):
     """Wrap selfcal's solve and sampling for one knob; yields calibrate kwargs."""
     import selfcal.response.calibrate as cal
-    import selfcal.samples as samples
+    import selfcal.stack.samples as samples
 
     _, _, kwargs, solver_kw, sampling_kw = next(k for k in KNOBS if k[0] == key)
     saved = (cal.solve_exposure_equations, cal.collect_samples, samples._local_contrast)
@@ -103,20 +103,20 @@ def _rmse_per_knob(stack):
 
 def one_dorf(args):
     index, irradiance, brightness = args
-    from selfcal import synth
+    from selfcal import sim
 
-    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=index)
-    stack = synth.simulate_stack(synth.make_scene(384, 576, seed=index), pipe, TIMES,
+    curve = sim.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
+    pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=index)
+    stack = sim.simulate_stack(sim.make_scene(384, 576, seed=index), pipe, TIMES,
                                  jitter=0.03, jpeg_quality=90, seed=index)
     return "dorf", index, _rmse_per_knob(stack)
 
 
 def one_srgb(seed):
-    from selfcal import synth
+    from selfcal import sim
 
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=seed)
-    stack = synth.simulate_stack(synth.make_scene(384, 576, seed=seed), pipe, TIMES,
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=seed)
+    stack = sim.simulate_stack(sim.make_scene(384, 576, seed=seed), pipe, TIMES,
                                  jitter=0.03, jpeg_quality=90, seed=seed)
     return "srgb", seed, _rmse_per_knob(stack)
 

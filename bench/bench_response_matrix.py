@@ -1,6 +1,6 @@
 """Issue 15: the response curve on a matrix of conditions, held out from tuning, against peers.
 
-Stacks (``selfcal.synth_conditions.CONDITIONS``, one stack per cell, DoRF curve and seed):
+Stacks (``selfcal.sim.conditions.CONDITIONS``, one stack per cell, DoRF curve and seed):
 a procedural outdoor scene (colour chart, foliage, sky with the sun, skin-toned spheres, a
 long shadow ramp; shading and texture) -- neutral, colourful or saturated; a random colour
 matrix with white balance and highlight clip; the smooth or the clip gamut map; one DoRF
@@ -20,14 +20,14 @@ an ``ImageStack`` of code/255 frames, shortest first, BLAS on one thread); OpenC
 ``CalibrateDebevec`` and ``CalibrateRobertson`` (``bench/common.py``).
 
 Metric, per channel: RMSE of f⁻¹ over codes 1 … 254 after the least-squares scale
-(``selfcal.metrics.best_scale_rmse``, one scale per channel); for selfcal also the
+(``selfcal.sim.scoring.best_scale_rmse``, one scale per channel); for selfcal also the
 absolute RMSE (its f⁻¹(255) = 1, as the truth's).  Median and p90 are over the
 (stack, channel) values of a cell; a method that fails scores +inf.  Time: wall time of
 each method's call, per stack.
 
 D7000 rows: the NUS Nikon D7000 in-camera model (``../shared/data/nus_model_nikon_d7000``,
 ``selfcal.pipeline.nus``, white-balance setting 14) renders each raw of
-``../shared/data/raw`` (``selfcal.raw.read_raw_linear``, half size, block-averaged to at
+``../shared/data/raw`` (``selfcal.io.raw.read_raw_linear``, half size, block-averaged to at
 most 384 px, white-balanced with its as-shot gains, clipped at 1, divided by the model's
 gains) as the middle of a six-shot bracket 1/250 … 1/8 s: the raw scaled by
 ``t / sqrt(t_min t_max)``, shot and read noise (``SensorModel()``), clipped at white, ±2 %
@@ -57,9 +57,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import (SHARED_DATA, colour_hdri_inverse_response, opencv_inverse_response,  # noqa: E402
                     table)
 
-from selfcal.metrics import best_scale_rmse, rmse  # noqa: E402
-from selfcal.synth import DEMO_EXPOSURE_TIMES  # noqa: E402
-from selfcal.synth_conditions import CONDITIONS  # noqa: E402
+from selfcal.sim.scoring import best_scale_rmse, rmse  # noqa: E402
+from selfcal.sim import DEMO_EXPOSURE_TIMES  # noqa: E402
+from selfcal.sim.conditions import CONDITIONS  # noqa: E402
 
 TIMES = list(DEMO_EXPOSURE_TIMES)
 METHODS = ("selfcal", "colour", "debevec", "robertson")
@@ -129,12 +129,12 @@ def score(luts: dict, truth: np.ndarray) -> dict:
 def dorf_curve(index: int):
     import scipy.io as sio
 
-    from selfcal import synth
+    from selfcal import sim
 
     if "mat" not in _DORF_CACHE:
         _DORF_CACHE["mat"] = sio.loadmat(DORF)
     mat = _DORF_CACHE["mat"]
-    return synth.ToneCurve.from_table(mat["I"][index], mat["B"][index], name=f"dorf{index}")
+    return sim.ToneCurve.from_table(mat["I"][index], mat["B"][index], name=f"dorf{index}")
 
 
 def one_cell_stack(task):
@@ -150,7 +150,7 @@ def one_cell_stack(task):
 
 def d7000_scene(fname: str, cam, max_side: int = 384):
     """A raw of ../shared/data/raw as the D7000 model's input: (camera RGB, render)."""
-    from selfcal.raw import read_raw_linear
+    from selfcal.io.raw import read_raw_linear
 
     raw = read_raw_linear(SHARED_DATA / "raw" / fname, half_size=True)
     rgb = raw.rgb.astype(np.float64)
@@ -167,15 +167,15 @@ def d7000_scene(fname: str, cam, max_side: int = 384):
 
 def one_d7000_stack(task):
     _, fname, seed, methods = task
-    from selfcal import synth
+    from selfcal import sim
     from selfcal.pipeline.nus import read_nus_model
-    from selfcal.synth_conditions import ModelCamera
+    from selfcal.sim.conditions import ModelCamera
 
     t0 = time.perf_counter()
     cam = read_nus_model(NUS, wb_code=D7000_WB)
     rgb, render = d7000_scene(fname, cam)
     model = ModelCamera(render, cam.inverse_response, name=f"NUS D7000 on {fname}")
-    stack = synth.simulate_stack(rgb, model, TIMES, jitter=0.02, jpeg_quality=92, seed=seed,
+    stack = sim.simulate_stack(rgb, model, TIMES, jitter=0.02, jpeg_quality=92, seed=seed,
                                  exposure_scale=1.0 / math.sqrt(TIMES[0] * TIMES[-1]))
     simulate_seconds = time.perf_counter() - t0
     res = score(calibrate_all(stack.images, TIMES, methods), stack.inverse_response())

@@ -20,7 +20,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import table  # noqa: E402
 
-from selfcal import synth  # noqa: E402
+from selfcal import sim  # noqa: E402
 from selfcal.response.basis import builtin_basis  # noqa: E402
 
 N = 5
@@ -31,8 +31,8 @@ def main():
     basis = builtin_basis()
     variance = np.asarray(basis.explained_variance[:N], dtype=float)
     grid = basis.intensity
-    curves = [synth.ToneCurve.srgb(), synth.ToneCurve.rec709(), synth.ToneCurve.gamma(1.8),
-              synth.ToneCurve.gamma(2.2), synth.ToneCurve.film()]
+    curves = [sim.ToneCurve.srgb(), sim.ToneCurve.rec709(), sim.ToneCurve.gamma(1.8),
+              sim.ToneCurve.gamma(2.2), sim.ToneCurve.film()]
     rows = []
     for curve in curves:
         inverse = curve.inverse(grid)

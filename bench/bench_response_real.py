@@ -9,7 +9,7 @@ which iterates over every pixel, runs in reasonable time and memory.
 
 The "per-code floor" column is the lowest value any per-channel curve can reach on the
 metric: a free log f⁻¹ value per code, least squares over the metric's own pixel pairs
-(``selfcal.metrics.per_code_floor``).  It is not a calibration, only a scale for the others.
+(``selfcal.sim.scoring.per_code_floor``).  It is not a calibration, only a scale for the others.
 
 A second table splits the same metric by HSV saturation (the larger of the pair's): near-
 neutral pixels, where the per-channel model of Lin et al. §5 holds, and the coloured ones
@@ -27,7 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import opencv_inverse_response, real_stacks, table  # noqa: E402
 
-from selfcal.metrics import (log_linearisation_error,  # noqa: E402
+from selfcal.sim.scoring import (log_linearisation_error,  # noqa: E402
                              log_linearisation_error_by_saturation, per_code_floor)
 
 SATURATION_BANDS = (0.0, 0.3, 0.5, 1.0)

@@ -1,7 +1,7 @@
 """Issue 3, acceptance 1: recovered inverse responses against the truth on DoRF curves.
 
 Each of the 201 DoRF curves (../shared/data/dorf_emor/201_CRF_data.mat) is rendered by
-``selfcal.synth`` into a 6-shot stack (1/250 … 1/8 s, ±3 % shutter jitter, shot and read
+``selfcal.sim`` into a 6-shot stack (1/250 … 1/8 s, ±3 % shutter jitter, shot and read
 noise, smooth gamut mapping, JPEG quality 90).  Per curve: RMSE of f⁻¹ over codes 1…254
 (f⁻¹(255) = 1), for selfcal with the nominal times, selfcal with only the first and last
 times known, and OpenCV's CalibrateDebevec and CalibrateRobertson given the nominal times
@@ -28,7 +28,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, opencv_inverse_response, table  # noqa: E402
 
-from selfcal.metrics import (best_scale_rmse, log_linearisation_error,  # noqa: E402
+from selfcal.sim.scoring import (best_scale_rmse, log_linearisation_error,  # noqa: E402
                              per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
@@ -37,13 +37,13 @@ TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 def one_curve(args):
     index, irradiance, brightness, size = args
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
 
     h, w = size
-    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=index)
-    scene = synth.make_scene(h, w, seed=index)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90,
+    curve = sim.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
+    pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=index)
+    scene = sim.make_scene(h, w, seed=index)
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90,
                                  seed=index)
     truth = stack.inverse_response()
     inner = slice(1, 255)

@@ -22,7 +22,7 @@ image has it", which is what the metric rewards:
   (the metric's pairs);
 * ``+ N = 11``: the same with eleven basis functions per channel;
 * ``per-code floor``: one free log f⁻¹ per code, least squares over the metric's own
-  pixel pairs (``selfcal.metrics.per_code_floor``): the metric fitted to itself.
+  pixel pairs (``selfcal.sim.scoring.per_code_floor``): the metric fitted to itself.
 
 The sampling and solver variants are applied by wrapping selfcal's own functions inside
 this script; the library keeps no switch for them.
@@ -51,7 +51,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, opencv_inverse_response, read_real_stacks, table  # noqa: E402
 
-from selfcal.metrics import (best_scale_rmse, log_linearisation_error,  # noqa: E402
+from selfcal.sim.scoring import (best_scale_rmse, log_linearisation_error,  # noqa: E402
                              per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
@@ -68,7 +68,7 @@ def _random_contrast(blocks):
 def variant(name):
     """Patch selfcal's sampling and solve for one variant; yields calibrate kwargs."""
     import selfcal.response.calibrate as cal
-    import selfcal.samples as samples
+    import selfcal.stack.samples as samples
 
     saved = (samples._local_contrast, cal.collect_samples, cal.solve_exposure_equations)
     kwargs = {}
@@ -115,15 +115,15 @@ def curves_for(images, times):
 def _dorf_stack(args, *, exact: bool):
     """A DoRF curve's stack as in acceptance 1, or through an exactly per-channel camera."""
     index, irradiance, brightness, size = args
-    from selfcal import synth
+    from selfcal import sim
 
-    curve = synth.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
+    curve = sim.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
     if exact:
-        pipe = synth.CameraPipeline(matrix=np.eye(3), curves=curve, gamut="none")
+        pipe = sim.CameraPipeline(matrix=np.eye(3), curves=curve, gamut="none")
     else:
-        pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=index)
-    scene = synth.make_scene(*size, seed=index)
-    return synth.simulate_stack(scene, pipe, TIMES, jitter=0.0 if exact else 0.03,
+        pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=index)
+    scene = sim.make_scene(*size, seed=index)
+    return sim.simulate_stack(scene, pipe, TIMES, jitter=0.0 if exact else 0.03,
                                 jpeg_quality=90, seed=index)
 
 

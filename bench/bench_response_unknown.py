@@ -3,7 +3,7 @@
 With fewer than two known exposure times, Eq. 8 of Lin et al. (ICCV 2011, §5) fixes the
 response only up to an exponent γ (f⁻¹ → (f⁻¹)^γ with every exposure ratio raised to γ);
 selfcal resolves it with the prior of its response basis and warns.  This script measures
-what that prior gives: stacks rendered by ``selfcal.synth`` (6 shots 1/250 … 1/8 s, ±3 %
+what that prior gives: stacks rendered by ``selfcal.sim`` (6 shots 1/250 … 1/8 s, ±3 %
 jitter, noise, smooth gamut map, JPEG q90) for common encodings (sRGB, Rec.709, gamma 1.8
 and 2.2, a film curve; two scenes each) and for every ``--step``-th DoRF curve, calibrated
 with all, two (first and last), one (first) and no times known.
@@ -27,7 +27,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, table  # noqa: E402
 
-from selfcal.metrics import rmse  # noqa: E402
+from selfcal.sim.scoring import rmse  # noqa: E402
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 KNOWN = {"all": TIMES,
@@ -39,10 +39,10 @@ KNOWN = {"all": TIMES,
 def one_stack(args):
     group, label, curve, seed = args
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
 
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=seed)
-    stack = synth.simulate_stack(synth.make_scene(384, 576, seed=seed), pipe, TIMES,
+    pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
+    stack = sim.simulate_stack(sim.make_scene(384, 576, seed=seed), pipe, TIMES,
                                  jitter=0.03, jpeg_quality=90, seed=seed)
     truth = stack.inverse_response()[1:255]
     true_log = np.log(stack.true_exposures)
@@ -61,14 +61,14 @@ def main():
     args = parser.parse_args()
     import scipy.io as sio
 
-    from selfcal import synth
+    from selfcal import sim
 
-    common = {"sRGB": synth.ToneCurve.srgb(), "Rec.709": synth.ToneCurve.rec709(),
-              "gamma 1.8": synth.ToneCurve.gamma(1.8), "gamma 2.2": synth.ToneCurve.gamma(2.2),
-              "film": synth.ToneCurve.film()}
+    common = {"sRGB": sim.ToneCurve.srgb(), "Rec.709": sim.ToneCurve.rec709(),
+              "gamma 1.8": sim.ToneCurve.gamma(1.8), "gamma 2.2": sim.ToneCurve.gamma(2.2),
+              "film": sim.ToneCurve.film()}
     tasks = [("common", name, curve, seed) for name, curve in common.items() for seed in (1, 2)]
     mat = sio.loadmat(data_dir("dorf_emor", "201_CRF_data.mat"))
-    tasks += [("DoRF", f"dorf{i}", synth.ToneCurve.from_table(mat["I"][i], mat["B"][i]), i)
+    tasks += [("DoRF", f"dorf{i}", sim.ToneCurve.from_table(mat["I"][i], mat["B"][i]), i)
               for i in range(0, mat["I"].shape[0], args.step)]
     with Pool(args.jobs) as pool:
         results = list(pool.imap(one_stack, tasks))

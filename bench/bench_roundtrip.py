@@ -1,6 +1,6 @@
 """Issue 5: round trips through a RAW-path model on the simulator's data.
 
-For several simulated cameras (``selfcal.synth``: colour matrix, smooth gamut mapping,
+For several simulated cameras (``selfcal.sim``: colour matrix, smooth gamut mapping,
 tone curves), a PipelineModel is calibrated from one RAW+JPEG pair and applied to a
 *different* scene of the same camera:
 
@@ -22,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import Timer, table  # noqa: E402
 
-from selfcal.metrics import rmse  # noqa: E402
+from selfcal.sim.scoring import rmse  # noqa: E402
 
 CAMERAS = [
     ("film curves, seed 0", None, 0),
@@ -34,17 +34,17 @@ CAMERAS = [
 
 def main():
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
 
     rows = []
     for label, curve, seed in CAMERAS:
-        curves = {"srgb": synth.ToneCurve.srgb(), "gamma": synth.ToneCurve.gamma(2.2),
+        curves = {"srgb": sim.ToneCurve.srgb(), "gamma": sim.ToneCurve.gamma(2.2),
                   None: None}[curve]
-        pipe = synth.default_pipeline(gamut="smooth", curves=curves, seed=seed)
-        train = synth.simulate_raw_jpeg_pair(synth.make_scene(256, 384, saturation=0.7,
+        pipe = sim.default_pipeline(gamut="smooth", curves=curves, seed=seed)
+        train = sim.simulate_raw_jpeg_pair(sim.make_scene(256, 384, saturation=0.7,
                                                               seed=seed),
                                              pipe, seed=seed)
-        test = synth.simulate_raw_jpeg_pair(synth.make_scene(256, 384, saturation=0.7,
+        test = sim.simulate_raw_jpeg_pair(sim.make_scene(256, 384, saturation=0.7,
                                                              seed=100 + seed),
                                             pipe, seed=100 + seed)
         with Timer() as t:

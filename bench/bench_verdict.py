@@ -2,7 +2,7 @@
 
 Sweeps every real stack of ../shared/data (memorial, piccante_canon_t2i, ntu_canon_m3,
 frobisher_canon_5d2, every scene of real_brackets/) as it is, the wrong-data cases of issue
-14 point 7 built from them, and synthetic stacks (``selfcal.synth``, DoRF curves) with the
+14 point 7 built from them, and synthetic stacks (``selfcal.sim``, DoRF curves) with the
 same wrong-data cases; prints per case the split, the verdict
 (:mod:`selfcal.response.verdict`), the evidence it rests on and, for synthetic stacks, the
 f⁻¹ RMSE against the truth (codes 5-250), for wrong-data cases built from a real stack how
@@ -50,7 +50,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import data_dir, real_bracket_scenes, real_stacks, table  # noqa: E402
-from selfcal import synth  # noqa: E402
+from selfcal import sim  # noqa: E402
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 TUNING_REAL = {"memorial", "fujifilm_xh1/scene1", "sony_ilce6400/scene1"}
@@ -121,7 +121,7 @@ def _reversed(name):
 
 def shake(images, fraction=0.01, degrees=0.5, seed=0):
     """Every frame but the middle one shifted and turned a little (a handheld stack)."""
-    return synth.handheld(images, fraction=fraction, degrees=degrees, seed=seed)
+    return sim.handheld(images, fraction=fraction, degrees=degrees, seed=seed)
 
 
 def _handheld(name, seed=1):
@@ -219,19 +219,19 @@ def _synthetic(seed, *, times=TIMES, stops=14.0, scene_seed=None, size=(192, 288
                flip=False):
     import scipy.io as sio
 
-    from selfcal import synth
+    from selfcal import sim
 
     if not _DORF:
         _DORF.update(sio.loadmat(data_dir("dorf_emor", "201_CRF_data.mat")))
     index = (seed * 37) % _DORF["I"].shape[0]
-    curve = synth.ToneCurve.from_table(_DORF["I"][index], _DORF["B"][index],
+    curve = sim.ToneCurve.from_table(_DORF["I"][index], _DORF["B"][index],
                                        name=f"dorf{index}")
-    pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=seed)
-    scene = synth.make_scene(*size, dynamic_range_stops=stops,
+    pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
+    scene = sim.make_scene(*size, dynamic_range_stops=stops,
                              seed=seed if scene_seed is None else scene_seed)
     if flip:        # another layout: make_scene puts its parts in fixed places
         scene = np.ascontiguousarray(scene[::-1, ::-1])
-    return synth.simulate_stack(scene, pipe, times, jitter=0.03, jpeg_quality=90, seed=seed)
+    return sim.simulate_stack(scene, pipe, times, jitter=0.03, jpeg_quality=90, seed=seed)
 
 
 def synthetic_cases(seeds):
@@ -387,7 +387,7 @@ def main():
     if args.json:
         import json
 
-        from selfcal.modelfile import jsonable
+        from selfcal.io.model_file import jsonable
 
         Path(args.json).write_text(json.dumps(
             [{"name": c.name, "split": c.split, "kind": c.kind, **jsonable(c.result)}

@@ -1,7 +1,7 @@
 """Shared helpers of the benchmark scripts: data location, stacks, OpenCV baselines.
 
 The measures the benches print (RMSE of f⁻¹, the log-linearisation error and its
-saturation split, the per-code floor) live in :mod:`selfcal.metrics`.
+saturation split, the per-code floor) live in :mod:`selfcal.sim.scoring`.
 """
 
 from __future__ import annotations

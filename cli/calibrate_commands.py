@@ -111,7 +111,7 @@ def cmd_demo(args) -> int:
     import numpy as np
 
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
     from selfcal.report import plot_response
 
     out = Path(args.output)
@@ -124,7 +124,7 @@ def cmd_demo(args) -> int:
     created = [d for d in (out, *out.parents) if not d.exists()]   # made here, deepest first
     before = set(out.iterdir()) if out.exists() else set()
     try:
-        stack = synth.demo_stack(seed=args.seed)
+        stack = sim.demo_stack(seed=args.seed)
         paths = stack.write(out, force=args.force)
         say(f"simulated a {len(paths)}-frame bracketed JPEG stack "
             f"({', '.join(fmt_time(t) for t in stack.exposure_times)} s, ±3% shutter "

@@ -13,7 +13,7 @@ from .common import EPILOG, EXIT_OK, check_outputs, int_range, say
 
 def cmd_export(args) -> int:
     import selfcal
-    from selfcal.export import (SIZE_LIMITS, check_export, default_direction,
+    from selfcal.export.cube import (SIZE_LIMITS, check_export, default_direction,
                                 model_code_range, write_cube)
 
     out = Path(args.output)

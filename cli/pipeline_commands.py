@@ -109,7 +109,7 @@ def cmd_render(args) -> int:
     import numpy as np
 
     from selfcal.io import write_image
-    from selfcal.raw import read_raw_linear
+    from selfcal.io.raw import read_raw_linear
 
     outside = []
 

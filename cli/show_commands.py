@@ -1,8 +1,8 @@
 """``selfcal show MODEL [--plot FILE.png]``: what a model is, its fit, verdict, warnings and
 curves, for both kinds of model.
 
-Nothing numerical lives here: the content is :func:`selfcal.describe.describe` and its text
-:func:`selfcal.describe.format_description`; the figure is
+Nothing numerical lives here: the content is :func:`selfcal.report.describe.describe` and its text
+:func:`selfcal.report.describe.format_description`; the figure is
 :func:`selfcal.report.plot_model`.  The description goes to stdout (it is the command's
 output); errors and warnings go to stderr as for every command.
 """
@@ -17,7 +17,7 @@ from .common import EPILOG, EXIT_OK, check_outputs, say
 
 def cmd_show(args) -> int:
     import selfcal
-    from selfcal.describe import describe, format_description
+    from selfcal.report.describe import describe, format_description
 
     check_outputs([args.plot], [args.model], args.force)
     model = selfcal.load_model(args.model)

@@ -9,7 +9,7 @@ Two calibration paths, after the two papers this package implements:
   tone curves, lattice-regression gamut LUT) with the RBF inverse colour mapping of Lin et
   al. (§6, Eq. 9-11).
 
-The camera simulator with ground truth lives in :mod:`selfcal.synth`.
+The camera simulator with ground truth lives in :mod:`selfcal.sim`.
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ from .errors import (
     SelfcalWarning,
 )
 
-from .models import load_model
+from .choose.loading import load_model
 from .response.calibrate import calibrate_response
 from .response.model import ResponseModel
 from .pipeline import PipelineModel, fit_pipeline
-from .choose import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
-from .raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
+from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
+from .io.raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
 from .hdr import merge_hdr  # HDR radiance maps (selfcal.hdr)
 
 __version__ = "0.1.0"

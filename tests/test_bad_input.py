@@ -51,11 +51,11 @@ def _write_linear_tiff(path: Path, linear: np.ndarray, time: float) -> None:
 def assets(tmp_path_factory) -> Path:
     """The good inputs every case starts from (copied into each test's folder)."""
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
 
     root = tmp_path_factory.mktemp("assets")
-    scene = synth.make_scene(H, W, dynamic_range_stops=8, saturation=0.3, seed=1)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=1), list(TIMES),
+    scene = sim.make_scene(H, W, dynamic_range_stops=8, saturation=0.3, seed=1)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=1), list(TIMES),
                                  jitter=0.0, seed=1)
     frames = stack.write(root, prefix="f")
     for k, p in enumerate(frames):                       # f0.jpg f1.jpg f2.jpg
@@ -166,10 +166,10 @@ def _other_size(e: Env) -> Path:
 
 
 def _same_time_stack(e: Env) -> Path:
-    from selfcal import synth
+    from selfcal import sim
 
-    scene = synth.make_scene(H, W, dynamic_range_stops=8, saturation=0.3, seed=2)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=2), [1 / 60] * 3,
+    scene = sim.make_scene(H, W, dynamic_range_stops=8, saturation=0.3, seed=2)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=2), [1 / 60] * 3,
                                  jitter=0.0, seed=2)
     stack.write(e.inp / "same", prefix="s")
     return e.inp / "same"

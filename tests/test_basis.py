@@ -537,7 +537,7 @@ def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatc
     exactly with 5 components; with the coefficient prior off (the ridge of before issue
     18) the same calibrations miss the tolerance."""
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
     from selfcal.response import priors
 
     _, train, _ = cf.generate_inverse_curves(300, intensity=GRID, seed=5)
@@ -554,9 +554,9 @@ def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatc
         for j in (2, 10):                 # two whose 5-component projection is monotone
             target = mean + ((others[j] - mean) @ comps[:5].T) @ comps[:5]
             assert np.all(np.diff(target) > 0) and target[0] >= -1e-9
-            curve = synth.ToneCurve.from_table(target, GRID, name=f"projected {j}")
-            pipe = synth.default_pipeline(gamut="smooth", curves=curve, seed=j)
-            stack = synth.simulate_stack(synth.make_scene(96, 144, seed=j), pipe, times,
+            curve = sim.ToneCurve.from_table(target, GRID, name=f"projected {j}")
+            pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=j)
+            stack = sim.simulate_stack(sim.make_scene(96, 144, seed=j), pipe, times,
                                          jitter=0.0, jpeg_quality=95, seed=j)
             truth = stack.inverse_response()
             model = selfcal.calibrate_response(stack.images, times, basis=str(path))

@@ -1,6 +1,6 @@
 """``selfcal batch`` on a real Dask LocalCluster over a simulated photo library (issue 17).
 
-The library (:func:`selfcal.batch.simulate.write_library`): two camera bodies with
+The library (:func:`selfcal.sim.cards.write_library`): two camera bodies with
 different responses, three bracketed sessions each, EXIF as cameras write it, every
 frame flat in two ``DCIM`` folders (sessions cross them); one session of the first body
 is rendered with another curve (a picture style EXIF does not tell: it must be flagged),
@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from selfcal import synth
+from selfcal import sim
 from selfcal.batch import discover, run_batch
-from selfcal.batch.simulate import camera_exif, default_bodies, write_library
+from selfcal.sim.cards import camera_exif, default_bodies, write_library
 from selfcal_cli.main import main
 
 distributed = pytest.importorskip("distributed", reason='needs pip install "selfcal[batch]"')
@@ -43,7 +43,7 @@ def library(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("card")
     bodies = default_bodies()
-    styled = synth.default_pipeline(curves=synth.ToneCurve.srgb(), seed=1)
+    styled = sim.default_pipeline(curves=sim.ToneCurve.srgb(), seed=1)
     lib = write_library(root, bodies=bodies, sessions_per_body=3, pipelines={(0, 2): styled})
     dcim = root / "DCIM" / "100SIMCM"
     broken = dcim / BROKEN
@@ -126,7 +126,7 @@ def test_pooled_fit_of_one_session_is_the_single_session_solve(library):
     from selfcal.batch.pooled import fit_shared_response, session_samples
     from selfcal.response.basis import builtin_basis
     from selfcal.response.solver import solve_exposure_equations
-    from selfcal.samples import SampleSet
+    from selfcal.stack.samples import SampleSet
 
     s = library["lib"].sessions[0]
     samples = session_samples(s.frames, s.exposure_times, session="a")

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 import selfcal
-import selfcal.choose
-from selfcal import synth
+import selfcal.choose.paths
+from selfcal import sim
 from selfcal.choose import calibrate, calibrate_pipeline, group_inputs
 from selfcal.errors import CalibrationError, InputError, SelfcalWarning
 from selfcal.io import read_image, write_bytes_atomic, write_image
@@ -38,14 +38,14 @@ FAST_FIT = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4,
 def fit_calls(monkeypatch):
     """Record what calibrate / calibrate_pipeline give the real fit_pipeline, which runs."""
     calls = []
-    fit = selfcal.choose.fit_pipeline
+    fit = selfcal.choose.paths.fit_pipeline
 
     @functools.wraps(fit)   # the signature routes calibrate's options, so keep it
     def recording_fit(raw_samples, rendered_samples, **options):
         calls.append((raw_samples, rendered_samples, options))
         return fit(raw_samples, rendered_samples, **options)
 
-    monkeypatch.setattr(selfcal.choose, "fit_pipeline", recording_fit)
+    monkeypatch.setattr(selfcal.choose.paths, "fit_pipeline", recording_fit)
     return calls
 
 
@@ -80,8 +80,8 @@ def make_session(folder, times, *, jitter=0.05, raws=True, seed=5, prefix="IMG",
     16-bit linear TIFFs of the same names."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    scene = synth.make_scene(96, 144, dynamic_range_stops=10.0, saturation=0.5, seed=seed)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=seed), times,
+    scene = sim.make_scene(96, 144, dynamic_range_stops=10.0, saturation=0.5, seed=seed)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=seed), times,
                                  jitter=jitter, jpeg_quality=95, seed=seed)
     jpgs = stack.write(folder, fmt="jpg", prefix=prefix)
     raw_paths = []
@@ -212,8 +212,8 @@ def test_bracketed_session_exposure_source_options(tmp_path, fit_calls):
 
 
 def test_neither_path_says_what_is_missing(tmp_path):
-    scene = synth.make_scene(64, 96, seed=1)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=1), [1 / 60],
+    scene = sim.make_scene(64, 96, seed=1)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=1), [1 / 60],
                                  repeats=3, jitter=0.0, seed=1)
     paths = stack.write(tmp_path, fmt="jpg")
     with pytest.raises(CalibrationError) as info:
@@ -226,14 +226,14 @@ def test_neither_path_says_what_is_missing(tmp_path):
 
 
 def test_frames_without_exif_are_judged_by_their_brightness(tmp_path):
-    scene = synth.make_scene(96, 144, seed=1)
-    pipe = synth.default_pipeline(seed=1)
-    bracket = synth.simulate_stack(scene, pipe, [1 / 125, 1 / 60, 1 / 30, 1 / 15],
+    scene = sim.make_scene(96, 144, seed=1)
+    pipe = sim.default_pipeline(seed=1)
+    bracket = sim.simulate_stack(scene, pipe, [1 / 125, 1 / 60, 1 / 30, 1 / 15],
                                    jitter=0.0, seed=1)
     paths = [write_image(tmp_path / f"b{k}.png", im) for k, im in enumerate(bracket.images)]
     result = calibrate(paths)                       # PNGs without EXIF
     assert result.taken == ("response",) and result.exposure_source == "unknown"
-    same = synth.simulate_stack(scene, pipe, [1 / 60], repeats=3, jitter=0.0, seed=1)
+    same = sim.simulate_stack(scene, pipe, [1 / 60], repeats=3, jitter=0.0, seed=1)
     paths = [write_image(tmp_path / f"s{k}.png", im) for k, im in enumerate(same.images)]
     with pytest.raises(CalibrationError) as info:
         calibrate(paths)
@@ -270,7 +270,7 @@ def test_unreadable_raw_in_a_pair_names_it(tmp_path):
 
 
 def test_mismatched_pair_in_calibrate_names_both(tmp_path):
-    pair = synth.simulate_raw_jpeg_pair(synth.make_scene(96, 144, seed=2), seed=2)
+    pair = sim.simulate_raw_jpeg_pair(sim.make_scene(96, 144, seed=2), seed=2)
     write_raw_tiff(tmp_path / "DSC_7.tiff", pair["raw"])
     write_image(tmp_path / "DSC_7.jpg", np.ascontiguousarray(pair["rendered"][::-1, ::-1]))
     with pytest.raises(InputError, match="does not match its raw") as info:
@@ -279,7 +279,7 @@ def test_mismatched_pair_in_calibrate_names_both(tmp_path):
 
 
 def test_clipped_out_pair_is_a_clear_error(tmp_path):
-    pair = synth.simulate_raw_jpeg_pair(synth.make_scene(96, 144, seed=2), exposure=400.0,
+    pair = sim.simulate_raw_jpeg_pair(sim.make_scene(96, 144, seed=2), exposure=400.0,
                                         seed=2)
     write_raw_tiff(tmp_path / "hot.tiff", pair["raw"])
     write_bytes_atomic(tmp_path / "hot.jpg", pair["encoded"])
@@ -350,7 +350,7 @@ def test_real_dng_with_a_cropped_jpeg_takes_the_pipeline_path(tmp_path, fit_call
 # ------------------------------------------------------------------ calibrate_pipeline
 
 def test_calibrate_pipeline_with_arrays_and_paths(fit_calls):
-    pair = synth.simulate_raw_jpeg_pair(synth.make_scene(160, 240, seed=4), seed=4)
+    pair = sim.simulate_raw_jpeg_pair(sim.make_scene(160, 240, seed=4), seed=4)
     pm = selfcal.calibrate_pipeline(pair["raw"], pair["rendered"], seed=2, **FAST_FIT)
     raw, ren, options = fit_calls[-1]
     assert options == {"seed": 2, "progress": None, **FAST_FIT}

@@ -184,11 +184,11 @@ def test_calibrate_align_handheld_files(capsys, tmp_path):
     import cv2
 
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
 
-    scene = synth.make_scene(128, 176, dynamic_range_stops=10, saturation=0.3, seed=6)
+    scene = sim.make_scene(128, 176, dynamic_range_stops=10, saturation=0.3, seed=6)
     times = [1 / 60, 1 / 15, 1 / 4]
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=6), times, jitter=0.0,
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=6), times, jitter=0.0,
                                  jpeg_quality=None, seed=6)
     paths = []
     for k, (im, (dx, dy)) in enumerate(zip(stack.images, [(4, -3), (0, 0), (-5, 2)])):
@@ -210,10 +210,10 @@ def test_calibrate_align_handheld_files(capsys, tmp_path):
 
 def _bracket(folder, times, *, seed=1, size=(48, 64)):
     """A simulated JPEG bracket with EXIF times (the simulator's default camera)."""
-    from selfcal import synth
+    from selfcal import sim
 
-    scene = synth.make_scene(*size, dynamic_range_stops=8, saturation=0.3, seed=seed)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=seed), list(times),
+    scene = sim.make_scene(*size, dynamic_range_stops=8, saturation=0.3, seed=seed)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=seed), list(times),
                                  jitter=0.0, seed=seed)
     return stack, stack.write(folder, prefix="f")
 
@@ -352,10 +352,10 @@ def test_verdict_unusable_writes_nothing_unless_forced(capsys, tmp_path):
 def _linear_bracket(folder, times, *, with_times: bool):
     """16-bit linear TIFFs of a simulated bracket (the raws, as a raw converter writes
     them), with or without exposure tags; and the stack (its true exposures)."""
-    from selfcal import synth
+    from selfcal import sim
 
-    scene = synth.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=3), list(times),
+    scene = sim.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=3), list(times),
                                  jitter=0.0, seed=3)
     return stack.write_raws(folder, with_times=with_times), stack
 
@@ -365,7 +365,7 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     import numpy as np
 
     import selfcal
-    from selfcal.choose_groups import linear_evidence
+    from selfcal.choose.groups import linear_evidence
     from selfcal.hdr.io import read_radiance
 
     times = (1 / 60, 1 / 15, 1 / 4)
@@ -398,10 +398,10 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     # with times the test is decisive; rendered 16-bit TIFFs are not taken for linear
     timed, _ = _linear_bracket(tmp_path / "timed", times, with_times=True)
     assert "follow the exposure times" in linear_evidence(timed, list(times))
-    from selfcal import synth
+    from selfcal import sim
 
-    scene = synth.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
-    rendered = synth.simulate_stack(scene, synth.default_pipeline(seed=3), list(times),
+    scene = sim.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
+    rendered = sim.simulate_stack(scene, sim.default_pipeline(seed=3), list(times),
                                     jitter=0.0, seed=3, bit_depth=16, jpeg_quality=None)
     files = rendered.write(tmp_path / "rendered16", fmt="tif")
     assert linear_evidence(files, list(times)) is None
@@ -413,11 +413,11 @@ def test_contradicted_exif_time_refined_by_default_or_held_on_request(capsys, tm
 
     import numpy as np
 
-    from selfcal import synth
+    from selfcal import sim
 
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=3)
-    scene = synth.make_scene(160, 240, dynamic_range_stops=12.0, seed=3)
-    stack = synth.simulate_stack(scene, pipe, synth.DEMO_EXPOSURE_TIMES, jitter=0.02,
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=3)
+    scene = sim.make_scene(160, 240, dynamic_range_stops=12.0, seed=3)
+    stack = sim.simulate_stack(scene, pipe, sim.DEMO_EXPOSURE_TIMES, jitter=0.02,
                                  jpeg_quality=92, seed=3)
     exif_times = np.array(stack.exposure_times, dtype=float)
     exif_times[2] *= 1.6                       # EXIF says 1.6x what the shutter gave

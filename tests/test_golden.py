@@ -28,7 +28,7 @@ TOLERANCE = 1e-12
 
 def _public_outputs() -> dict[str, np.ndarray]:
     import selfcal
-    from selfcal import synth
+    from selfcal import sim
 
     out: dict[str, np.ndarray] = {}
     frames = sorted(str(p) for p in (FIXTURES / "stack").glob("frame_*.jpg"))
@@ -43,7 +43,7 @@ def _public_outputs() -> dict[str, np.ndarray]:
         out["merge.radiance"] = np.asarray(hdr.radiance)
         out["merge.unmeasured"] = np.asarray(hdr.unmeasured, dtype=np.uint8)
 
-        demo = synth.demo_stack(seed=0)
+        demo = sim.demo_stack(seed=0)
         out["demo.frame0"] = np.asarray(demo.images[0])
         demo_model = selfcal.calibrate_response(list(demo.images), list(demo.exposure_times))
         out["demo.inverse"] = np.asarray(demo_model.inverse, dtype=np.float64)

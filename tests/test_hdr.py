@@ -1,4 +1,4 @@
-"""HDR merge (selfcal.hdr), alignment (selfcal.align), radiance files (selfcal.hdr.io), CLI."""
+"""HDR merge (selfcal.hdr), alignment (selfcal.stack.align), radiance files (selfcal.hdr.io), CLI."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
 import cv2  # noqa: E402
 
 import selfcal  # noqa: E402
-from selfcal import synth  # noqa: E402
-from selfcal.align import estimate_alignment, warp_to_reference  # noqa: E402
+from selfcal import sim  # noqa: E402
+from selfcal.stack.align import estimate_alignment, warp_to_reference  # noqa: E402
 from selfcal.hdr import HDRResult, NoiseModel, linearize_images, merge_hdr  # noqa: E402
 from selfcal.hdr.io import (  # noqa: E402
     OutputWriteError,
@@ -27,9 +27,9 @@ from selfcal.response.model import ResponseModel  # noqa: E402
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 TIMES = [1 / 250, 1 / 60, 1 / 15, 1 / 4]
-CURVES = (synth.ToneCurve.film(contrast=0.97, toe=0.09, shoulder=0.79, exposure=1.08),
-          synth.ToneCurve.film(contrast=1.00, toe=0.10, shoulder=0.80, exposure=1.00),
-          synth.ToneCurve.film(contrast=1.03, toe=0.11, shoulder=0.81, exposure=0.95))
+CURVES = (sim.ToneCurve.film(contrast=0.97, toe=0.09, shoulder=0.79, exposure=1.08),
+          sim.ToneCurve.film(contrast=1.00, toe=0.10, shoulder=0.80, exposure=1.00),
+          sim.ToneCurve.film(contrast=1.03, toe=0.11, shoulder=0.81, exposure=0.95))
 
 
 def true_model(stack, n=None) -> ResponseModel:
@@ -48,13 +48,13 @@ def truth_radiance(stack) -> np.ndarray:
 
 
 def simple_pipeline():
-    return synth.CameraPipeline(matrix=np.eye(3), curves=CURVES, gamut="clip")
+    return sim.CameraPipeline(matrix=np.eye(3), curves=CURVES, gamut="clip")
 
 
 @pytest.fixture(scope="module")
 def stack():
-    scene = synth.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=3)
-    return synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=90,
+    scene = sim.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=3)
+    return sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=90,
                                 seed=3)
 
 
@@ -169,12 +169,12 @@ def test_clipped_channel_gives_zero_weight():
 
 
 def test_unmeasured_region_flagged_and_filled():
-    scene = synth.make_scene(64, 96, dynamic_range_stops=8, saturation=0.2, seed=5)
+    scene = sim.make_scene(64, 96, dynamic_range_stops=8, saturation=0.2, seed=5)
     scene[8:24, 10:30] = 500.0      # far brighter than white in the shortest frame
     scene[40:56, 60:80] = 0.0       # black in the longest frame
-    st = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0,
+    st = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0,
                               jpeg_quality=None, seed=5,
-                              sensor=synth.SensorModel(read_noise=0.0))
+                              sensor=sim.SensorModel(read_noise=0.0))
     result = merge_hdr(st.images, st.true_exposures, true_model(st))
     assert result.unmeasured[10:22, 12:28].all()
     assert result.unmeasured[42:54, 62:78].all()
@@ -193,10 +193,10 @@ def test_unmeasured_region_flagged_and_filled():
 
 def test_exif_exposure_scale_across_sessions(tmp_path):
     """t·ISO/100/N² puts two brackets with different apertures on one scale."""
-    scene = synth.make_scene(64, 96, dynamic_range_stops=10, saturation=0.2, seed=2)
-    a = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=2)
+    scene = sim.make_scene(64, 96, dynamic_range_stops=10, saturation=0.2, seed=2)
+    a = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=2)
     # session b: f/16 (a quarter of the light) at 4x the times: the same pixels
-    b = synth.simulate_stack(scene, simple_pipeline(), [4 * t for t in TIMES], jitter=0.0,
+    b = sim.simulate_stack(scene, simple_pipeline(), [4 * t for t in TIMES], jitter=0.0,
                              exposure_scale=a.exposure_scale / 4, seed=2)
     b.f_number = 16.0
     pa = a.write(tmp_path / "a")
@@ -212,8 +212,8 @@ def test_exif_exposure_scale_across_sessions(tmp_path):
 
 
 def test_contradicted_exif_time_uses_model_estimate(tmp_path):
-    scene = synth.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=4)
-    st = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=4)
+    scene = sim.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=4)
+    st = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=4)
     st.exposure_times = np.array(st.exposure_times)
     st.exposure_times[2] *= 2.0          # a wrong EXIF time
     paths = st.write(tmp_path)
@@ -255,8 +255,8 @@ def test_bad_inputs_name_the_file(stack, tmp_path):
 # ------------------------------------------------------------------ alignment
 
 def _shifted_stack(shifts, seed=6):
-    big = synth.make_scene(128, 176, dynamic_range_stops=10, saturation=0.3, seed=seed)
-    st = synth.simulate_stack(big, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=None,
+    big = sim.make_scene(128, 176, dynamic_range_stops=10, saturation=0.3, seed=seed)
+    st = sim.simulate_stack(big, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=None,
                               seed=seed)
     y0, x0 = 16, 16
     frames = [im[y0 + dy:y0 + dy + 96, x0 + dx:x0 + dx + 144]
@@ -325,8 +325,8 @@ def test_homography_alignment_recovers_small_warp(working_size):
     m = np.array([[1.01, 0.012, -2.5], [-0.008, 0.995, 1.7], [2e-5, -1.5e-5, 1.0]])
     warped = cv2.warpPerspective(scene, m, (192, 128), flags=cv2.INTER_LINEAR
                                  | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REFLECT)
-    a = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, seed=8)
-    b = synth.simulate_stack(warped, pipe, TIMES, jitter=0.0, seed=8)
+    a = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, seed=8)
+    b = sim.simulate_stack(warped, pipe, TIMES, jitter=0.0, seed=8)
     frames = [b.images[0], a.images[1], a.images[2], b.images[3]]
     transforms = estimate_alignment(frames, a.true_exposures, true_model(a),
                                     method="homography", reference=1,
@@ -355,12 +355,12 @@ def test_warp_to_reference_integer_and_general():
 # ------------------------------------------------------------------ deghosting
 
 def test_deghosting_flags_a_moving_object():
-    scene = synth.make_scene(96, 144, dynamic_range_stops=10, saturation=0.3, seed=9)
+    scene = sim.make_scene(96, 144, dynamic_range_stops=10, saturation=0.3, seed=9)
     moved = scene.copy()
     moved[30:60, 90:120] = scene[30:60, 90:120] * 0.25     # a dark object, in frame 2 only
     pipe = simple_pipeline()
-    a = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, seed=9)
-    b = synth.simulate_stack(moved, pipe, TIMES, jitter=0.0, seed=9)
+    a = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, seed=9)
+    b = sim.simulate_stack(moved, pipe, TIMES, jitter=0.0, seed=9)
     frames = list(a.images)
     frames[2] = b.images[2]
     model = true_model(a)
@@ -592,12 +592,12 @@ def test_merge_raw_files_directly(tmp_path):
 
 def test_merge_with_pipeline_model_gives_camera_raw_radiance():
     """With a RAW-path model the merge is in the camera's raw space (through to_raw)."""
-    pipe = synth.default_pipeline(gamut="smooth", seed=11)
-    pair = synth.simulate_raw_jpeg_pair(synth.make_scene(192, 288, saturation=0.4, seed=11),
+    pipe = sim.default_pipeline(gamut="smooth", seed=11)
+    pair = sim.simulate_raw_jpeg_pair(sim.make_scene(192, 288, saturation=0.4, seed=11),
                                         pipe, seed=11)
     model = selfcal.calibrate_pipeline([pair["raw"]], [pair["rendered"]], seed=0)
     times = [1 / 250, 1 / 60, 1 / 15]
-    stack = synth.simulate_stack(synth.make_scene(192, 288, saturation=0.4, seed=12), pipe,
+    stack = sim.simulate_stack(sim.make_scene(192, 288, saturation=0.4, seed=12), pipe,
                                  times, jitter=0.0, jpeg_quality=90, seed=12)
     result = selfcal.merge_hdr(stack.images, times, model=model)
     truth = stack.radiance * stack.exposure_scale   # raw signal per second
@@ -642,8 +642,8 @@ LONG_TIMES = [1 / 4096, 1 / 1024, 1 / 256, 1 / 64, 1 / 16, 1 / 4, 1]
 @pytest.fixture(scope="module")
 def floored():
     """A lossless stack whose codes never go below a per-channel black floor."""
-    scene = synth.make_scene(96, 144, dynamic_range_stops=14, saturation=0.3, seed=11)
-    st = synth.simulate_stack(scene, simple_pipeline(), LONG_TIMES, jitter=0.0,
+    scene = sim.make_scene(96, 144, dynamic_range_stops=14, saturation=0.3, seed=11)
+    st = sim.simulate_stack(scene, simple_pipeline(), LONG_TIMES, jitter=0.0,
                               jpeg_quality=None, seed=11)
     st.images = [np.maximum(im, FLOOR) for im in st.images]
     return st
@@ -684,12 +684,12 @@ def test_black_floor_detected_and_given_zero_weight(floored):
 @pytest.fixture(scope="module")
 def highlights():
     """A JPEG stack with sharp highlight edges, and its truth."""
-    scene = synth.make_scene(96, 144, dynamic_range_stops=8, saturation=0.2, seed=12)
-    st0 = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=12)
+    scene = sim.make_scene(96, 144, dynamic_range_stops=8, saturation=0.2, seed=12)
+    st0 = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, seed=12)
     e_short = st0.exposure_scale * st0.true_exposures[0]
     scene[8:88, 8:72] = 3.0 / e_short           # clipped in every frame, around ...
     scene[22:74, 21:59] = 0.85 / e_short        # ... highlights the shortest frame measures
-    st = synth.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=85,
+    st = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=85,
                               seed=12)
     return st
 
@@ -726,8 +726,8 @@ def test_shortest_frame_only_pixels_within_five_percent(highlights):
 
 def test_frame_the_calibration_ignores_is_not_merged(stack):
     """A frame far beyond the bracket: ignored by the calibration, so by the merge."""
-    scene = synth.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=3)
-    far = synth.simulate_stack(scene, simple_pipeline(), [TIMES[-1] * 256], jitter=0.0,
+    scene = sim.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=3)
+    far = sim.simulate_stack(scene, simple_pipeline(), [TIMES[-1] * 256], jitter=0.0,
                                jpeg_quality=90, seed=3, exposure_scale=stack.exposure_scale)
     images = list(stack.images) + far.images
     times = list(stack.exposure_times) + [TIMES[-1] * 256]

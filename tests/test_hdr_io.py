@@ -19,7 +19,7 @@ import pytest
 os.environ.setdefault("OPENCV_IO_ENABLE_OPENEXR", "1")
 import cv2  # noqa: E402
 
-from selfcal import synth  # noqa: E402
+from selfcal import sim  # noqa: E402
 from selfcal.hdr.io import (  # noqa: E402
     HALF_LIMIT,
     SCALE_ATTRIBUTE,
@@ -123,8 +123,8 @@ def test_cli_merge_half_says_the_scale(tmp_path, capsys):
     from selfcal_cli import main as cli_main
 
     times = [1 / 4000, 1 / 2000, 1 / 1000, 1 / 500, 1 / 250]
-    scene = synth.make_scene(48, 64, dynamic_range_stops=10.0, seed=3)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=3), times,
+    scene = sim.make_scene(48, 64, dynamic_range_stops=10.0, seed=3)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=3), times,
                                  jpeg_quality=95, seed=3)
     stack.f_number = 16.0
     frames = stack.write(tmp_path / "frames")

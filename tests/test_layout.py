@@ -16,7 +16,7 @@ REPO = Path(__file__).resolve().parents[1]
 PACKAGES = {"selfcal": REPO / "selfcal", "selfcal_cli": REPO / "cli"}
 MAX_FUNCTION_LINES = 150
 MAX_MODULE_LINES = 900
-LONG_MODULES_ALLOWED = {"selfcal.synth", "selfcal.response.curve_family"}
+LONG_MODULES_ALLOWED = {"selfcal.sim.synth", "selfcal.response.curve_family"}
 
 
 def _modules() -> dict[str, Path]:
@@ -125,7 +125,7 @@ def test_no_function_over_a_page():
 def test_no_module_over_the_limit():
     lengths = {name: path.read_text(encoding="utf-8").count("\n")
                for name, path in _modules().items()}
-    assert lengths["selfcal.synth"] > MAX_MODULE_LINES  # the exemption is still needed
+    assert lengths["selfcal.sim.synth"] > MAX_MODULE_LINES  # the exemption is still needed
     too_long = {name: n for name, n in lengths.items()
                 if n > MAX_MODULE_LINES and name not in LONG_MODULES_ALLOWED}
     assert too_long == {}

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.hdr.linear_exposures import REPORT_DIFFERENCE
 
 TIMES = (1 / 125, 1 / 30, 1 / 8, 1 / 2)
@@ -15,8 +15,8 @@ TIMES = (1 / 125, 1 / 30, 1 / 8, 1 / 2)
 
 def _bracket(tmp_path, *, with_times: bool, seed: int = 7, jitter: float = 0.05):
     """16-bit linear TIFFs of a jittered bracket (a raw converter's output)."""
-    scene = synth.make_scene(120, 160, dynamic_range_stops=10, saturation=0.5, seed=seed)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=seed), list(TIMES),
+    scene = sim.make_scene(120, 160, dynamic_range_stops=10, saturation=0.5, seed=seed)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=seed), list(TIMES),
                                  jitter=jitter, seed=seed)
     folder = tmp_path / f"lin{seed}{'t' if with_times else ''}"
     return stack.write_raws(folder, with_times=with_times), stack
@@ -120,10 +120,10 @@ def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):
 
 def test_split_halves_remove_the_selection_bias_of_noisy_ratios():
     """Choosing pixels by the values whose ratio is taken biases it (noise pushed into the
-    band); choosing by the other half of the pixels does not (selfcal.pairs)."""
-    from selfcal.pairs import raw_exposure_ratios, split_thumbnails
+    band); choosing by the other half of the pixels does not (selfcal.pipeline.pairs)."""
+    from selfcal.pipeline.pairs import raw_exposure_ratios, split_thumbnails
 
-    scene = synth.make_scene(200, 300, dynamic_range_stops=10, seed=5)
+    scene = sim.make_scene(200, 300, dynamic_range_stops=10, seed=5)
     scene = scene / np.median(scene) * 0.1
     rng = np.random.default_rng(0)
     frames = [np.clip(scene * e + rng.normal(0, 0.02, scene.shape), -1, 1).astype(np.float32)
@@ -147,7 +147,7 @@ def test_merge_hdr_takes_linear_tiffs_for_linear_without_being_told(tmp_path):
     true = _ratios(stack.true_exposures)
     assert np.max(np.abs(_ratios(result.exposures) / true - 1)) < 0.01
     # rendered 16-bit TIFFs of the same scene are still calibrated
-    rendered = synth.simulate_stack(stack.radiance, stack.pipeline, list(TIMES), seed=7,
+    rendered = sim.simulate_stack(stack.radiance, stack.pipeline, list(TIMES), seed=7,
                                     bit_depth=16, jpeg_quality=None)
     files = rendered.write(tmp_path / "rendered", fmt="tif")
     assert "linear_evidence" not in selfcal.merge_hdr(files).diagnostics

@@ -1,12 +1,12 @@
-"""selfcal.metrics on inputs whose answer is known."""
+"""selfcal.sim.scoring on inputs whose answer is known."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from selfcal import synth
-from selfcal.metrics import (best_scale_rmse, delta_eq12, log_linearisation_error,
+from selfcal import sim
+from selfcal.sim.scoring import (best_scale_rmse, delta_eq12, log_linearisation_error,
                              log_linearisation_error_by_saturation, per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
@@ -30,10 +30,10 @@ def test_a_scaled_curve_is_at_best_scale_distance_zero(scale):
 @pytest.fixture(scope="module")
 def noiseless_stack():
     """A camera that follows the per-channel model exactly: no noise, jitter or JPEG."""
-    pipe = synth.CameraPipeline(matrix=np.eye(3), curves=synth.ToneCurve.gamma(2.2),
+    pipe = sim.CameraPipeline(matrix=np.eye(3), curves=sim.ToneCurve.gamma(2.2),
                                 gamut="none")
-    return synth.simulate_stack(synth.make_scene(48, 64, seed=3), pipe, TIMES, jitter=0.0,
-                                sensor=synth.SensorModel.ideal(), jpeg_quality=None,
+    return sim.simulate_stack(sim.make_scene(48, 64, seed=3), pipe, TIMES, jitter=0.0,
+                                sensor=sim.SensorModel.ideal(), jpeg_quality=None,
                                 bit_depth=16, seed=3)
 
 
@@ -70,8 +70,8 @@ def test_delta_over_all_points_counts_the_clipped_ones(noiseless_stack):
 
 @pytest.fixture(scope="module")
 def noisy_stack():
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=1)
-    return synth.simulate_stack(synth.make_scene(64, 96, seed=1), pipe, TIMES,
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=1)
+    return sim.simulate_stack(sim.make_scene(64, 96, seed=1), pipe, TIMES,
                                 jpeg_quality=90, seed=1)
 
 

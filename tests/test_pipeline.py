@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, ModelFileError, OutputExistsError
 from selfcal.pipeline import (
     PipelineModel,
@@ -34,7 +34,7 @@ def _rmse(a, b) -> float:
 @pytest.fixture(scope="module")
 def pair():
     """A synthetic RAW+JPEG pair (smooth gamut mapping) and a held-out pixel split."""
-    p = synth.simulate_raw_jpeg_pair(seed=0)
+    p = sim.simulate_raw_jpeg_pair(seed=0)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     jpg = p["rendered"].reshape(-1, 3)
     rng = np.random.default_rng(123)
@@ -117,7 +117,7 @@ def test_diagnostics_report_both_backward_variants(model):
 # ---- the parts -------------------------------------------------------------------------
 
 def test_fast_search_reaches_the_literal_count():
-    p = synth.simulate_raw_jpeg_pair(seed=2)
+    p = sim.simulate_raw_jpeg_pair(seed=2)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     jpg = p["rendered"].reshape(-1, 3) / 255.0
     idx = np.random.default_rng(5).choice(raw.shape[0], 120, replace=False)
@@ -133,8 +133,8 @@ def test_fast_search_reaches_the_literal_count():
 def test_rank_based_matrix_recovers_the_rows_without_gamut_mapping():
     rng = np.random.default_rng(0)
     raw = rng.uniform(0, 1, (200, 3)) ** 2
-    m_true = synth.random_color_matrix(seed=4)
-    pipe = synth.default_pipeline(gamut="none", seed=4)
+    m_true = sim.random_color_matrix(seed=4)
+    pipe = sim.default_pipeline(gamut="none", seed=4)
     rendered = np.round(pipe.render(raw) * 255) / 255
     inside = np.all((raw @ m_true.T > 0) & (raw @ m_true.T < 1), axis=1)
     m = rank_based_matrix(raw[inside], rendered[inside])
@@ -208,11 +208,11 @@ def test_lattice_lut_linear_term_is_outside_the_smoothness_penalty():
 def test_rbf_inverts_a_known_gamut_compression():
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 1, (1500, 3))
-    e = synth.gamut_compress(x, knee=0.5)
+    e = sim.gamut_compress(x, knee=0.5)
     h_inv = rbf_inverse_colour_mapping(e, x, seed=0)
     assert h_inv.centres.shape[0] <= 1500
     xt = rng.uniform(0.05, 0.95, (1000, 3))
-    et = synth.gamut_compress(xt, knee=0.5)
+    et = sim.gamut_compress(xt, knee=0.5)
     moved = np.abs(et - xt).max(axis=1) > 0.01
     assert moved.mean() > 0.2
     assert _rmse(h_inv(et), xt) < 0.3 * _rmse(et, xt)
@@ -452,7 +452,7 @@ def test_clipped_pixels_get_the_conditional_expectation(model, pair):
         return plain
 
     # an over-exposed synthetic pair (4 % of pixels clipped, 2 % of raws saturated)
-    p = synth.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
+    p = sim.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     codes = p["rendered"].reshape(-1, 3)
     m = fit_pipeline(raw, codes / 255.0, n_train=800, seed=0, n_sets=3, backward="lut")
@@ -517,7 +517,7 @@ def test_top_code_without_clipped_training_samples_stands_for_sensor_white(tmp_p
     saturated (ρ_w ∝ M⁻¹ 1), over the last half code only; with samples there, no prior."""
     import copy
 
-    p = synth.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
+    p = sim.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     codes = p["rendered"].reshape(-1, 3)
     top = (codes == 255).any(axis=1)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import InputError
-from selfcal.pairs import PairSamples, collect_pair_samples
+from selfcal.pipeline.pairs import PairSamples, collect_pair_samples
 from selfcal.pipeline import fit_pipeline, lattice_regression_lut, monotone_tone_curves
 from selfcal.pipeline.rbf import rbf_inverse_colour_mapping, rbf_leave_one_out
 from selfcal.pipeline.trust import TRUST_RADIUS, TrainingColours
@@ -24,8 +24,8 @@ def _rmse(a, b) -> float:
 @pytest.fixture(scope="module")
 def scene_pair():
     """A simulated pair whose training half holds only dim, weakly coloured pixels."""
-    p = synth.simulate_raw_jpeg_pair(
-        synth.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
+    p = sim.simulate_raw_jpeg_pair(
+        sim.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     jpg = p["rendered"].reshape(-1, 3)
     sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
@@ -165,8 +165,8 @@ def test_tone_curve_folds_are_the_groups():
 
 
 def test_pairs_carry_their_group_and_the_fit_uses_it():
-    pairs = [synth.simulate_raw_jpeg_pair(
-        synth.make_scene(64, 96, dynamic_range_stops=7.0, saturation=0.5, seed=s), seed=s)
+    pairs = [sim.simulate_raw_jpeg_pair(
+        sim.make_scene(64, 96, dynamic_range_stops=7.0, saturation=0.5, seed=s), seed=s)
         for s in (0, 1)]
     samples, _ = collect_pair_samples([p["raw"] for p in pairs],
                                       [p["rendered"] for p in pairs], seed=0)

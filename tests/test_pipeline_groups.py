@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import selfcal
-import selfcal.choose
-from selfcal import synth
+import selfcal.choose.paths
+from selfcal import sim
 from selfcal.io import write_image
-from selfcal.pairs import collect_pair_samples
+from selfcal.pipeline.pairs import collect_pair_samples
 from selfcal.pipeline import lattice_regression_lut
 
 #: fast options (two matrix sets, the lattice backward variant, a small baked table); the
@@ -25,12 +25,12 @@ FAST = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4)
 def two_pairs():
     """One simulated camera, two scenes of different content (a chart-and-ramps scene and
     a natural one) and size (so calibrate does not take them for a bracketed stack)."""
-    from selfcal import synth_conditions
+    from selfcal.sim import conditions as synth_conditions
 
-    camera = synth.default_pipeline(seed=0)
-    scenes = [synth.make_scene(96, 144, dynamic_range_stops=7.0, saturation=0.6, seed=1),
+    camera = sim.default_pipeline(seed=0)
+    scenes = [sim.make_scene(96, 144, dynamic_range_stops=7.0, saturation=0.6, seed=1),
               synth_conditions.natural_scene(112, 160, palette="colourful", seed=2)]
-    return [synth.simulate_raw_jpeg_pair(s, camera, exposure=e, seed=k)
+    return [sim.simulate_raw_jpeg_pair(s, camera, exposure=e, seed=k)
             for k, (s, e) in enumerate(zip(scenes, (1.0, 0.6)))]
 
 
@@ -38,14 +38,14 @@ def two_pairs():
 def fit_calls(monkeypatch):
     """Record the options calibrate / calibrate_pipeline give the real fit_pipeline."""
     calls = []
-    fit = selfcal.choose.fit_pipeline
+    fit = selfcal.choose.paths.fit_pipeline
 
     @functools.wraps(fit)   # calibrate routes its options by this signature
     def recording_fit(raw_samples, rendered_samples, **options):
         calls.append((raw_samples, rendered_samples, options))
         return fit(raw_samples, rendered_samples, **options)
 
-    monkeypatch.setattr(selfcal.choose, "fit_pipeline", recording_fit)
+    monkeypatch.setattr(selfcal.choose.paths, "fit_pipeline", recording_fit)
     return calls
 
 

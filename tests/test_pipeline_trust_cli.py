@@ -9,10 +9,10 @@ import re
 import numpy as np
 import pytest
 
-from selfcal import synth
+from selfcal import sim
 from selfcal.io import read_image, write_image
 from selfcal.pipeline import fit_pipeline
-from selfcal.raw import read_raw_linear
+from selfcal.io.raw import read_raw_linear
 from selfcal_cli.main import main
 from selfcal_cli.pipeline_commands import WARN_OUTSIDE
 
@@ -25,8 +25,8 @@ def trained(tmp_path_factory):
     """A model fitted to the dim, weakly coloured half of a simulated pair, saved; the
     training pixels themselves, and bright saturated colours it never saw."""
     folder = tmp_path_factory.mktemp("trust")
-    p = synth.simulate_raw_jpeg_pair(
-        synth.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
+    p = sim.simulate_raw_jpeg_pair(
+        sim.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     jpg = p["rendered"].reshape(-1, 3)
     sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)

@@ -7,7 +7,7 @@ every kind selfcal writes) gives ``ModelFileError`` naming the file, or loads as
 that can be used -- never another exception.
 
 Every test runs a fixed set of examples (``derandomize=True``, no example database), the
-same on every machine and on CI.  Stacks are small simulated brackets (:mod:`selfcal.synth`,
+same on every machine and on CI.  Stacks are small simulated brackets (:mod:`selfcal.sim`,
 40 x 60 px scenes, 300 sample locations): one calibration takes about 0.1 s.
 
 The ``@example`` cases pin what failed before it was fixed: the robust loop stopped before
@@ -29,7 +29,7 @@ from hypothesis import event as _event
 from hypothesis import strategies as st
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import ModelFileError, SelfcalError
 from selfcal.pipeline import PipelineModel, fit_pipeline
 from selfcal.response.model import ResponseModel
@@ -62,11 +62,11 @@ def event(name: str):
 class Bracket:
     """A simulated bracket, described by what hypothesis drew (shown when a test fails).
 
-    ``curve`` is a tone curve of :class:`selfcal.synth.ToneCurve`'s families: ``("gamma",
+    ``curve`` is a tone curve of :class:`selfcal.sim.ToneCurve`'s families: ``("gamma",
     g)``, ``("srgb",)``, ``("rec709",)`` or ``("film", contrast, toe, shoulder)``.  Frames
     are ``frames`` exposures ``stops`` apart from 1/250 s, each shot ``repeats`` times, of
     a 40 x 60 px scene of ``dynamic_range`` stops and colour ``saturation``
-    (:func:`selfcal.synth.make_scene`), through the ``gamut`` mapping, saved as JPEG of
+    (:func:`selfcal.sim.make_scene`), through the ``gamut`` mapping, saved as JPEG of
     quality ``jpeg`` (None: none) or 16-bit (``bits``); ``seed`` sets the scene, the colour
     matrix, the sensor noise and the shutter jitter.
     """
@@ -85,10 +85,10 @@ class Bracket:
     def tone_curve(self):
         name, *args = self.curve
         if name == "gamma":
-            return synth.ToneCurve.gamma(*args)
+            return sim.ToneCurve.gamma(*args)
         if name == "film":
-            return synth.ToneCurve.film(*args)
-        return getattr(synth.ToneCurve, name)()
+            return sim.ToneCurve.film(*args)
+        return getattr(sim.ToneCurve, name)()
 
     @property
     def times(self) -> list:
@@ -102,11 +102,11 @@ class Bracket:
 
 @functools.lru_cache(maxsize=8)
 def _simulate(b: Bracket) -> list:
-    scene = synth.make_scene(40, 60, dynamic_range_stops=b.dynamic_range,
+    scene = sim.make_scene(40, 60, dynamic_range_stops=b.dynamic_range,
                              saturation=b.saturation, seed=b.seed)
-    pipe = synth.default_pipeline(gamut=b.gamut, curves=b.tone_curve(), seed=b.seed)
+    pipe = sim.default_pipeline(gamut=b.gamut, curves=b.tone_curve(), seed=b.seed)
     times = [1 / 250 * 2.0 ** (k * b.stops) for k in range(b.frames)]
-    stack = synth.simulate_stack(scene, pipe, times, jitter=0.03, repeats=b.repeats,
+    stack = sim.simulate_stack(scene, pipe, times, jitter=0.03, repeats=b.repeats,
                                  jpeg_quality=b.jpeg, bit_depth=b.bits, seed=b.seed)
     assert np.allclose(stack.exposure_times, b.times)
     return stack.images
@@ -296,14 +296,14 @@ def model_files() -> dict:
     bracket = Bracket(("srgb",), frames=4, stops=1.5, seed=5)
     models = {"response": selfcal.calibrate_response(bracket.images, bracket.times,
                                                      max_samples=SAMPLES)}
-    scene = synth.make_scene(40, 60, dynamic_range_stops=10.0, seed=6)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=6), [1 / 250, 1 / 60,
+    scene = sim.make_scene(40, 60, dynamic_range_stops=10.0, seed=6)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=6), [1 / 250, 1 / 60,
                                  1 / 15], bit_depth=16, seed=6)
     white = np.full_like(stack.images[0], 65535)
     models["response16"] = selfcal.calibrate_response(stack.images + [white],
                                                       max_samples=SAMPLES)
     assert np.isnan(models["response16"].exposures[-1])
-    pair = synth.simulate_raw_jpeg_pair(synth.make_scene(48, 64, dynamic_range_stops=8.0,
+    pair = sim.simulate_raw_jpeg_pair(sim.make_scene(48, 64, dynamic_range_stops=8.0,
                                                          saturation=0.6, seed=7), seed=7)
     raw = pair["raw"].reshape(-1, 3).astype(np.float64)
     jpg = pair["rendered"].reshape(-1, 3)

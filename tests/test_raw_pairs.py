@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import InputError
 from selfcal.io import read_image, write_bytes_atomic, write_image
-from selfcal.pairs import pair_samples, raw_exposure_ratios, raw_thumbnail, sample_raw_jpeg_pair
-from selfcal.registration import Registration, register_raw_jpeg
-from selfcal.raw import (RAW_SUFFIXES, is_linear_tiff, read_raw_exposure_info,
+from selfcal.pipeline.pairs import pair_samples, raw_exposure_ratios, raw_thumbnail, sample_raw_jpeg_pair
+from selfcal.pipeline.registration import Registration, register_raw_jpeg
+from selfcal.io.raw import (RAW_SUFFIXES, is_linear_tiff, read_raw_exposure_info,
                          read_raw_linear)
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -58,8 +58,8 @@ def jpeg_round_trip(img, quality=92):
 
 @pytest.fixture(scope="module")
 def sim_pair():
-    scene = synth.make_scene(240, 360, dynamic_range_stops=8.0, saturation=0.6, seed=3)
-    return synth.simulate_raw_jpeg_pair(scene, exposure=1.0, seed=3)
+    scene = sim.make_scene(240, 360, dynamic_range_stops=8.0, saturation=0.6, seed=3)
+    return sim.simulate_raw_jpeg_pair(scene, exposure=1.0, seed=3)
 
 
 # ------------------------------------------------------------------ raw reading
@@ -86,7 +86,7 @@ def test_linear_tiff_reads_as_raw():
 
 
 def test_exposure_tags_of_tiff_structured_raws(tmp_path):
-    from selfcal.synth import _tiff_with_exif_tags
+    from selfcal.sim.synth import _tiff_with_exif_tags
 
     path = tmp_path / "linear.tiff"
     write_bytes_atomic(path, _tiff_with_exif_tags(np.zeros((8, 8, 3), np.uint16),
@@ -319,8 +319,8 @@ def test_identity_registration():
 # ------------------------------------------------------------------ exposure ratios
 
 def test_raw_exposure_ratios_beat_jittered_exif():
-    scene = synth.make_scene(96, 144, dynamic_range_stops=10.0, saturation=0.5, seed=2)
-    stack = synth.simulate_stack(scene, synth.default_pipeline(seed=2),
+    scene = sim.make_scene(96, 144, dynamic_range_stops=10.0, saturation=0.5, seed=2)
+    stack = sim.simulate_stack(scene, sim.default_pipeline(seed=2),
                                  [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8],
                                  jitter=0.05, seed=2)
     rel, report = raw_exposure_ratios([raw_thumbnail(r) for r in stack.raws])

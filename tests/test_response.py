@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, ModelFileError
 
-TIMES = list(synth.DEMO_EXPOSURE_TIMES)
+TIMES = list(sim.DEMO_EXPOSURE_TIMES)
 
 
 def rmse_vs_truth(model, stack):
@@ -24,14 +24,14 @@ def rmse_vs_truth(model, stack):
 
 @pytest.fixture(scope="module")
 def srgb_stack():
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=1)
-    scene = synth.make_scene(192, 288, saturation=0.5, seed=1)
-    return synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=1)
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=1)
+    scene = sim.make_scene(192, 288, saturation=0.5, seed=1)
+    return sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=1)
 
 
 @pytest.fixture(scope="module")
 def film_stack():
-    stack = synth.demo_stack(seed=0)
+    stack = sim.demo_stack(seed=0)
     return stack
 
 
@@ -67,15 +67,15 @@ def knee_stack():
     """A response whose inverse rises steeply over the last codes (a DoRF-like knee)."""
     x = np.linspace(0, 1, 1024)
     y = np.where(x <= 0.9, 0.97 * (x / 0.9) ** (1 / 2.2), 0.97 + 0.3 * (x - 0.9))
-    pipe = synth.default_pipeline(gamut="smooth", seed=2,
-                                  curves=synth.ToneCurve.from_table(x, y, name="knee"))
-    scene = synth.make_scene(192, 288, saturation=0.5, seed=2)
-    return synth.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=2)
+    pipe = sim.default_pipeline(gamut="smooth", seed=2,
+                                  curves=sim.ToneCurve.from_table(x, y, name="knee"))
+    scene = sim.make_scene(192, 288, saturation=0.5, seed=2)
+    return sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90, seed=2)
 
 
 def test_white_thresholds_locate_the_top_code(knee_stack):
     from selfcal.response.solver import _white_thresholds
-    from selfcal.samples import collect_samples, frame_masks
+    from selfcal.stack.samples import collect_samples, frame_masks
 
     samples = collect_samples(knee_stack.images)
     masks = frame_masks(samples)
@@ -104,7 +104,7 @@ def test_white_thresholds_locate_the_top_code(knee_stack):
 
 def test_clipping_propagates_along_exposure():
     """White clipping in a frame holds in every brighter one, black in every darker one."""
-    from selfcal.samples import collect_samples, frame_masks
+    from selfcal.stack.samples import collect_samples, frame_masks
 
     ramp = np.linspace(40, 200, 64)
     frames = []
@@ -125,7 +125,7 @@ def test_clipping_propagates_along_exposure():
 
 def test_flat_neutral_blocks_are_chosen_before_flat_coloured_ones():
     """The flatness ranking counts spread across channels: neutral patches go first."""
-    from selfcal.samples import collect_samples
+    from selfcal.stack.samples import collect_samples
 
     # left half a flat neutral grey, right half a flat orange of the same mean level
     frames = []
@@ -209,9 +209,9 @@ def test_unknown_times_warn_about_ambiguity(srgb_stack):
 
 
 def test_refine_exposures_beats_wrong_nominal_times():
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.gamma(2.2), seed=3)
-    scene = synth.make_scene(192, 288, seed=3)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.12, jpeg_quality=90, seed=3)
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.gamma(2.2), seed=3)
+    scene = sim.make_scene(192, 288, seed=3)
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.12, jpeg_quality=90, seed=3)
     refined = selfcal.calibrate_response(stack.images, TIMES, refine_exposures=True)
     true = stack.true_exposures
     # compare ratios to the first frame (the overall scale is the prior's)
@@ -221,9 +221,9 @@ def test_refine_exposures_beats_wrong_nominal_times():
 
 
 def test_rejections_are_counted_by_reason():
-    pipe = synth.default_pipeline(gamut="smooth", seed=4)
-    scene = synth.make_scene(192, 288, saturation=1.0, seed=4)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=90, seed=4)
+    pipe = sim.default_pipeline(gamut="smooth", seed=4)
+    scene = sim.make_scene(192, 288, saturation=1.0, seed=4)
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=90, seed=4)
     model = selfcal.calibrate_response(stack.images, TIMES, saturation_threshold=0.3)
     rejected = model.diagnostics["samples"]["rejected"]
     assert rejected["clipped"] > 0 and rejected["saturated"] > 0
@@ -241,9 +241,9 @@ def test_contradicting_time_is_reported(srgb_stack):
 
 
 def test_sixteen_bit_stack():
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=5)
-    scene = synth.make_scene(128, 192, seed=5)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=None,
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=5)
+    scene = sim.make_scene(128, 192, seed=5)
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=None,
                                  bit_depth=16, seed=5)
     model = selfcal.calibrate_response(stack.images, TIMES)
     assert model.max_code == 65535
@@ -392,10 +392,10 @@ def test_exif_times_are_used_and_missing_exif_warned(tmp_path, srgb_stack):
 
 def test_isolated_long_exposure_is_not_called_contradicted(tmp_path):
     """A frame far beyond the bracket shares no unclipped samples: say so, do not guess."""
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=4)
-    scene = synth.make_scene(160, 240, dynamic_range_stops=14, saturation=0.3, seed=4)
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=4)
+    scene = sim.make_scene(160, 240, dynamic_range_stops=14, saturation=0.3, seed=4)
     times = TIMES + [TIMES[-1] * 1000]
-    stack = synth.simulate_stack(scene, pipe, times, jitter=0.0, jpeg_quality=90, seed=4)
+    stack = sim.simulate_stack(scene, pipe, times, jitter=0.0, jpeg_quality=90, seed=4)
     model = selfcal.calibrate_response(stack.images, times)
     warnings = model.diagnostics["warnings"]
     assert any("array #6" in w and "shares only" in w for w in warnings), warnings

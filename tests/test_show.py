@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal.describe import describe, format_description
+from selfcal.report.describe import describe, format_description
 from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT
 from selfcal_cli.main import main
 

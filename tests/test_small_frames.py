@@ -1,7 +1,7 @@
 """Issue 15, Build 4: a frame's block grid and sample plan stay bounded, and blocks sit
 where they say they do (also when the JPEG is decoded at half size by DCT scaling).
 
-Synthetic stacks only (:mod:`selfcal.synth`); no shared data.
+Synthetic stacks only (:mod:`selfcal.sim`); no shared data.
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.io import read_image
 from selfcal.response.calibrate import DEFAULT_MAX_SAMPLES
-from selfcal.samples import (TARGET_BLOCKS, THUMBNAIL_SIDE, collect_samples,
+from selfcal.stack.samples import (TARGET_BLOCKS, THUMBNAIL_SIDE, collect_samples,
                              working_block_size)
 
 TIMES = [1 / 250, 1 / 60, 1 / 15, 1 / 4]
@@ -22,9 +22,9 @@ TIMES = [1 / 250, 1 / 60, 1 / 15, 1 / 4]
 @pytest.fixture(scope="module")
 def small_jpegs(tmp_path_factory):
     """A 640×960 (0.6 MP) JPEG stack with EXIF times, and its ground truth."""
-    pipe = synth.default_pipeline(seed=7)
-    scene = synth.make_scene(640, 960, seed=7)
-    stack = synth.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=95, seed=7)
+    pipe = sim.default_pipeline(seed=7)
+    scene = sim.make_scene(640, 960, seed=7)
+    stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=95, seed=7)
     return stack, stack.write(tmp_path_factory.mktemp("small"))
 
 
@@ -104,7 +104,7 @@ def test_near_clip_radius_marks_the_neighbours_of_a_clipped_block(monkeypatch):
     """samples.NEAR_CLIP_BLOCKS: off, only the clipped block is; at 1, its 8 neighbours."""
     import numpy as np
 
-    from selfcal import samples
+    from selfcal.stack import samples
 
     image = np.full((40, 40, 3), 120, np.uint8)
     image[16:24, 16:24] = 255                      # one clipped 8x8 block

@@ -1,4 +1,4 @@
-"""Tests of the camera simulator (selfcal.synth) and the fixtures it generates."""
+"""Tests of the camera simulator (selfcal.sim) and the fixtures it generates."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from selfcal import io, synth
+from selfcal import io, sim
 from selfcal.errors import InputError, OutputExistsError
-from selfcal.synth import (
+from selfcal.sim import (
     CameraPipeline,
     SensorModel,
     ToneCurve,
@@ -253,7 +253,7 @@ def test_pipeline_white_balance_then_highlight_clip_then_matrix():
 
 
 def test_unsharp_mask_sharpens_luma_edges_only():
-    usm = synth.UnsharpMask(amount=1.0, sigma=1.0)
+    usm = sim.UnsharpMask(amount=1.0, sigma=1.0)
     flat = np.full((16, 16, 3), 0.4)
     np.testing.assert_allclose(usm.apply(flat), flat, atol=1e-12)
     edge = np.zeros((16, 16, 3)) + np.array([0.2, 0.3, 0.1])
@@ -266,15 +266,15 @@ def test_unsharp_mask_sharpens_luma_edges_only():
     np.testing.assert_allclose(d[..., 2], d[..., 1], atol=1e-12)
     assert out.min() >= 0 and out.max() <= 1
     with pytest.raises(InputError, match="amount"):
-        synth.UnsharpMask(amount=-1.0)
+        sim.UnsharpMask(amount=-1.0)
     with pytest.raises(InputError, match="sigma"):
-        synth.UnsharpMask(sigma=0.0)
+        sim.UnsharpMask(sigma=0.0)
 
 
 def test_stack_sharpening_and_chroma_subsampling():
     scene = make_scene(32, 48, seed=2)
     p = default_pipeline()
-    usm = synth.UnsharpMask(0.7, 1.2)
+    usm = sim.UnsharpMask(0.7, 1.2)
     times = [1 / 60, 1 / 15]
     a = simulate_stack(scene, p, times, jitter=0.0, sensor=SensorModel.ideal(),
                        jpeg_quality=None, sharpening=usm)
@@ -418,7 +418,7 @@ def test_stack_jitter_repeats_and_determinism():
 
 
 def test_default_exposure_scale_and_demo_bracket():
-    stack = synth.demo_stack()
+    stack = sim.demo_stack()
     assert len(stack) == 6 and stack.images[0].shape == (256, 384, 3)
     median = np.median(stack.radiance.mean(axis=2))
     t_mid = np.sqrt(stack.exposure_times[0] * stack.exposure_times[-1])

@@ -1,4 +1,4 @@
-"""The benchmark condition matrix (selfcal.synth_conditions): each cell does what its name says."""
+"""The benchmark condition matrix (selfcal.sim.conditions): each cell does what its name says."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import InputError
-from selfcal.synth_conditions import (
+from selfcal.sim.conditions import (
     CONDITIONS,
     SCENES,
     Condition,
@@ -21,7 +21,7 @@ from selfcal.synth_conditions import (
 
 SIZE = (96, 144)
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-CURVE = synth.ToneCurve.film(contrast=1.1, toe=0.05, shoulder=0.85)
+CURVE = sim.ToneCurve.film(contrast=1.1, toe=0.05, shoulder=0.85)
 
 
 def _stack(name, seed=5, curve=CURVE):
@@ -70,7 +70,7 @@ def test_matrix_names_say_what_the_cells_are():
         assert cell.sharpen == (variant in ("sharpened", "hard"))
         assert cell.per_channel == (variant in ("per-channel", "hard"))
         assert cell.gamut == ("clip" if variant == "clip-gamut" else "smooth")
-        assert cell.jitter == 0.03 and cell.exposure_times == synth.DEMO_EXPOSURE_TIMES
+        assert cell.jitter == 0.03 and cell.exposure_times == sim.DEMO_EXPOSURE_TIMES
     assert len(CONDITIONS) == 14
 
 
@@ -80,7 +80,7 @@ def test_every_cell_simulates_six_nominal_shots_deterministically(name):
     b = _stack(name)
     assert a.condition == name and len(a.images) == 6
     assert a.images[0].shape == (*SIZE, 3) and a.images[0].dtype == np.uint8
-    np.testing.assert_array_equal(a.exposure_times, synth.DEMO_EXPOSURE_TIMES)
+    np.testing.assert_array_equal(a.exposure_times, sim.DEMO_EXPOSURE_TIMES)
     assert 75 <= a.params["jpeg_quality"] <= 95 and a.jpeg_quality == a.params["jpeg_quality"]
     for x, y in zip(a.images, b.images):
         np.testing.assert_array_equal(x, y)
@@ -107,7 +107,7 @@ def test_jitter_changes_the_true_times_not_the_nominal_ones():
     stack = _stack("colourful/base")
     ratio = stack.true_exposures / stack.exposure_times
     assert np.all(np.abs(ratio - 1) <= 0.03) and np.abs(ratio - 1).max() > 0.005
-    np.testing.assert_array_equal(stack.exposure_times, synth.DEMO_EXPOSURE_TIMES)
+    np.testing.assert_array_equal(stack.exposure_times, sim.DEMO_EXPOSURE_TIMES)
     other = _stack("colourful/base", seed=7)
     assert not np.array_equal(other.true_exposures, stack.true_exposures)
 
@@ -128,7 +128,7 @@ def test_chroma_420_is_subsampled_and_444_is_not():
 
 def test_sharpening_raises_high_frequency_energy():
     plain, sharp = _stack("colourful/base"), _stack("colourful/sharpened")
-    assert plain.sharpening is None and isinstance(sharp.sharpening, synth.UnsharpMask)
+    assert plain.sharpening is None and isinstance(sharp.sharpening, sim.UnsharpMask)
     assert 0.5 <= sharp.sharpening.amount <= 1.2
     for x, y in zip(plain.images[:-1], sharp.images[:-1]):
         assert _luma_detail(y) > 1.3 * _luma_detail(x)
@@ -248,16 +248,16 @@ def test_condition_wants_one_tone_curve():
 # --------------------------------------------------------------------------------------
 
 def test_model_camera_renders_stacks_with_its_table_as_truth():
-    gamma = synth.ToneCurve.gamma(2.2)
+    gamma = sim.ToneCurve.gamma(2.2)
     table = np.stack([gamma.inverse(np.arange(256) / 255.0)] * 3, axis=1)
     cam = ModelCamera(lambda raw: gamma.forward(raw), table, name="gamma 2.2")
     scene = natural_scene(*SIZE, palette="colourful", seed=1)
-    stack = synth.simulate_stack(scene, cam, synth.DEMO_EXPOSURE_TIMES, jpeg_quality=None,
-                                 sensor=synth.SensorModel.ideal(), seed=1, jitter=0.0)
+    stack = sim.simulate_stack(scene, cam, sim.DEMO_EXPOSURE_TIMES, jpeg_quality=None,
+                                 sensor=sim.SensorModel.ideal(), seed=1, jitter=0.0)
     np.testing.assert_allclose(stack.inverse_response(), table)
     expected = np.round(gamma.forward(stack.raws[3].astype(np.float64)) * 255)
     np.testing.assert_array_equal(stack.images[3], expected.astype(np.uint8))
     with pytest.raises(InputError, match=r"\(256, 3\)"):
         ModelCamera(lambda raw: raw, table[:10])
     with pytest.raises(InputError, match="render"):
-        synth.simulate_stack(scene, object(), synth.DEMO_EXPOSURE_TIMES)
+        sim.simulate_stack(scene, object(), sim.DEMO_EXPOSURE_TIMES)

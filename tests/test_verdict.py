@@ -21,10 +21,10 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import synth
+from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, SelfcalWarning
 
-TIMES = list(synth.DEMO_EXPOSURE_TIMES)
+TIMES = list(sim.DEMO_EXPOSURE_TIMES)
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
@@ -35,16 +35,16 @@ def calibrate_quietly(images, times=None, **options):
 
 
 def make_stack(seed=1, times=TIMES, stops=14.0, flip=False):
-    pipe = synth.default_pipeline(gamut="smooth", curves=synth.ToneCurve.srgb(), seed=seed)
-    scene = synth.make_scene(192, 288, dynamic_range_stops=stops, saturation=0.5, seed=seed)
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=seed)
+    scene = sim.make_scene(192, 288, dynamic_range_stops=stops, saturation=0.5, seed=seed)
     if flip:
         scene = np.ascontiguousarray(scene[::-1, ::-1])
-    return synth.simulate_stack(scene, pipe, times, jitter=0.03, jpeg_quality=90, seed=seed)
+    return sim.simulate_stack(scene, pipe, times, jitter=0.03, jpeg_quality=90, seed=seed)
 
 
 def shake(images, fraction=0.02, degrees=0.5, seed=0):
     """Every frame but the middle one shifted and turned a little (a handheld stack)."""
-    return synth.handheld(images, fraction=fraction, degrees=degrees, seed=seed)
+    return sim.handheld(images, fraction=fraction, degrees=degrees, seed=seed)
 
 
 @pytest.fixture(scope="module")

@@ -222,7 +222,7 @@ class BatchResult:
 def _check_out_dir(out_dir: Path, force: bool) -> None:
     """The batch folder: missing, empty, or one a batch wrote (else refused without
     ``force``); writable."""
-    from ..io import OutputWriteError, check_output_path
+    from ..io.images import OutputWriteError, check_output_path
 
     if out_dir.exists() and not out_dir.is_dir():
         raise OutputWriteError(f"{out_dir}: cannot be the batch folder (it is a file)")

@@ -23,8 +23,8 @@ from datetime import datetime
 from pathlib import Path
 
 from ..errors import InputError
-from ..io import IMAGE_SUFFIXES, effective_exposure_times
-from ..raw import RAW_SUFFIXES
+from ..io.images import IMAGE_SUFFIXES, effective_exposure_times
+from ..io.raw import RAW_SUFFIXES
 
 #: A new session starts when a frame begins more than this many seconds after the
 #: previous frame of the same camera ended (start + exposure time).

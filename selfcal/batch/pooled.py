@@ -43,12 +43,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibrationError
-from ..frames import stuck_code_levels
+from ..stack.frames import stuck_code_levels
 from ..response.calibrate import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
 from ..response.solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
-from ..samples import SampleSet, collect_samples, frame_masks
+from ..stack.samples import SampleSet, collect_samples, frame_masks
 
 #: A session disagrees with the shared curve when its code residual under that curve
 #: exceeds this factor times its residual under its own fit ...
@@ -79,10 +79,10 @@ class SessionSamples:
     values : numpy.ndarray
         ``(F, n, 3)`` float32 block means normalised to [0, 1].
     clipped, saturated : numpy.ndarray
-        ``(F, n)`` masks of :func:`selfcal.samples.frame_masks` (Lin et al. §5).
+        ``(F, n)`` masks of :func:`selfcal.stack.samples.frame_masks` (Lin et al. §5).
     max_code : int
     stuck_codes : dict
-        :func:`selfcal.frames.stuck_code_levels` of these samples.
+        :func:`selfcal.stack.frames.stuck_code_levels` of these samples.
     own_intensity, own_inverse : numpy.ndarray or None
         The session's own fit (grid, f⁻¹ table), for the agreement test.
     """
@@ -113,8 +113,8 @@ def session_samples(frames, exposure_times, *, session: str = "",
                     seed: int = 0) -> SessionSamples:
     """Sample one session's frames for the pooled fit (the workers call this on paths).
 
-    :func:`selfcal.samples.collect_samples` (stratified flat blocks, as for a single
-    calibration, with fewer locations) and :func:`selfcal.samples.frame_masks`.
+    :func:`selfcal.stack.samples.collect_samples` (stratified flat blocks, as for a single
+    calibration, with fewer locations) and :func:`selfcal.stack.samples.frame_masks`.
 
     Parameters
     ----------

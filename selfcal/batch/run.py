@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from ..errors import CalibrationError, SelfcalError, SelfcalWarning
-from ..modelfile import jsonable
+from ..io.model_file import jsonable
 from .pooled import (POOL_SAMPLES, POOL_SESSIONS, agreement_with, disagrees,
                      pooled_calibration, session_samples, shared_model)
 
@@ -234,7 +234,7 @@ def prepare_session(plan: SessionPlan, options: BatchOptions) -> SessionPrep:
     frames only).  The samples (:func:`.pooled.session_samples`) are of the frames the
     calibration used, at the times it used.
     """
-    from ..choose import calibrate
+    from ..choose.paths import calibrate
 
     t0 = time.perf_counter()
     prep = SessionPrep(session=plan.id, ok=False, worker=_worker_name())
@@ -283,7 +283,7 @@ def fit_camera(plan: CameraPlan, options: BatchOptions, *preps) -> CameraFit:
     reads) and ``camera.json`` (this record) together.  With fewer than two agreeing
     sessions there is no model, only the record: every session is fitted alone.
     """
-    from ..io import StagedOutputs
+    from ..io.images import StagedOutputs
 
     t0 = time.perf_counter()
     fit = CameraFit(camera=plan.camera, label=plan.label, candidates=list(plan.candidates),
@@ -384,7 +384,7 @@ def _choose_model(plan: SessionPlan, prep: SessionPrep, camera: CameraFit | None
         return out
     agree = camera.agreement.get(plan.id)
     if agree is None and prep.samples is not None:
-        from ..models import load_model
+        from ..choose.loading import load_model
 
         shared = load_model(camera.model_path)
         agree = agreement_with(prep.samples, shared.intensity, shared.inverse)
@@ -412,8 +412,8 @@ def _merge_and_write(plan: SessionPlan, options: BatchOptions, prep: SessionPrep
     with the session's record, all together (returns the outputs written)."""
     from ..hdr import linearize_images, merge_hdr
     from ..hdr.io import write_linear, write_preview, write_radiance
-    from ..io import StagedOutputs, read_exposure_info
-    from ..models import load_model
+    from ..io.images import StagedOutputs, read_exposure_info
+    from ..choose.loading import load_model
 
     frames = [Path(f) for f in plan.frames]
     outputs = plan.outputs(options.linearize)
@@ -587,7 +587,7 @@ def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:
     JSON Lines keeps lists as lists (``pandas.read_json(path, lines=True)`` reads it);
     the CSV joins them with ``;`` for spreadsheets.
     """
-    from ..io import StagedOutputs
+    from ..io.images import StagedOutputs
 
     out_dir = Path(out_dir)
     rows = sorted(rows, key=lambda r: r["session"])

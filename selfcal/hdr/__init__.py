@@ -14,7 +14,7 @@ each module.  Where each piece lives:
   images (:func:`write_radiance`, :func:`write_preview`, :func:`write_linear`).
 
 Below this package, and shared with the response path: the frames, linearisers and
-exposures in :mod:`selfcal.frames`, the alignment in :mod:`selfcal.align`; "align, then
+exposures in :mod:`selfcal.stack.frames`, the alignment in :mod:`selfcal.stack.align`; "align, then
 calibrate" is :func:`selfcal.response.calibrate.calibrate_aligned`.
 """
 

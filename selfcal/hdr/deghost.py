@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import _cv2
+from ..io.images import _cv2
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io import OutputWriteError, _cv2, atomic_output, write_image
+from ..io.images import OutputWriteError, _cv2, atomic_output, write_image
 
 __all__ = [
     "OutputWriteError",

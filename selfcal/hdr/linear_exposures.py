@@ -4,7 +4,7 @@ Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), §5: "with RAW images, the 
 ratio can be directly computed by dividing the raw values between two images".  Linear data
 have the identity for a response, so a bracket of raws (or of a raw converter's linear
 16-bit TIFFs) needs no calibration: the ratios of the frames' values at pixels well exposed
-in both are the exposure ratios (:func:`selfcal.pairs.raw_exposure_ratios`), free of the
+in both are the exposure ratios (:func:`selfcal.pipeline.pairs.raw_exposure_ratios`), free of the
 shutter's error, and the frames merge to HDR directly (:func:`selfcal.merge_hdr` with
 ``linear=True``).
 
@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..frames import _Frames, _given_exposures
-from ..pairs import raw_exposure_ratios, split_thumbnails
+from ..stack.frames import _Frames, _given_exposures
+from ..pipeline.pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
            "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE"]
@@ -89,10 +89,10 @@ class LinearExposures:
 
 
 def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
-    """Frame ``k`` of a :class:`selfcal.frames._Frames` on [0, 1] (white = 1), as the two
-    half-frame thumbnails of :func:`selfcal.pairs.split_thumbnails` (values, selection)."""
+    """Frame ``k`` of a :class:`selfcal.stack.frames._Frames` on [0, 1] (white = 1), as the two
+    half-frame thumbnails of :func:`selfcal.pipeline.pairs.split_thumbnails` (values, selection)."""
     if frames.raw_files[k]:
-        from ..raw import read_raw_linear
+        from ..io.raw import read_raw_linear
 
         rgb = read_raw_linear(frames.items[k], half_size=True).rgb
         white = 1.0
@@ -118,7 +118,7 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
 
     Parameters
     ----------
-    frames : selfcal.frames._Frames
+    frames : selfcal.stack.frames._Frames
         Linear frames of one scene (raw files, linear TIFFs, or arrays).
     times : list of float or None
         Per frame, the exposure time given or read from EXIF (None where unknown).
@@ -188,7 +188,7 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
     """:func:`measure_linear_exposures` for :func:`selfcal.merge_hdr`: the times (given,
     else EXIF) read, the summary put in ``diagnostics["linear_exposures"]`` and the
     warnings that say what was used.  Returns ``(exposures, source)``."""
-    from ..frames import _Frames, _given_exposures
+    from ..stack.frames import _Frames, _given_exposures
 
     times, times_source = _given_exposures(frames, exposure_times)
     lin = measure_linear_exposures(frames, times, times_source, use=use,
@@ -214,13 +214,13 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
 
 def linear_tiff_evidence(images, exposure_times=None) -> str | None:
     """Why ``images`` -- every one a TIFF path -- are linear data rather than rendered
-    frames (:func:`selfcal.choose_groups.linear_evidence`), or None.
+    frames (:func:`selfcal.choose.groups.linear_evidence`), or None.
 
     ``exposure_times`` (None: EXIF ``t · ISO/100 / N²``) make the test decisive: linear
     ratios follow them to the power 1.
     """
-    from ..choose_groups import linear_evidence
-    from ..io import _is_path, effective_exposure_times, read_exposure_info
+    from ..choose.groups import linear_evidence
+    from ..io.images import _is_path, effective_exposure_times, read_exposure_info
 
     if not images or not all(_is_path(p) and Path(p).suffix.lower() in (".tif", ".tiff")
                              for p in images):

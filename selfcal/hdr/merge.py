@@ -12,8 +12,8 @@ Brown, *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011
 any model that linearises codes (a RAW-path ``PipelineModel`` with ``to_raw``), and
 ``e_j`` the relative exposure of frame ``j`` (``t · ISO/100 / N²`` from EXIF, so that the
 radiance of several brackets of one session comes out on one scale;
-:func:`selfcal.frames._resolve_exposures`).  The weights are in :mod:`.weights`, the
-deghosting in :mod:`.deghost`, the alignment in :mod:`selfcal.align`.
+:func:`selfcal.stack.frames._resolve_exposures`).  The weights are in :mod:`.weights`, the
+deghosting in :mod:`.deghost`, the alignment in :mod:`selfcal.stack.align`.
 
 Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
 
@@ -22,10 +22,10 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
   small triangle weight on the clipped channel;
 * **black floors and stuck ceilings**: per channel, the codes that do not move with
   exposure -- the calibration's stuck-sample test turned into code levels,
-  :func:`selfcal.frames.stuck_code_levels`, carried in the model's diagnostics or measured
+  :func:`selfcal.stack.frames.stuck_code_levels`, carried in the model's diagnostics or measured
   on the frames -- count as clipped (memorial's short frames sit at a floor of codes
   13-19; with weight there, f⁻¹(floor)/e of the shortest frames swamped the shadows);
-* **clipping follows exposure**, as in the calibration (``selfcal.samples.frame_masks``):
+* **clipping follows exposure**, as in the calibration (``selfcal.stack.samples.frame_masks``):
   frames are merged shortest first, and a pixel some shorter frame saw clipped at white
   gets zero weight in every longer frame where it is bright (any channel at least
   :data:`WHITE_FOLLOWS` of white); in a **lossy** (JPEG) frame the clipped region is
@@ -80,9 +80,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..align import _negligible, estimate_alignment, warp_to_reference
+from ..stack.align import _negligible, estimate_alignment, warp_to_reference
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..frames import (
+from ..stack.frames import (
     _STRIP_PIXELS,
     DEFAULT_CLIP_MARGIN,
     _apply_lut,
@@ -96,9 +96,9 @@ from ..frames import (
     _resolve_exposures,
     stuck_code_levels,
 )
-from ..io import JPEG_SUFFIXES, _cv2, _is_path, read_image
+from ..io.images import JPEG_SUFFIXES, _cv2, _is_path, read_image
 from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
-from ..samples import collect_samples
+from ..stack.samples import collect_samples
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
 from .deghost import (
     _ghost_mask,
@@ -238,7 +238,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
         A callable ``w(z)`` of the normalised code ``z`` in [0, 1] (any shape,
         element-wise, non-negative) is used like the hat (colour-hdri style).
     align : {False, "mtb", "homography"}
-        Align every frame to the reference (see :func:`selfcal.align.estimate_alignment`);
+        Align every frame to the reference (see :func:`selfcal.stack.align.estimate_alignment`);
         ``True`` means ``"mtb"``.  Warped frames carry no data outside their footprint,
         and a pixel interpolated from a clipped one counts as clipped.
     deghost : bool
@@ -287,7 +287,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     Examples
     --------
     >>> import selfcal
-    >>> from selfcal import synth
+    >>> from selfcal import sim
     >>> stack = synth.demo_stack()
     >>> result = selfcal.merge_hdr(stack.images, stack.exposure_times)
     >>> result.radiance.dtype, result.radiance.shape
@@ -421,7 +421,7 @@ def _stuck_levels(model, frames: _Frames, exposures, used, clip_margin: float,
                   diagnostics: dict, given=None):
     """Per channel (floor, ceiling) as normalised codes: the calibration's, else measured.
 
-    The model's ``diagnostics['stuck_codes']`` (:func:`selfcal.frames.stuck_code_levels`
+    The model's ``diagnostics['stuck_codes']`` (:func:`selfcal.stack.frames.stuck_code_levels`
     over the calibration's samples) when it has them -- a floor or ceiling is a property
     of the camera (or the scan), so a model of another scene's frames carries it -- else
     the same function over samples of the frames to merge.
@@ -684,7 +684,7 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
     (:data:`_CLIPPED` where it was clipped, 255 outside it); its own white-clipped pixels,
     widened by ``radius`` pixels (``cv2.dilate``; JPEG ringing) -- those and every pixel a
     shorter frame saw clipped white get zero weight (ours: clipping follows exposure, as
-    in the calibration's ``selfcal.samples.frame_masks``); its deghosting mask against the
+    in the calibration's ``selfcal.stack.samples.frame_masks``); its deghosting mask against the
     reference (:func:`.deghost._ghost_mask`); the misalignment test against the previous
     frame (:func:`.deghost._neighbour_residual`); then its strips -- in parallel threads on the
     table path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from
@@ -789,10 +789,10 @@ def _read_ahead(frames: _Frames, order, loaded: dict):
 def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     """Per channel (lo, hi, floor limit or None) for :class:`.weights._FrameTables`.
 
-    The clip limits of :func:`selfcal.frames._clip_limits` (a pixel with any channel at
+    The clip limits of :func:`selfcal.stack.frames._clip_limits` (a pixel with any channel at
     or beyond them is clipped), ``hi`` lowered to the stuck ceiling of each channel, and
     the black floor of each channel, below which that channel's codes get zero weight
-    (``stuck``: normalised codes, :func:`selfcal.frames.stuck_code_levels`; the codes
+    (``stuck``: normalised codes, :func:`selfcal.stack.frames.stuck_code_levels`; the codes
     below the floor and from the ceiling up do not move with exposure, the floor code
     itself is the first that does).  A floor zeroes its channel only: the other channels
     of a dark, coloured pixel are still measured (zeroing every channel of a pixel with one

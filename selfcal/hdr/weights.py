@@ -23,7 +23,7 @@ ten times the shot term moved the odd/even median by at most 0.006 (twice the co
 was better by 0.001 on all three), ten times the read term made it worse by up to 0.015,
 while these weights instead of the hat took memorial's from 0.20 to 0.06); a weight of
 zero wherever *any* channel is clipped or at its stuck ceiling, and for a channel at its
-black floor (:func:`selfcal.frames.stuck_code_levels`), which :class:`_FrameTables` takes
+black floor (:func:`selfcal.stack.frames.stuck_code_levels`), which :class:`_FrameTables` takes
 as per-channel limits; and :class:`_FrameTables`, which tabulates weight, weighted radiance,
 radiance and variance at every code once per frame, so that the merge and the deghosting
 are lookups (``cv2.LUT``).
@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..frames import _apply_lut, _Lineariser
-from ..io import _cv2
+from ..stack.frames import _apply_lut, _Lineariser
+from ..io.images import _cv2
 
 __all__ = ["NoiseModel", "noise_variance", "weight_hat"]
 

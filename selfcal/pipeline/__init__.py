@@ -10,7 +10,7 @@ a real camera pipeline.
 
 Examples
 --------
->>> from selfcal import synth
+>>> from selfcal import sim
 >>> from selfcal.pipeline import fit_pipeline
 >>> pair = synth.simulate_raw_jpeg_pair(seed=0)
 >>> model = fit_pipeline(pair["raw"].reshape(-1, 3), pair["rendered"].reshape(-1, 3) / 255,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import CalibrationError
-from ..samples import hsv_saturation
+from ..stack.samples import hsv_saturation
 from .clipped import clipped_mask
 from .rbf import N_CONTROL_POINTS, rbf_inverse_colour_mapping
 from .tone import SMOOTHNESS, MonotonePolynomial, monotone_tone_curves

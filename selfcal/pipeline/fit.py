@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..samples import hsv_saturation
+from ..stack.samples import hsv_saturation
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
@@ -521,7 +521,7 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
 
     Examples
     --------
-    >>> from selfcal import synth
+    >>> from selfcal import sim
     >>> from selfcal.pipeline import fit_pipeline
     >>> pair = synth.simulate_raw_jpeg_pair(seed=0)
     >>> raw = pair["raw"].reshape(-1, 3); jpg = pair["rendered"].reshape(-1, 3) / 255

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InputError, ModelFileError, SelfcalError
-from ..modelfile import jsonable, save_model_dict
+from ..io.model_file import jsonable, save_model_dict
 from .clipped import CLIP_HI, CLIP_LO, ClippedCorrection, clipped_mask
 from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
@@ -368,7 +368,7 @@ class PipelineModel:
 
     # ------------------------------------------------------------------ files
     def to_dict(self) -> dict:
-        """JSON-serialisable content (kind ``"pipeline"``) for :mod:`selfcal.modelfile`."""
+        """JSON-serialisable content (kind ``"pipeline"``) for :mod:`selfcal.io.model_file`."""
         return {
             "kind": MODEL_KIND,
             "model": "P = LUT_f(g(f(M rho))); rho = LUT_b(g(M^-1 f^-1(P))) or "
@@ -391,7 +391,7 @@ class PipelineModel:
     @classmethod
     def from_dict(cls, d: dict, *, path=None) -> "PipelineModel":
         """Rebuild a model from :meth:`to_dict` content; ModelFileError on bad content."""
-        from ..modelfile import check_pipeline_content
+        from ..io.model_file import check_pipeline_content
 
         if d.get("kind", MODEL_KIND) != MODEL_KIND:
             raise ModelFileError(f"not a pipeline model (kind {d.get('kind')!r})", path)

@@ -404,7 +404,7 @@ class ResponseBasis:
         -------
         pathlib.Path
         """
-        from ..io import write_bytes_atomic
+        from ..io.images import write_bytes_atomic
 
         return write_bytes_atomic(path, self.to_bytes(), force=force)
 

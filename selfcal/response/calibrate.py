@@ -12,9 +12,9 @@ import math
 
 import numpy as np
 
-from ..align import aligned_working_frames, estimate_alignment
+from ..stack.align import aligned_working_frames, estimate_alignment
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..frames import (
+from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
     _default_reference,
     _Frames,
@@ -22,10 +22,10 @@ from ..frames import (
     _name_arrays,
     _resolve_exposures,
 )
-from ..frames import stuck_code_levels
-from ..io import _is_path
-from ..metrics import delta_eq12
-from ..samples import collect_samples, frame_masks
+from ..stack.frames import stuck_code_levels
+from ..io.images import _is_path
+from ..sim.scoring import delta_eq12
+from ..stack.samples import collect_samples, frame_masks
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
 from .verdict import CONTRADICTED_UNUSABLE_SHARE as CONTRADICTED_MAJORITY
 from .verdict import judge_calibration
@@ -80,7 +80,7 @@ def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
         return out, times_source or "given"
     if not all(_is_path(f) for f in frames):
         return [None] * n, "unknown"
-    from ..io import effective_exposure_times, read_exposure_info
+    from ..io.images import effective_exposure_times, read_exposure_info
 
     out = effective_exposure_times([read_exposure_info(f) for f in frames])
     return out, "exif" if any(t is not None for t in out) else "unknown"
@@ -306,10 +306,10 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
 
     Misaligned frames give wrong correspondences, and the solve of Lin et al. (ICCV 2011,
     Eq. 8) then reads them as contradicted exposure times; so the frames are aligned first
-    (:func:`selfcal.align.estimate_alignment`; with unknown times, after a provisional
+    (:func:`selfcal.stack.align.estimate_alignment`; with unknown times, after a provisional
     calibration that supplies the exposures the homography needs) and the response is
     calibrated on the aligned frames, downscaled to ``max_side``
-    (:func:`selfcal.align.aligned_working_frames`: the calibration uses block means only).
+    (:func:`selfcal.stack.align.aligned_working_frames`: the calibration uses block means only).
 
     Ours, not the paper's: with unknown times, a provisional calibration on the unaligned
     frames supplies the exposures the homography needs; the model's sources and messages
@@ -322,7 +322,7 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     exposure_times : sequence of float or None, optional
         As for :func:`selfcal.calibrate_response`.
     method : {"mtb", "homography"}
-        Alignment (see :func:`selfcal.align.estimate_alignment`).
+        Alignment (see :func:`selfcal.stack.align.estimate_alignment`).
     reference : int, optional
         Reference frame; default the middle exposure.
     warnings : list, optional
@@ -492,7 +492,7 @@ def _without_clipped_frames(samples, masks, sources, warnings, clip_margin) -> l
 def _without_duplicates(digests, times, sources, warnings, indices=None) -> list[int]:
     """The frames that are not a copy of an earlier one (``indices`` of the ones kept).
 
-    ``digests`` are :func:`selfcal.samples.content_digest` of every pixel.  Identical
+    ``digests`` are :func:`selfcal.stack.samples.content_digest` of every pixel.  Identical
     pixels at different given times contradict each other: an InputError.
     """
     indices = list(range(len(digests))) if indices is None else list(indices)
@@ -639,7 +639,7 @@ def _diagnostics(result, *, verdict, reasons, evidence, warnings, exposure_sourc
                  frames_used, delta, samples, contradictions) -> dict:
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
-    ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.metrics.delta_eq12`) per channel over the
+    ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.sim.scoring.delta_eq12`) per channel over the
     solve's frame pairs and inliers (samples neither clipped nor above β in either frame:
     what the curve was fitted to), not over all points as paper 002 scores its Fig. 4.
     """

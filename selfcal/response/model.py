@@ -3,7 +3,7 @@
 A model holds each channel's inverse response f⁻¹ as a dense table on normalised
 intensity (f⁻¹(1) = 1), the log-PCA coefficients it came from (Lin et al., ICCV 2011,
 Eq. 7), the estimated exposures, and diagnostics.  Files are versioned JSON (see
-:mod:`selfcal.modelfile`).
+:mod:`selfcal.io.model_file`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError, ModelFileError
-from ..modelfile import jsonable, save_model_dict
+from ..io.model_file import jsonable, save_model_dict
 
 MODEL_KIND = "response"
 
@@ -137,7 +137,7 @@ class ResponseModel:
 
     @classmethod
     def from_dict(cls, d: dict, *, path=None) -> "ResponseModel":
-        from ..modelfile import check_response_content
+        from ..io.model_file import check_response_content
 
         check_response_content(d, path)   # every field, before any is used
 

@@ -22,7 +22,7 @@ Paper 002's parts (§5):
   fixes with exposure values from the camera — here any two known times fix it.
 - Outlier rejection: a sample is dropped from a pair when any channel is clipped in either
   frame, or when its HSV saturation exceeds β in either frame (masks from
-  :func:`selfcal.samples.frame_masks`, counts in :func:`.equations.rejection_counts`).
+  :func:`selfcal.stack.samples.frame_masks`, counts in :func:`.equations.rejection_counts`).
 
 selfcal's own (one line each on why):
 
@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibrationError
-from ..samples import SampleSet, frame_masks
+from ..stack.samples import SampleSet, frame_masks
 from .equations import (
     ThresholdRows,
     _interpolation_matrix,
@@ -207,7 +207,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         term counts every pair equation as independent, but one sample location enters up
         to 3·(F−1) correlated equations (channels, pairs) and JPEG errors are spatially
         correlated, so the prior is weighted up by about that factor; 100 was chosen on
-        synthetic stacks (every 10th DoRF curve rendered by selfcal.synth, see
+        synthetic stacks (every 10th DoRF curve rendered by selfcal.sim, see
         bench/bench_response_synthetic.py) between 30 and 1000.
     monotone : bool
         Constrain f⁻¹ to be non-decreasing (a QP when the plain fit is not).
@@ -215,7 +215,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Add the censored white-threshold rows (:class:`.equations.ThresholdRows`: where each
         channel starts to clip at the top code), which tie the scale of f⁻¹ to the data.
     masks : dict, optional
-        ``"clipped"`` and ``"saturated"`` masks of :func:`selfcal.samples.frame_masks`
+        ``"clipped"`` and ``"saturated"`` masks of :func:`selfcal.stack.samples.frame_masks`
         (computed from the other arguments when not given).
 
     Returns

@@ -31,7 +31,7 @@ Levels: ``"ok"``; ``"doubtful"`` (usable with care; each reason is also a warnin
 
 The thresholds (module constants) were chosen on the **tuning split** of
 ``bench/bench_verdict.py`` only -- synthetic stacks with seeds < 1000 (DoRF curves through
-:mod:`selfcal.synth`), memorial, fujifilm_xh1/scene1 and sony_ilce6400/scene1 of
+:mod:`selfcal.sim`), memorial, fujifilm_xh1/scene1 and sony_ilce6400/scene1 of
 ``../shared/data``, and the wrong-data cases built from them -- and are reported on the
 held-out split (synthetic seeds ≥ 1000, every other real stack, the real handheld bracket
 and their wrong-data cases); the values each rests on are next to it.
@@ -43,8 +43,8 @@ import math
 
 import numpy as np
 
-from ..frames import STUCK_CODES, STUCK_RATIO
-from ..io import _cv2
+from ..stack.frames import STUCK_CODES, STUCK_RATIO
+from ..io.images import _cv2
 
 #: Code noise (normalised) of a block mean assumed by the residual test: one 8-bit code,
 #: as the solver's noise weights (:data:`selfcal.response.solver.CODE_NOISE`).
@@ -122,10 +122,10 @@ def residual_evidence(values, valid, intensity, inverse, log_exposures, pairs, *
     ``σ² = Σ_{I ∈ {I_a, I_b}} (g′(I) · code_noise)² + 2 · relative²`` (the code noise
     carried through the slope of g, first order, and a relative model error): ``z = r/σ``.
     Left out as the solve leaves them out: samples that do not move with the exposure
-    (by less than :data:`selfcal.frames.STUCK_CODES` between frames
-    :data:`selfcal.frames.STUCK_RATIO` apart), and codes at or below a channel's black
+    (by less than :data:`selfcal.stack.frames.STUCK_CODES` between frames
+    :data:`selfcal.stack.frames.STUCK_RATIO` apart), and codes at or below a channel's black
     floor or at or above its stuck ceiling (``stuck_codes``, from
-    :func:`selfcal.frames.stuck_code_levels`): they are bounds, not measurements.
+    :func:`selfcal.stack.frames.stuck_code_levels`): they are bounds, not measurements.
 
     The frames' own noise may exceed that model (film grain, high ISO, single-pixel
     samples of small frames): it is estimated from the spread of z between samples of
@@ -458,7 +458,7 @@ def judge_calibration(samples, valid, intensity, inverse, log_exposures, pairs, 
         for; times in the wrong order are still found by :func:`time_order`).
     stuck_codes : dict, optional
         Black floors and stuck ceilings per channel
-        (:func:`selfcal.frames.stuck_code_levels`), left out of the residual test.
+        (:func:`selfcal.stack.frames.stuck_code_levels`), left out of the residual test.
 
     Returns
     -------

@@ -54,6 +54,7 @@ __all__ = [
     "SyntheticStack",
     "simulate_stack",
     "simulate_raw_jpeg_pair",
+    "handheld",
     "demo_stack",
     "DEMO_EXPOSURE_TIMES",
 ]

@@ -1,0 +1,17 @@
+"""Looking at the inputs and choosing: the calibration path for a set of files, the model
+class for a model file.
+
+* :mod:`selfcal.choose.groups` -- files grouped into brackets, RAW+JPEG pairs and sessions;
+* :mod:`selfcal.choose.paths` -- :func:`calibrate`: the JPEG-only path, the RAW path or
+  both, and why (:class:`CalibrationResult`); :func:`calibrate_pipeline`;
+* :mod:`selfcal.choose.loading` -- :func:`load_model`: a model file or NUS model folder as
+  the model object it holds.
+"""
+
+from __future__ import annotations
+
+from .paths import (CalibrationResult, InputGroups, calibrate, calibrate_pipeline,
+                    group_inputs)
+
+__all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
+           "calibrate_pipeline"]
