@@ -51,7 +51,8 @@ if str(REPO) not in sys.path:
 
 from selfcal.errors import InputError  # noqa: E402
 from selfcal.sim.scoring import rmse  # noqa: E402
-from selfcal.response.basis import builtin_basis, read_dorf_mat, read_invemor  # noqa: E402
+from selfcal.response.basis import builtin_basis, read_invemor  # noqa: E402
+from selfcal.response.basis_files import read_dorf_mat  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "dorf_emor"
 TARGET = 0.004

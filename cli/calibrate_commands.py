@@ -9,9 +9,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from selfcal.io import format_exposure_time as fmt_time
+
 from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, float_range,
-                     fmt_time, int_range, parse_time, progress_bar, say, say_verdict,
-                     verdict_of, warn)
+                     int_range, parse_time, progress_bar, say, say_verdict, verdict_of, warn)
 
 
 def _print_response_summary(model) -> None:
@@ -158,7 +159,7 @@ def cmd_demo(args) -> int:
          + ", ".join(f"{c} {v:.4f}" for c, v in zip("RGB", rmse)))
     exp_err = np.abs(model.exposures / stack.true_exposures - 1)
     say(f"exposures: largest error against the true (jittered) exposures {100 * exp_err.max():.1f}% "
-         "(times were fixed at the EXIF values; try --refine-exposures on real stacks)")
+         "(EXIF times the pixels contradict are refined; --no-refine-exposures holds them)")
     return EXIT_OK
 
 

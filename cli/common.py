@@ -46,15 +46,6 @@ def parse_time(text: str) -> float | None:
     return value
 
 
-def fmt_time(t) -> str:
-    """Seconds as a photographer writes them: 1/250, 0.5 -> 1/2, 2; None -> '?'."""
-    if t is None or (isinstance(t, float) and not math.isfinite(t)):
-        return "?"
-    if t < 1:
-        return f"1/{1 / t:.4g}"
-    return f"{t:.4g}"
-
-
 def progress_bar(desc: str):
     """A tqdm progress callback for the library's ``progress(stage, done, total, detail)``."""
     from tqdm import tqdm
@@ -170,10 +161,7 @@ def negative_times(argv) -> str | None:
 
 # ------------------------------------------------------------------------- verdicts
 
-from selfcal.response.verdict import LEVELS as VERDICT_LEVELS  # noqa: E402,F401
-from selfcal.response.verdict import verdict_of  # noqa: E402,F401
-
-
+from selfcal.response.verdict import verdict_of  # noqa: E402
 
 
 def say_verdict(diagnostics, force: bool, what: str = "the calibration") -> None:

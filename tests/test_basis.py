@@ -19,11 +19,9 @@ from selfcal.response.basis import (
     builtin_basis,
     load_basis_file,
     log_pca_basis,
-    read_dorf_curves,
-    read_dorf_mat,
-    read_emor,
     read_invemor,
 )
+from selfcal.response.basis_files import read_dorf_curves, read_dorf_mat, read_emor
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "data"

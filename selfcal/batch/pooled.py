@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibrationError
-from ..stack.frames import stuck_code_levels
+from ..stack.frames import DEFAULT_CLIP_MARGIN, stuck_code_levels
 from ..response.calibrate import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
@@ -108,7 +108,7 @@ class SessionSamples:
 
 
 def session_samples(frames, exposure_times, *, session: str = "",
-                    max_samples: int = POOL_SAMPLES, clip_margin: float = 2.0,
+                    max_samples: int = POOL_SAMPLES, clip_margin: float = DEFAULT_CLIP_MARGIN,
                     saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
                     seed: int = 0) -> SessionSamples:
     """Sample one session's frames for the pooled fit (the workers call this on paths).
@@ -237,7 +237,7 @@ def _log_basis(basis, n_components: int):
 
 def fit_shared_response(sessions, *, n_components: int = DEFAULT_N_COMPONENTS,
                         basis=None, saturation_threshold: float =
-                        DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
+                        DEFAULT_SATURATION_THRESHOLD, clip_margin: float = DEFAULT_CLIP_MARGIN,
                         max_rank_gap: int = MAX_RANK_GAP) -> SharedFit:
     """Fit one f⁻¹ per channel to the Eq. 8 rows of several sessions (Lin et al. §5).
 

@@ -10,8 +10,8 @@ class for a model file.
 
 from __future__ import annotations
 
-from .paths import (CalibrationResult, InputGroups, calibrate, calibrate_pipeline,
-                    group_inputs)
+from .groups import InputGroups, group_inputs
+from .paths import CalibrationResult, calibrate, calibrate_pipeline
 
 __all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
            "calibrate_pipeline"]

@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import IMAGE_SUFFIXES, read_image
 from ..pipeline.pairs import split_thumbnails
-from ..io.raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff
+from ..io.raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff, is_raw_path
 
 __all__ = ["InputGroups", "group_inputs", "linear_evidence", "RENDERED_SUFFIXES"]
 
@@ -92,8 +92,7 @@ def _expand(paths, folders: dict) -> list[Path]:
         if p.is_dir():
             try:
                 found = sorted(q for q in p.iterdir() if q.is_file() and (
-                    q.suffix.lower() in RAW_SUFFIXES
-                    or q.suffix.lower() in RENDERED_SUFFIXES))
+                    is_raw_path(q) or q.suffix.lower() in RENDERED_SUFFIXES))
             except OSError as exc:
                 raise InputError(f"the folder cannot be read ({exc.strerror})", p) from None
             folders[p] = found
@@ -140,7 +139,7 @@ def group_inputs(paths) -> InputGroups:
             continue
         seen[key] = p
         suffix = p.suffix.lower()
-        if suffix not in RAW_SUFFIXES and suffix not in RENDERED_SUFFIXES:
+        if not is_raw_path(p) and suffix not in RENDERED_SUFFIXES:
             raise InputError(
                 "not an image or raw file selfcal reads (JPEG, PNG, TIFF, or a camera raw: "
                 + ", ".join(sorted(s.lstrip(".").upper() for s in RAW_SUFFIXES)) + ")", p)
@@ -154,8 +153,8 @@ def group_inputs(paths) -> InputGroups:
     raw_of: dict[Path, Path] = {}
     is_raw: set[Path] = set()
     for members in by_stem.values():
-        raws = [p for p in members if p.suffix.lower() in RAW_SUFFIXES]
-        others = [p for p in members if p.suffix.lower() not in RAW_SUFFIXES]
+        raws = [p for p in members if is_raw_path(p)]
+        others = [p for p in members if not is_raw_path(p)]
         if not raws and len(others) >= 2:
             tiffs = [p for p in others if p.suffix.lower() in TIFF_SUFFIXES
                      and is_linear_tiff(p)]

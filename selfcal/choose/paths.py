@@ -32,15 +32,14 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
 from .groups import InputGroups, group_inputs, linear_evidence
-from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info, read_image,
-                 read_image_size)
+from ..io.images import (ExposureInfo, effective_exposure_times, format_exposure_time,
+                         read_exposure_info, read_image, read_image_size)
 from ..pipeline.pairs import collect_pair_samples, raw_exposure_ratios
 from ..pipeline import fit_pipeline
 from ..io.raw import read_raw_exposure_info
 from ..response.calibrate import calibrate_response
 
-__all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
-           "calibrate_pipeline"]
+__all__ = ["CalibrationResult", "calibrate", "calibrate_pipeline"]
 
 #: Two exposures count as distinct when they differ by more than this factor.
 DISTINCT_EXPOSURE_FACTOR = 1.05
@@ -122,14 +121,8 @@ class CalibrationResult:
 # ---- helpers -------------------------------------------------------------------------
 
 def _fmt_time(t) -> str:
-    if t is None or not math.isfinite(t):
-        return "unknown"
-    if t < 1:
-        inv = 1.0 / t
-        if abs(inv - round(inv)) < 0.02 * inv:
-            return f"1/{round(inv)} s"
-        return f"1/{inv:.3g} s"
-    return f"{t:.3g} s"
+    text = format_exposure_time(t, unknown="unknown")
+    return text if text == "unknown" else text + " s"
 
 
 def _noun(paths) -> str:

@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import OutputWriteError, _cv2, atomic_output, write_image
+from ..response.curve_family import srgb_encode
 
 __all__ = [
     "OutputWriteError",
@@ -323,11 +324,6 @@ def read_radiance(path) -> np.ndarray:
 # tone-mapped previews
 # --------------------------------------------------------------------------------------
 
-def _srgb_encode(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
-
-
 def tonemap_reinhard(radiance, *, key: float = 0.18, white: float | None = None,
                      mask=None, rows: int = 512) -> np.ndarray:
     """Global photographic tone mapping (Reinhard et al., SIGGRAPH 2002, Eq. 1-4), to uint8.
@@ -381,7 +377,7 @@ def tonemap_reinhard(radiance, *, key: float = 0.18, white: float | None = None,
         lm = lum_b * scale
         ld = lm * (1 + lm / (lw * lw)) / (1 + lm)
         ratio = np.divide(ld, lum_b, out=np.zeros_like(ld), where=lum_b > 0)
-        out[y:y + rows] = (_srgb_encode(block * ratio[..., None]) * 255 + 0.5).astype(np.uint8)
+        out[y:y + rows] = (srgb_encode(np.clip(block * ratio[..., None], 0.0, 1.0)) * 255 + 0.5).astype(np.uint8)
     return out
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..stack.frames import _Frames, _given_exposures
+from ..stack.frames import DEFAULT_CLIP_MARGIN, _Frames, _given_exposures
 from ..pipeline.pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
@@ -113,7 +113,7 @@ def _scale_to_times(measured: np.ndarray, times: list) -> float | None:
 
 
 def measure_linear_exposures(frames, times, times_source: str, *, use: str = "auto",
-                             clip_margin: float = 2.0, progress=None) -> LinearExposures:
+                             clip_margin: float = DEFAULT_CLIP_MARGIN, progress=None) -> LinearExposures:
     """Relative exposures of a linear bracket from its pixels, combined with its times.
 
     Parameters

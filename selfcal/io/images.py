@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io as _io
+import math
 import os
 import tempfile
 from dataclasses import dataclass
@@ -175,6 +176,23 @@ class ExposureInfo:
         if self.f_number:
             scale /= self.f_number**2
         return self.exposure_time * scale
+
+
+def format_exposure_time(t, *, unknown: str = "?") -> str:
+    """Seconds as a photographer writes them, without the unit: ``1/250``, ``1/3.2``, ``2``.
+
+    Times under a second are written as a reciprocal, rounded to an integer when within
+    2 % of one (EXIF's 1/249.99 is 1/250); ``None`` or a non-finite time gives ``unknown``.
+
+    >>> format_exposure_time(0.004), format_exposure_time(0.3125), format_exposure_time(2.0)
+    ('1/250', '1/3.2', '2')
+    """
+    if t is None or not math.isfinite(t):
+        return unknown
+    if t < 1:
+        inv = 1.0 / t
+        return f"1/{round(inv)}" if abs(inv - round(inv)) < 0.02 * inv else f"1/{inv:.3g}"
+    return f"{t:.4g}"
 
 
 def effective_exposure_times(infos) -> list:

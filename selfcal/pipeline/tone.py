@@ -152,13 +152,6 @@ class MonotonePolynomial:
         x = np.asarray(x, dtype=np.float64)
         return np.stack([self.channel(x[..., k], k) for k in range(3)], axis=-1)
 
-    def derivative(self, x, k: int) -> np.ndarray:
-        """``df_k/dx`` at ``x`` (inside the domain)."""
-        t = self._t(x, k)
-        lo, hi = self.domain[k]
-        d1 = _derivative_matrix(self.degree, 1) @ self.coefficients[k]
-        return bernstein_basis(t, self.degree - 1) @ d1 / (hi - lo)
-
     def table(self, k: int, n: int = 4096) -> tuple[np.ndarray, np.ndarray]:
         """``(x, f_k(x))`` sampled at ``n`` points over the domain."""
         x = np.linspace(self.domain[k, 0], self.domain[k, 1], n)

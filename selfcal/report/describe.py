@@ -23,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["describe", "format_description", "TABLE_FRACTIONS", "VERDICT_LEVELS"]
+__all__ = ["describe", "format_description", "TABLE_FRACTIONS"]
 
 #: Where the curve tables are read: fractions of the largest code (response models: the
 #: codes round(fraction · max_code); pipeline models: fractions of each curve's domain).
 TABLE_FRACTIONS = (0.0, 0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)
-from ..response.verdict import LEVELS as VERDICT_LEVELS  # noqa: E402
+from ..io.images import format_exposure_time  # noqa: E402
 from ..response.verdict import verdict_of  # noqa: E402
 
 
@@ -174,7 +174,7 @@ def _describe_pipeline(model) -> dict:
 def _fmt_time(t) -> str:
     if t is None or not math.isfinite(t):
         return "?"
-    return (f"1/{1 / t:.4g}" if t < 1 else f"{t:.4g}") + f" s ({t:.6g})"
+    return f"{format_exposure_time(t)} s ({t:.6g})"
 
 
 def _cell(v) -> str:

@@ -70,20 +70,15 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, ModelFileError
-from .basis_files import (ForwardBasis, ResponseCurveSet, _check_intensity, _emor_blocks,
-                          read_dorf_curves, read_dorf_mat, read_emor)
+from . import basis_files as _files
+from .basis_files import _check_intensity, _emor_blocks
 
 __all__ = [
     "ResponseBasis",
-    "ForwardBasis",
-    "ResponseCurveSet",
     "log_pca_basis",
     "builtin_basis",
     "load_basis_file",
-    "read_emor",
     "read_invemor",
-    "read_dorf_curves",
-    "read_dorf_mat",
     "BASIS_FORMAT_VERSION",
 ]
 
@@ -579,7 +574,7 @@ def load_basis_file(path) -> ResponseBasis:
         return read_invemor(p)
     except InputError:
         try:
-            read_emor(p)
+            _files.read_emor(p)
         except InputError:
             raise InputError("neither a selfcal .npz basis nor an inverse-EMoR text file "
                              "(blocks 'B =', 'g0 =', 'hinv(n)=')", p) from None

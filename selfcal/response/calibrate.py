@@ -88,7 +88,7 @@ def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
 
 def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                        n_components: int = DEFAULT_N_COMPONENTS, saturation_threshold: float =
-                       DEFAULT_SATURATION_THRESHOLD, clip_margin: float = 2.0,
+                       DEFAULT_SATURATION_THRESHOLD, clip_margin: float = DEFAULT_CLIP_MARGIN,
                        basis=None, max_samples: int = DEFAULT_MAX_SAMPLES, seed: int = 0,
                        align=False, progress=None, times_source: str | None = None):
     """Estimate each channel's camera response from an exposure stack.
@@ -178,7 +178,7 @@ def emit_warnings(model, stacklevel: int = 3) -> None:
 
 def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                         n_components=DEFAULT_N_COMPONENTS,
-                        saturation_threshold=DEFAULT_SATURATION_THRESHOLD, clip_margin=2.0,
+                        saturation_threshold=DEFAULT_SATURATION_THRESHOLD, clip_margin=DEFAULT_CLIP_MARGIN,
                         basis=None, max_samples=DEFAULT_MAX_SAMPLES, seed=0, align=False,
                         progress=None, times_source=None):
     """:func:`calibrate_response` without emitting its warnings (they are in the model)."""

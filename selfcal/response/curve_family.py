@@ -114,6 +114,7 @@ __all__ = [
     "ResponseCurve",
     "FAMILY_WEIGHTS",
     "gamma_curve",
+    "srgb_encode",
     "srgb_oetf",
     "rec709_oetf",
     "bt1886_inverse_eotf",
@@ -128,7 +129,6 @@ __all__ = [
     "camera_tone_curve",
     "bernstein_monotone",
     "mixture",
-    "compose",
     "with_linear_toe",
     "with_black_offset",
     "with_black_crush",
@@ -213,7 +213,10 @@ def gamma_curve(gamma: float) -> ResponseCurve:
     return ResponseCurve(f"gamma({gamma:.3g})", "gamma", lambda e: np.power(e, inv))
 
 
-def _srgb(x):
+def srgb_encode(x):
+    """The sRGB encoding (IEC 61966-2-1): ``12.92 x`` up to 0.0031308, else
+    ``1.055 x**(1/2.4) - 0.055``; float64, the one copy selfcal uses (curves, previews,
+    the simulator)."""
     x = np.asarray(x, dtype=np.float64)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(np.maximum(x, 0.0031308), 1 / 2.4) - 0.055)
 
@@ -232,7 +235,7 @@ def srgb_oetf(exposure: float = 1.0) -> ResponseCurve:
         The linear value that maps to white, in (0, 1]; smaller values use more of the
         linear segment and give a straighter curve.
     """
-    return ResponseCurve(f"srgb(x_max={exposure:.3g})", "srgb", _on_range(_srgb, exposure))
+    return ResponseCurve(f"srgb(x_max={exposure:.3g})", "srgb", _on_range(srgb_encode, exposure))
 
 
 def rec709_oetf(exposure: float = 1.0) -> ResponseCurve:
@@ -454,7 +457,7 @@ def log_logistic(n: float = 1.0, m: float = 0.5) -> ResponseCurve:
 
 def _display_encode(kind: str, gamma: float = 2.2):
     if kind == "srgb":
-        return _srgb
+        return srgb_encode
     return lambda y: np.power(np.maximum(y, 0.0), 1.0 / gamma)
 
 
@@ -561,7 +564,7 @@ def camera_tone_curve(base: str = "srgb", *, exposure: float = 1.0, gamma: float
         Centre (in encoded values) and slope of the logistic S-curve.
     """
     if base == "srgb":
-        enc = _srgb
+        enc = srgb_encode
     elif base == "rec709":
         enc = _rec709
     elif base == "gamma":
@@ -613,12 +616,6 @@ def mixture(curves: Sequence[ResponseCurve], weights: Sequence[float]) -> Respon
 
     name = "mix(" + ",".join(f"{wi:.2f}*{c.name}" for wi, c in zip(w, curves)) + ")"
     return ResponseCurve(name, "mixture", f)
-
-
-def compose(outer: ResponseCurve, inner: ResponseCurve) -> ResponseCurve:
-    """``outer(inner(E))`` — e.g. a tone curve applied after an encoding."""
-    fo, fi = outer.function, inner.function
-    return ResponseCurve(f"{outer.name}∘{inner.name}", inner.family, lambda e: fo(fi(e)))
 
 
 # --------------------------------------------------------------------------------------

@@ -66,6 +66,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CalibrationError
+from ..stack.frames import DEFAULT_CLIP_MARGIN
 from ..stack.samples import SampleSet, frame_masks
 from .equations import (
     ThresholdRows,
@@ -157,7 +158,7 @@ class _Exposures:
 def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
                              n_components: int = 5, refine_exposures: bool = False,
                              saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
-                             clip_margin: float = 2.0, exposure_prior_sigma: float = 0.05,
+                             clip_margin: float = DEFAULT_CLIP_MARGIN, exposure_prior_sigma: float = 0.05,
                              max_rank_gap: int = 3, huber_k: float = 1.345,
                              max_iterations: int | None = None, ridge: float = 1e-4,
                              white_continuation_sigma: float = 0.03,

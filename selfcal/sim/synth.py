@@ -39,6 +39,7 @@ import numpy as np
 
 from ..errors import InputError, OutputExistsError
 from ..io.images import _cv2
+from ..response.curve_family import srgb_encode
 
 __all__ = [
     "ToneCurve",
@@ -165,10 +166,7 @@ class ToneCurve:
 
         ``f(x) = 12.92 x`` for ``x <= 0.0031308``, else ``1.055 x**(1/2.4) - 0.055``.
         """
-        def fn(x):
-            return np.where(x <= 0.0031308, 12.92 * x, 1.055 * x ** (1 / 2.4) - 0.055)
-
-        return cls._from_function(fn, "srgb", "srgb", {})
+        return cls._from_function(srgb_encode, "srgb", "srgb", {})
 
     @classmethod
     def rec709(cls) -> "ToneCurve":

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..io.images import _cv2, _is_path, read_exposure_info, read_image, read_image_size
-from ..io.raw import RAW_SUFFIXES, read_raw_exposure_info, read_raw_linear
+from ..io.raw import is_raw_path, read_raw_exposure_info, read_raw_linear
 
 #: Codes (on the 8-bit scale) within this distance of 0 or of the maximum count as clipped
 #: -- the same rule as the calibration's (``selfcal.stack.samples.frame_masks``).
@@ -137,8 +137,7 @@ def _raw_size(path) -> tuple:
 
 
 def _is_raw_file(item) -> bool:
-    return _is_path(item) and Path(item).suffix.lower().lstrip(".") in {
-        x.lstrip(".") for x in RAW_SUFFIXES}
+    return _is_path(item) and is_raw_path(item)
 
 
 def _max_code(arr) -> int | None:

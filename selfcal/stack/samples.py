@@ -25,6 +25,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import _cv2
+from .frames import DEFAULT_CLIP_MARGIN
 
 #: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
 REJECTION_REASONS = ("clipped", "saturated", "not_flat")
@@ -246,7 +247,7 @@ def _local_contrast(blocks: np.ndarray) -> np.ndarray:
 
 
 def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: int = 6,
-                     max_samples: int = 6000, clip_margin: float = 2.0,
+                     max_samples: int = 6000, clip_margin: float = DEFAULT_CLIP_MARGIN,
                      seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Choose sample blocks stratified over intensity in every frame, flattest first.
 
@@ -326,7 +327,7 @@ def _dct_factor(block: int) -> int:
 
 def collect_samples(frames, *, sources=None, block: int | None = None,
                     n_bins: int = 48, per_bin: int = 6, max_samples: int = 6000,
-                    clip_margin: float = 2.0, seed: int = 0, progress=None,
+                    clip_margin: float = DEFAULT_CLIP_MARGIN, seed: int = 0, progress=None,
                     loader=None) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
 
@@ -416,7 +417,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
                      thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]))
 
 
-def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
+def frame_masks(samples: SampleSet, *, clip_margin: float = DEFAULT_CLIP_MARGIN,
                 saturation_threshold: float = 0.5, propagate: bool = True) -> dict:
     """Per-frame outlier masks of Lin et al. (ICCV 2011, §5), with their reasons.
 
