@@ -28,7 +28,7 @@ every scene of ../shared/data/real_brackets, with EXIF times), frames sorted by 
 
 "Measured" is defined once per half from the codes, the same for every method: some frame
 of that half has every channel strictly inside selfcal's clip limits
-(``selfcal.stack.frames._clip_limits`` with the default 2-code margin: 2 < code < 253 for 8-bit
+(``selfcal.stack.frames.clip_limits`` with the default 2-code margin: 2 < code < 253 for 8-bit
 frames).  A non-finite or non-positive radiance value on a scored pixel counts as an
 infinite disagreement (colour-hdri's polynomial extrapolation can go negative).  No
 method's own notion of clipping enters the pixel set.
@@ -105,12 +105,12 @@ def exposure_meta(paths):
 
 def measured(frames) -> np.ndarray:
     """HxW bool: some frame has every channel strictly inside selfcal's clip limits."""
-    from selfcal.stack.frames import DEFAULT_CLIP_MARGIN, _clip_limits
+    from selfcal.stack.frames import DEFAULT_CLIP_MARGIN, clip_limits
 
     out = np.zeros(frames[0].shape[:2], bool)
     for im in frames:
         max_code = 255 if im.dtype == np.uint8 else 65535
-        lo, hi = _clip_limits(max_code, DEFAULT_CLIP_MARGIN, linear=False)
+        lo, hi = clip_limits(max_code, DEFAULT_CLIP_MARGIN, linear=False)
         out |= np.all((im > lo) & (im < hi), axis=2)
     return out
 

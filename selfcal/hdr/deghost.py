@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.images import _cv2
+from ..io.images import import_cv2
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
 
@@ -107,7 +107,7 @@ def _ghost_mask(img, cover, ref_img, tab, ref_tab, strips, k: float, tol: float)
     (numpy.ndarray, dict)
         The mask, and ``{"log_ratio": median, "spread": s, "samples": n}``.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     med, spread, count = _ratio_statistics(img, cover, ref_img, tab, ref_tab, strips)
     gain = math.exp(-med)
     floor = max(tol, spread)
@@ -160,7 +160,7 @@ def _small_log_luma(img, cover, own_white, tab):
     Downscaled by integer factors (``cv2.INTER_AREA``'s fast path; the first from the
     frame, the next from the first), the clip test made on the downscaled codes.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     out = []
     small = img
     bad = None

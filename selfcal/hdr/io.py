@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io.images import OutputWriteError, _cv2, atomic_output, write_image
+from ..io.images import OutputWriteError, import_cv2, atomic_output, write_image
 from ..response.curve_family import srgb_encode
 
 __all__ = [
@@ -177,7 +177,7 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
                     metadata={SCALE_ATTRIBUTE: scale} if scale != 1.0 else None)
         return RadianceFile(path, scale)
 
-    cv2 = _cv2()
+    cv2 = import_cv2()
     bgr = np.ascontiguousarray(arr[:, :, ::-1], dtype=np.float32)
     if scale != 1.0:
         bgr /= np.float32(scale)
@@ -309,7 +309,7 @@ def read_radiance(path) -> np.ndarray:
 
         arr = np.asarray(tifffile.imread(path), dtype=np.float32)
     else:
-        cv2 = _cv2()
+        cv2 = import_cv2()
         bgr = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if bgr is None:
             raise InputError("cannot be decoded as a radiance map", path)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..stack.frames import DEFAULT_CLIP_MARGIN, _Frames, _given_exposures
+from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, given_exposures
 from ..pipeline.pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
@@ -89,7 +89,7 @@ class LinearExposures:
 
 
 def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
-    """Frame ``k`` of a :class:`selfcal.stack.frames._Frames` on [0, 1] (white = 1), as the two
+    """Frame ``k`` of a :class:`selfcal.stack.frames.StackFrames` on [0, 1] (white = 1), as the two
     half-frame thumbnails of :func:`selfcal.pipeline.pairs.split_thumbnails` (values, selection)."""
     if frames.raw_files[k]:
         from ..io.raw import read_raw_linear
@@ -118,7 +118,7 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
 
     Parameters
     ----------
-    frames : selfcal.stack.frames._Frames
+    frames : selfcal.stack.frames.StackFrames
         Linear frames of one scene (raw files, linear TIFFs, or arrays).
     times : list of float or None
         Per frame, the exposure time given or read from EXIF (None where unknown).
@@ -188,9 +188,9 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
     """:func:`measure_linear_exposures` for :func:`selfcal.merge_hdr`: the times (given,
     else EXIF) read, the summary put in ``diagnostics["linear_exposures"]`` and the
     warnings that say what was used.  Returns ``(exposures, source)``."""
-    from ..stack.frames import _Frames, _given_exposures
+    from ..stack.frames import StackFrames, given_exposures
 
-    times, times_source = _given_exposures(frames, exposure_times)
+    times, times_source = given_exposures(frames, exposure_times)
     lin = measure_linear_exposures(frames, times, times_source, use=use,
                                    clip_margin=clip_margin, progress=progress)
     diagnostics["linear_exposures"] = lin.as_dict(frames.sources)
@@ -220,9 +220,9 @@ def linear_tiff_evidence(images, exposure_times=None) -> str | None:
     ratios follow them to the power 1.
     """
     from ..choose.groups import linear_evidence
-    from ..io.images import _is_path, effective_exposure_times, read_exposure_info
+    from ..io.images import is_path, effective_exposure_times, read_exposure_info
 
-    if not images or not all(_is_path(p) and Path(p).suffix.lower() in (".tif", ".tiff")
+    if not images or not all(is_path(p) and Path(p).suffix.lower() in (".tif", ".tiff")
                              for p in images):
         return None
     paths = [Path(p) for p in images]
@@ -232,7 +232,7 @@ def linear_tiff_evidence(images, exposure_times=None) -> str | None:
 
 
 def stack_frames(images, exposure_times, model, linear: bool, warnings: list,
-                 diagnostics: dict) -> _Frames:
+                 diagnostics: dict) -> StackFrames:
     """The stack's frames for :func:`selfcal.merge_hdr`, linear when the caller says so,
     for raw files, and for TIFFs that show linear data (:func:`linear_tiff_evidence`;
     said in ``warnings`` and ``diagnostics["linear_evidence"]``) -- which would otherwise
@@ -246,5 +246,5 @@ def stack_frames(images, exposure_times, model, linear: bool, warnings: list,
                         "response fitted (give a model or their times if they are "
                         "rendered frames after all)")
         diagnostics["linear_evidence"] = why
-    return _Frames(images, linear or bool(why))
+    return StackFrames(images, linear or bool(why))
 

@@ -12,7 +12,7 @@ Brown, *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011
 any model that linearises codes (a RAW-path ``PipelineModel`` with ``to_raw``), and
 ``e_j`` the relative exposure of frame ``j`` (``t · ISO/100 / N²`` from EXIF, so that the
 radiance of several brackets of one session comes out on one scale;
-:func:`selfcal.stack.frames._resolve_exposures`).  The weights are in :mod:`.weights`, the
+:func:`selfcal.stack.frames.resolve_exposures`).  The weights are in :mod:`.weights`, the
 deghosting in :mod:`.deghost`, the alignment in :mod:`selfcal.stack.align`.
 
 Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
@@ -83,20 +83,20 @@ import numpy as np
 from ..stack.align import _negligible, estimate_alignment, warp_to_reference
 from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..stack.frames import (
-    _STRIP_PIXELS,
+    STRIP_PIXELS,
     DEFAULT_CLIP_MARGIN,
-    _apply_lut,
-    _clip_limits,
-    _default_reference,
-    _Frames,
-    _Lineariser,
-    _max_code,
-    _model_frame_index,
-    _name_arrays,
-    _resolve_exposures,
+    apply_lut,
+    clip_limits,
+    default_reference,
+    StackFrames,
+    Lineariser,
+    max_code_of,
+    model_frame_index,
+    name_arrays,
+    resolve_exposures,
     stuck_code_levels,
 )
-from ..io.images import JPEG_SUFFIXES, _cv2, _is_path, read_image
+from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image
 from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
 from ..stack.samples import collect_samples
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
@@ -288,7 +288,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     --------
     >>> import selfcal
     >>> from selfcal import sim
-    >>> stack = synth.demo_stack()
+    >>> stack = sim.demo_stack()
     >>> result = selfcal.merge_hdr(stack.images, stack.exposure_times)
     >>> result.radiance.dtype, result.radiance.shape
     (dtype('float32'), (256, 384, 3))
@@ -309,9 +309,9 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
         fresh = True
     exposures, exposure_source = resolve_linear_exposures(
         frames, exposure_times, linear_exposures, clip_margin, warnings, diagnostics,
-        progress) if linear else _resolve_exposures(frames, exposure_times, model, fresh,
+        progress) if linear else resolve_exposures(frames, exposure_times, model, fresh,
                                                       warnings)
-    ref = _default_reference(exposures) if reference is None else int(reference)
+    ref = default_reference(exposures) if reference is None else int(reference)
     if not 0 <= ref < n:
         raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
     transforms = _align_to_reference(frames, exposures, model, align, ref, transforms, ref0,
@@ -337,7 +337,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                      frame_count=sums.count, diagnostics=diagnostics, model=model)
 
 
-def _merge_plan(frames: _Frames, model, fresh: bool, exposures, ref: int, reference, *,
+def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int, reference, *,
                 linear: bool, lossy, stuck_codes, clip_margin: float, warnings: list,
                 diagnostics: dict):
     """(frames to merge, reference, per-channel floors and ceilings or None, ringing radius).
@@ -347,7 +347,7 @@ def _merge_plan(frames: _Frames, model, fresh: bool, exposures, ref: int, refere
     """
     used = _frames_to_merge(frames, model, fresh, warnings, diagnostics)
     if ref not in used:
-        ref = used[_default_reference(exposures[used])] if reference is None else ref
+        ref = used[default_reference(exposures[used])] if reference is None else ref
     if ref not in used:
         raise InputError(f"reference frame {ref} was ignored by the calibration: choose "
                          "another", frames.sources[ref])
@@ -360,7 +360,7 @@ def _merge_plan(frames: _Frames, model, fresh: bool, exposures, ref: int, refere
     return used, ref, stuck, radius
 
 
-def _finish(sums: _MergeSums, frames: _Frames, deghosted: bool, unaligned: bool,
+def _finish(sums: _MergeSums, frames: StackFrames, deghosted: bool, unaligned: bool,
             exposure_source: str, warnings: list, diagnostics: dict) -> np.ndarray:
     """The radiance from the sums, the fill, and what the merge has to say about them.
 
@@ -384,7 +384,7 @@ def _finish(sums: _MergeSums, frames: _Frames, deghosted: bool, unaligned: bool,
     return unmeasured
 
 
-def _frames_to_merge(frames: _Frames, model, fresh: bool, warnings: list,
+def _frames_to_merge(frames: StackFrames, model, fresh: bool, warnings: list,
                      diagnostics: dict) -> list:
     """Indices of the frames to merge: those the calibration used (ours).
 
@@ -399,7 +399,7 @@ def _frames_to_merge(frames: _Frames, model, fresh: bool, warnings: list,
     frames_used = diag.get("frames_used")
     if model is None or frames_used is None:
         return list(range(n))
-    idx = _model_frame_index(model, frames, fresh)
+    idx = model_frame_index(model, frames, fresh)
     msources = list(getattr(model, "sources", []) or [])
     used_names = {str(f) for f in frames_used}
     ignored = [k for k, i in enumerate(idx)
@@ -417,7 +417,7 @@ def _frames_to_merge(frames: _Frames, model, fresh: bool, warnings: list,
     return [k for k in range(n) if k not in ignored]
 
 
-def _stuck_levels(model, frames: _Frames, exposures, used, clip_margin: float,
+def _stuck_levels(model, frames: StackFrames, exposures, used, clip_margin: float,
                   diagnostics: dict, given=None):
     """Per channel (floor, ceiling) as normalised codes: the calibration's, else measured.
 
@@ -445,7 +445,7 @@ def _stuck_levels(model, frames: _Frames, exposures, used, clip_margin: float,
     return floor, ceiling
 
 
-def _looks_lossy(frames: _Frames, linear: bool) -> bool:
+def _looks_lossy(frames: StackFrames, linear: bool) -> bool:
     """JPEG files, or 8-bit arrays (which may be decoded JPEGs): widen clipped regions."""
     if linear:
         return False
@@ -474,13 +474,13 @@ def _check_options(weighting, align, linear: bool, model, linear_exposures: str,
     return align, (DEFAULT_NOISE if noise is None else noise)
 
 
-def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, clip_margin,
+def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, reference, clip_margin,
                           calibrate_options, progress, warnings: list, diagnostics: dict):
     """The frames' own response (Lin et al., ICCV 2011, §5), when no model is given.
 
     With ``align``, calibrated on the frames aligned first
     (:func:`selfcal.response.calibrate.calibrate_aligned`).  The calibration's warnings join
-    ``warnings`` (all but the contradicted times, which :func:`_resolve_exposures` reports
+    ``warnings`` (all but the contradicted times, which :func:`resolve_exposures` reports
     with what is done about them) and its verdict ``diagnostics``.
 
     Returns
@@ -506,14 +506,14 @@ def _calibrate_on_the_fly(frames: _Frames, exposure_times, align, reference, cli
     diag = getattr(model, "diagnostics", {})
     diagnostics["model_verdict"] = diag.get("verdict")
     for w in diag.get("warnings", []):
-        if "contradict" not in w:       # reported by _resolve_exposures, with what is done
-            warnings.append(f"calibration: {_name_arrays(w, frames.sources)}")
+        if "contradict" not in w:       # reported by resolve_exposures, with what is done
+            warnings.append(f"calibration: {name_arrays(w, frames.sources)}")
     for c in diag.get("contradicting_times", []) or []:
-        c["frame"] = _name_arrays(str(c.get("frame")), frames.sources)
+        c["frame"] = name_arrays(str(c.get("frame")), frames.sources)
     return model, transforms, ref0
 
 
-def _align_to_reference(frames: _Frames, exposures, model, align, ref: int, transforms,
+def _align_to_reference(frames: StackFrames, exposures, model, align, ref: int, transforms,
                         ref0, *, linear: bool, clip_margin: float, warnings: list, progress):
     """Per frame, the map from reference pixel coordinates to its own (None without align).
 
@@ -557,7 +557,7 @@ class _MergeSums:
         self.ghost = np.zeros((hh, ww), dtype=bool)
         self.white = np.zeros((hh, ww), dtype=np.uint8)
         self.width = ww
-        self.rows = max(8, _STRIP_PIXELS // max(ww, 1))
+        self.rows = max(8, STRIP_PIXELS // max(ww, 1))
         self.strips = [slice(y, min(y + self.rows, hh)) for y in range(0, hh, self.rows)]
         self.ref = ref
         e = np.asarray(exposures, dtype=float)
@@ -571,7 +571,7 @@ class _MergeSums:
         self.excluded = [0.0] * n                 # pixels deghosting took from each frame
         self.ghost_stats: dict[int, dict] = {}    # frame -> agreement with the reference
         self.residuals: list[dict] = []           # neighbour pairs: misalignment test
-        self.cv2 = _cv2()
+        self.cv2 = import_cv2()
         self._local = threading.local()
 
     def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
@@ -672,7 +672,7 @@ class _MergeSums:
         return unmeasured
 
 
-def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, transforms, *,
+def _accumulate_frames(sums: _MergeSums, frames: StackFrames, exposures, model, transforms, *,
                        linear: bool, weighting, noise: NoiseModel, clip_margin: float,
                        stuck, radius: int, deghost: bool, deghost_threshold: float,
                        deghost_tolerance: float, progress):
@@ -706,10 +706,10 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
     try:
         for done, (k, img) in enumerate(_read_ahead(frames, order, loaded)):
             if lin is None:
-                mc = _max_code(img)
-                lin = _Lineariser(model, linear, mc)
+                mc = max_code_of(img)
+                lin = Lineariser(model, linear, mc)
                 lo, hi, floor = _frame_limits(mc, clip_margin, linear, stuck)
-            elif _max_code(img) != lin.max_code:
+            elif max_code_of(img) != lin.max_code:
                 raise InputError(f"sample type {img.dtype} differs from the other frames",
                                  frames.sources[k])
             tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
@@ -766,7 +766,7 @@ def _accumulate_frames(sums: _MergeSums, frames: _Frames, exposures, model, tran
         cv2.bitwise_or(sums.white, ref_white, dst=sums.white)
 
 
-def _read_ahead(frames: _Frames, order, loaded: dict):
+def _read_ahead(frames: StackFrames, order, loaded: dict):
     """``(k, codes)`` for each frame of ``order``, the next one decoded while the caller
     works on this one.
 
@@ -789,7 +789,7 @@ def _read_ahead(frames: _Frames, order, loaded: dict):
 def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     """Per channel (lo, hi, floor limit or None) for :class:`.weights._FrameTables`.
 
-    The clip limits of :func:`selfcal.stack.frames._clip_limits` (a pixel with any channel at
+    The clip limits of :func:`selfcal.stack.frames.clip_limits` (a pixel with any channel at
     or beyond them is clipped), ``hi`` lowered to the stuck ceiling of each channel, and
     the black floor of each channel, below which that channel's codes get zero weight
     (``stuck``: normalised codes, :func:`selfcal.stack.frames.stuck_code_levels`; the codes
@@ -799,7 +799,7 @@ def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     channel at its floor raised the odd/even median |log ratio| of ntu's night scene,
     ``bench/bench_hdr_oddeven.py``, from 0.29 to 0.54).
     """
-    lo, hi = _clip_limits(max_code, clip_margin, linear)
+    lo, hi = clip_limits(max_code, clip_margin, linear)
     lo = np.full(3, float(lo))
     hi = np.full(3, float(hi))
     floor = None
@@ -877,21 +877,21 @@ def linearize_images(images, model, *, progress=None):
         The source (path or ``"array #k"``) and its float32 ``HxWx3`` linear image.
     """
     items = list(images)
-    sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(items)]
+    sources = [str(f) if is_path(f) else f"array #{k}" for k, f in enumerate(items)]
     for k, item in enumerate(items):
-        img = read_image(item) if _is_path(item) else np.asarray(item)
+        img = read_image(item) if is_path(item) else np.asarray(item)
         if img.ndim != 3 or img.shape[2] != 3:
             raise InputError(f"expected an HxWx3 RGB image, got shape {img.shape}", sources[k])
         if img.dtype not in (np.uint8, np.uint16):
             raise InputError(f"unsupported dtype {img.dtype} (uint8 or uint16 codes)",
                              sources[k])
-        lin = _Lineariser(model, False, _max_code(img))
+        lin = Lineariser(model, False, max_code_of(img))
         if lin.kind == "lut":
             out = np.empty(img.shape, dtype=np.float32)
             table = lin.table.astype(np.float32)
-            rows = max(8, _STRIP_PIXELS // img.shape[1])
+            rows = max(8, STRIP_PIXELS // img.shape[1])
             for y in range(0, img.shape[0], rows):
-                out[y:y + rows] = _apply_lut(img[y:y + rows], table)
+                out[y:y + rows] = apply_lut(img[y:y + rows], table)
         else:
             out = lin.values(img)
         del img

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..stack.frames import _apply_lut, _Lineariser
-from ..io.images import _cv2
+from ..stack.frames import apply_lut, Lineariser
+from ..io.images import import_cv2
 
 __all__ = ["NoiseModel", "noise_variance", "weight_hat"]
 
@@ -164,7 +164,7 @@ class _FrameTables:
     or below it, that channel only (a black floor).
     """
 
-    def __init__(self, lin: _Lineariser, exposure: float, weighting, noise: NoiseModel,
+    def __init__(self, lin: Lineariser, exposure: float, weighting, noise: NoiseModel,
                  lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0,
                  floor=None):
         self.lin = lin
@@ -211,7 +211,7 @@ class _FrameTables:
 
     def valid(self, codes):
         """uint8 mask, 255 where every channel is unclipped."""
-        cv2 = _cv2()
+        cv2 = import_cv2()
         if codes.dtype == np.uint8 or codes.dtype == np.uint16:
             lo = tuple(math.floor(v) + 1 for v in self.lo)
             hi = tuple(math.ceil(v) - 1 for v in self.hi)
@@ -222,7 +222,7 @@ class _FrameTables:
 
     def white(self, codes):
         """uint8 mask, 255 where some channel is at or above its white limit (clipped)."""
-        cv2 = _cv2()
+        cv2 = import_cv2()
         if codes.dtype == np.uint8 or codes.dtype == np.uint16:
             hi = tuple(math.ceil(v) - 1 for v in self.hi)
             below = cv2.inRange(codes, (0, 0, 0), hi)
@@ -235,13 +235,13 @@ class _FrameTables:
     def radiance(self, codes) -> np.ndarray:
         """f⁻¹(I)/e on a strip, float32, clipped or not."""
         if self.lut:
-            return _apply_lut(codes, self.x_table)
+            return apply_lut(codes, self.x_table)
         return self.lin.values(codes) / np.float32(self.e)
 
     def radiance_variance(self, codes):
         """(f⁻¹(I)/e, Var[f⁻¹(I)/e]) on a strip, float32 (for deghosting)."""
         if self.lut:
-            return _apply_lut(codes, self.x_table), _apply_lut(codes, self.v_table)
+            return apply_lut(codes, self.x_table), apply_lut(codes, self.v_table)
         _, _, x, v = self.evaluate(codes, need_x=True)
         return x, v
 
@@ -251,15 +251,15 @@ class _FrameTables:
         ``out``: optional pair of float32 buffers for the first two (table path only).
         """
         if self.lut:
-            a = _apply_lut(codes, self.a_table, None if out is None else out[0])
-            w = _apply_lut(codes, self.w_table, None if out is None else out[1])
+            a = apply_lut(codes, self.a_table, None if out is None else out[0])
+            w = apply_lut(codes, self.w_table, None if out is None else out[1])
             if need_x:
-                return a, w, _apply_lut(codes, self.x_table), _apply_lut(codes, self.v_table)
+                return a, w, apply_lut(codes, self.x_table), apply_lut(codes, self.v_table)
             return a, w, None, None
         # functional path: linear float data or a to_raw model
         x = self.lin.values(codes)
         if self.lin.table is not None:           # to_raw: weights from codes
-            w = _apply_lut(codes, self.w_table)
+            w = apply_lut(codes, self.w_table)
             slope = None
         else:
             z = x
@@ -271,7 +271,7 @@ class _FrameTables:
         if not need_x:
             return a, w, None, None
         if self.lin.table is not None:
-            slope = _apply_lut(codes, self.lin.slope.astype(np.float32))
+            slope = apply_lut(codes, self.lin.slope.astype(np.float32))
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())
         else:

@@ -24,7 +24,7 @@ IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 JPEG_SUFFIXES = {".jpg", ".jpeg"}
 
 
-def _cv2():
+def import_cv2():
     """OpenCV, with OpenEXR enabled and its own log lines silenced.
 
     The library never prints: OpenCV would otherwise log libtiff warnings (e.g. for
@@ -40,7 +40,7 @@ def _cv2():
     return cv2
 
 
-def _is_path(x) -> bool:
+def is_path(x) -> bool:
     """True for what names a file (``str`` or ``os.PathLike``), False for an array."""
     return isinstance(x, (str, os.PathLike))
 
@@ -100,7 +100,7 @@ def read_image(path, *, reduce: int = 1) -> np.ndarray:
     except OSError as exc:
         raise InputError(f"cannot be read ({exc.strerror})", path) from None
     _check_structure(path, data)
-    cv2 = _cv2()
+    cv2 = import_cv2()
     buf = np.frombuffer(data, dtype=np.uint8)
     flags = cv2.IMREAD_UNCHANGED
     if reduce > 1 and data[:2] == b"\xff\xd8":
@@ -266,7 +266,7 @@ def read_exposure_info(path) -> ExposureInfo:
     )
 
 
-def _exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth"):
+def exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth"):
     import piexif
 
     def rat(x, max_den=1_000_000):
@@ -554,7 +554,7 @@ def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
     JPEG and PNG take uint8 (PNG and TIFF also uint16); TIFF also takes float32.  When any
     of ``exposure_time``, ``f_number``, ``iso`` is given, a JPEG gets an EXIF block with them.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     suffix = suffix.lower()
     image = np.asarray(image)
     if image.ndim != 3 or image.shape[2] != 3:
@@ -569,7 +569,7 @@ def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
             import piexif
 
             out = _io.BytesIO()
-            piexif.insert(_exif_bytes(exposure_time, f_number, iso), data, out)
+            piexif.insert(exif_bytes(exposure_time, f_number, iso), data, out)
             data = out.getvalue()
     elif suffix == ".png":
         if image.dtype not in (np.uint8, np.uint16):

@@ -12,7 +12,7 @@ Examples
 --------
 >>> from selfcal import sim
 >>> from selfcal.pipeline import fit_pipeline
->>> pair = synth.simulate_raw_jpeg_pair(seed=0)
+>>> pair = sim.simulate_raw_jpeg_pair(seed=0)
 >>> model = fit_pipeline(pair["raw"].reshape(-1, 3), pair["rendered"].reshape(-1, 3) / 255,
 ...                      n_train=1500, n_sets=5)
 >>> rendered = model.render(pair["raw"])          # float32 HxWx3 in [0, 1]

@@ -523,7 +523,7 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     --------
     >>> from selfcal import sim
     >>> from selfcal.pipeline import fit_pipeline
-    >>> pair = synth.simulate_raw_jpeg_pair(seed=0)
+    >>> pair = sim.simulate_raw_jpeg_pair(seed=0)
     >>> raw = pair["raw"].reshape(-1, 3); jpg = pair["rendered"].reshape(-1, 3) / 255
     >>> model = fit_pipeline(raw, jpg, n_train=1500, n_sets=5)
     >>> model.diagnostics["forward_train_rmse"] < 4       # 0-255 scale

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io.images import JPEG_SUFFIXES, _cv2, _is_path, read_image, read_image_size
+from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image, read_image_size
 from ..io.raw import read_raw_linear
 from .registration import (Registration, _as_float_rendered, _check_raw, _inside_mask,
                            _warp, register_raw_jpeg)
@@ -114,7 +114,7 @@ def _auto_block(shape, target_blocks=40_000) -> int:
 def _raw_on_rendered_grid(raw, reg: Registration, shape):
     """Resample ``raw`` (HxWxC float) onto the rendered pixel grid (area-averaged first when
     the raw is finer), plus the mask of rendered pixels that lie inside the raw."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     hr, wr = raw.shape[:2]
     s = reg.scale
     src = raw.astype(np.float32)
@@ -187,7 +187,7 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     -------
     PairSamples
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     raw = _check_raw(raw_rgb)
     ren_f = _as_float_rendered(rendered)
     h, w = ren_f.shape[:2]
@@ -326,7 +326,7 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
     PairData
     """
     raw_exposure = camera_wb = None
-    if _is_path(raw):
+    if is_path(raw):
         raw_name = raw_name or str(raw)
         img = read_raw_linear(raw, half_size=half_size)
         if half_size and 2 * max(img.rgb.shape[:2]) < HALF_SIZE_MIN_SIDE:
@@ -337,14 +337,14 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
         raw_rgb = _check_raw(raw)
         if not np.all(np.isfinite(raw_rgb)):
             raise InputError("the raw array contains NaN or infinite values", raw_name)
-    if _is_path(rendered):
+    if is_path(rendered):
         rendered_name = rendered_name or str(rendered)
         reduce = _jpeg_reduce_for(rendered, raw_rgb.shape)
         ren = read_image(rendered, reduce=reduce)
     else:
         ren = np.asarray(rendered)
     if register is None:
-        register = _is_path(raw) or _is_path(rendered) or raw_rgb.shape[:2] != ren.shape[:2]
+        register = is_path(raw) or is_path(rendered) or raw_rgb.shape[:2] != ren.shape[:2]
     if register:
         reg = register_raw_jpeg(raw_rgb, ren, raw_name=raw_name, rendered_name=rendered_name,
                                 strict=True)
@@ -372,7 +372,7 @@ def raw_thumbnail(raw_rgb, *, max_side: int = 512, clip_level: float = 0.98) -> 
     channel ``≥ clip_level``, so the ratios of :func:`raw_exposure_ratios` never mix
     clipped values in.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     raw = _check_raw(raw_rgb).astype(np.float32)
     h, w = raw.shape[:2]
     f = max(1.0, max(h, w) / float(max_side))
@@ -604,8 +604,8 @@ def collect_pair_samples(raws, rendered, *, seed: int = 0, max_samples: int | No
     seeds = np.random.SeedSequence(seed).generate_state(n)
     out = []
     for k, (r, j) in enumerate(zip(raws, rendered)):
-        rname = str(r) if _is_path(r) else (names[k][0] if names else f"raw array #{k}")
-        jname = str(j) if _is_path(j) else (names[k][1] if names else f"rendered array #{k}")
+        rname = str(r) if is_path(r) else (names[k][0] if names else f"raw array #{k}")
+        jname = str(j) if is_path(j) else (names[k][1] if names else f"rendered array #{k}")
         if progress is not None:
             progress("pairs", k, n, f"{Path(rname).name} + {Path(jname).name}")
         out.append(sample_raw_jpeg_pair(r, j, raw_name=rname, rendered_name=jname,

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..io.images import _cv2
+from ..io.images import import_cv2
 
 __all__ = ["Registration", "register_raw_jpeg", "MIN_CORRELATION", "MIN_OVERLAP"]
 
@@ -129,7 +129,7 @@ class _Level:
 
 
 def _resize_to(img: np.ndarray, factor: float):
-    cv2 = _cv2()
+    cv2 = import_cv2()
     h, w = img.shape[:2]
     nw, nh = max(8, int(round(w / factor))), max(8, int(round(h / factor)))
     if (nw, nh) == (w, h):
@@ -165,7 +165,7 @@ def _from_level(m, lev: _Level):
 
 
 def _warp(img, m, shape, border_value=None):
-    cv2 = _cv2()
+    cv2 = import_cv2()
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     if border_value is None:
         return cv2.warpAffine(img, m.astype(np.float64), (shape[1], shape[0]), flags=flags,
@@ -186,7 +186,7 @@ def _inside_mask(m, raw_shape, shape, margin=0.0):
 
 def _coarse_search(lev: _Level, s_lo, s_hi, n_max=48):
     """Scale search with phase correlation at each candidate scale."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     h, w = lev.jpg.shape
     window = cv2.createHanningWindow((w, h), cv2.CV_32F)
     jh = lev.jpg - lev.jpg.mean()
@@ -219,7 +219,7 @@ def _line_fit(x, y):
 
 def _sample_at(img, px, py):
     """Bilinear samples of ``img`` at float positions (1-D arrays), replicated border."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     n = px.size
     cols = 4096   # remap wants maps narrower than SHRT_MAX
     rows = max(1, -(-n // cols))
@@ -235,7 +235,7 @@ def _gauss_newton(lev: _Level, s, t, iterations=30, max_points=40_000):
     """Refine (s, t) by Gauss-Newton on ``J ≈ a R(s x + t) + b`` (scale+translation, with a
     photometric gain and offset, as in ECC), over the rendered pixels of strongest
     gradient (and a sparse grid of the others) that map inside the raw."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     j = cv2.GaussianBlur(lev.jpg, (0, 0), 1.0)
     r = cv2.GaussianBlur(lev.raw, (0, 0), 1.0)
     gx = cv2.Sobel(r, cv2.CV_32F, 1, 0, ksize=3, scale=1 / 8)
@@ -315,7 +315,7 @@ def _tone_match(lev: _Level, s, t):
 
 def _match_quality(lev: _Level, s, t):
     """(normalised cross-correlation of band-passed images, overlap fraction)."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     h, w = lev.jpg.shape
     m = _to_level(s, t, lev)
     inside = _inside_mask(m, lev.raw.shape, (h, w))

@@ -16,14 +16,14 @@ from ..stack.align import aligned_working_frames, estimate_alignment
 from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
-    _default_reference,
-    _Frames,
-    _given_exposures,
-    _name_arrays,
-    _resolve_exposures,
+    default_reference,
+    StackFrames,
+    given_exposures,
+    name_arrays,
+    resolve_exposures,
 )
 from ..stack.frames import stuck_code_levels
-from ..io.images import _is_path
+from ..io.images import is_path
 from ..sim.scoring import delta_eq12
 from ..stack.samples import collect_samples, frame_masks
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
@@ -78,7 +78,7 @@ def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
         if all(t is None for t in out):
             return out, "unknown"
         return out, times_source or "given"
-    if not all(_is_path(f) for f in frames):
+    if not all(is_path(f) for f in frames):
         return [None] * n, "unknown"
     from ..io.images import effective_exposure_times, read_exposure_info
 
@@ -193,11 +193,11 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
             clip_margin=clip_margin, basis=basis, max_samples=max_samples, seed=seed,
             progress=progress, times_source=times_source)
 
-    sources = [str(f) if _is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
+    sources = [str(f) if is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
     times, time_source = resolve_exposure_times(frames, exposure_times, sources,
                                                 times_source)
     warnings: list[str] = []
-    if exposure_times is None and all(_is_path(f) for f in frames):
+    if exposure_times is None and all(is_path(f) for f in frames):
         lacking = [src for src, t in zip(sources, times) if t is None]
         for src in lacking:
             warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
@@ -356,16 +356,16 @@ def _calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=N
                        warnings: list | None = None, progress=None, max_side: int = 2048,
                        **options):
     """:func:`calibrate_aligned` without emitting the model's warnings."""
-    frames = images if isinstance(images, _Frames) else _Frames(images, False)
+    frames = images if isinstance(images, StackFrames) else StackFrames(images, False)
     n = len(frames)
     warnings = [] if warnings is None else warnings
-    given, _ = _given_exposures(frames, exposure_times)
+    given, _ = given_exposures(frames, exposure_times)
     provisional = None
     if any(g is None for g in given):
         provisional = _calibrate_response(frames.items, exposure_times, progress=progress,
                                           **options)
-        given = list(_resolve_exposures(frames, exposure_times, provisional, True, [])[0])
-    ref = _default_reference(given) if reference is None else int(reference)
+        given = list(resolve_exposures(frames, exposure_times, provisional, True, [])[0])
+    ref = default_reference(given) if reference is None else int(reference)
     if not 0 <= ref < n:
         raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
     transforms = estimate_alignment(frames, given, provisional, method=method, reference=ref,
@@ -383,13 +383,13 @@ def _calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=N
     model.sources = list(frames.sources)
     diag = model.diagnostics
     for key in ("warnings", "verdict_reasons"):
-        diag[key] = [_name_arrays(w, frames.sources) for w in diag.get(key, [])]
-    diag["frames_used"] = [_name_arrays(f, frames.sources)
+        diag[key] = [name_arrays(w, frames.sources) for w in diag.get(key, [])]
+    diag["frames_used"] = [name_arrays(f, frames.sources)
                            for f in diag.get("frames_used", [])]
-    diag["per_pair_rms_log"] = {_name_arrays(k, frames.sources): v
+    diag["per_pair_rms_log"] = {name_arrays(k, frames.sources): v
                                 for k, v in diag.get("per_pair_rms_log", {}).items()}
     for c in diag.get("contradicting_times", []) or []:
-        c["frame"] = _name_arrays(str(c.get("frame")), frames.sources)
+        c["frame"] = name_arrays(str(c.get("frame")), frames.sources)
     model.diagnostics["calibrated_on"] = (f"frames aligned ({method}), long side "
                                           f"{max(small[0].shape[:2])} px")
     model.diagnostics["alignment"] = {
@@ -404,7 +404,7 @@ def _log_domain_basis(basis, n_components: int):
         from .basis import builtin_basis
 
         basis = builtin_basis()
-    elif _is_path(basis):
+    elif is_path(basis):
         from .basis import load_basis_file
 
         basis = load_basis_file(basis)

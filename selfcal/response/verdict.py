@@ -44,7 +44,7 @@ import math
 import numpy as np
 
 from ..stack.frames import STUCK_CODES, STUCK_RATIO
-from ..io.images import _cv2
+from ..io.images import import_cv2
 
 #: Code noise (normalised) of a block mean assumed by the residual test: one 8-bit code,
 #: as the solver's noise weights (:data:`selfcal.response.solver.CODE_NOISE`).
@@ -244,7 +244,7 @@ def _phase_shift(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
 
     ``b`` at ``x + (dx, dy)`` shows what ``a`` shows at ``x``.  Both are equalised images.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     h, w = a.shape
     if h < 8 or w < 8:
         return 0.0, 0.0, 0.0
@@ -306,7 +306,7 @@ def alignment_residuals(thumb_a, thumb_b, points, intensity, inverse, log_ratio,
         ``motion`` (largest shift found, thumbnail pixels), ``before`` and ``after``
         (robust scale of the noise-normalised residuals; NaN without motion or points).
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     fa = cv2.equalizeHist(thumb_a).astype(np.float32)
     fb = cv2.equalizeHist(thumb_b).astype(np.float32)
     whole, quarters = _local_shifts(fa, fb, min_response)

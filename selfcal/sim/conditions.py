@@ -28,9 +28,10 @@ measuring stick, not a method from a paper.
 
 Examples
 --------
->>> from selfcal import sim, synth_conditions
->>> cell = synth_conditions.CONDITIONS["saturated/base"]
->>> stack = cell.simulate(synth.ToneCurve.srgb(), seed=1000, size=(64, 96))
+>>> from selfcal import sim
+>>> from selfcal.sim.conditions import CONDITIONS
+>>> cell = CONDITIONS["saturated/base"]
+>>> stack = cell.simulate(sim.ToneCurve.srgb(), seed=1000, size=(64, 96))
 >>> stack.condition, len(stack.images)
 ('saturated/base', 6)
 """

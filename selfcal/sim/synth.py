@@ -20,7 +20,7 @@ benchmarks and ``selfcal demo`` are built on it.
 Examples
 --------
 >>> from selfcal import sim
->>> stack = synth.demo_stack()
+>>> stack = sim.demo_stack()
 >>> len(stack.images), stack.images[0].dtype
 (6, dtype('uint8'))
 >>> truth = stack.inverse_response()        # (256, 3) true f^-1 per channel
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputExistsError
-from ..io.images import _cv2
+from ..io.images import import_cv2
 from ..response.curve_family import srgb_encode
 
 __all__ = [
@@ -832,7 +832,7 @@ class SensorModel:
 
 def _decode_jpeg(data: bytes) -> np.ndarray:
     # the same decoder and flags as selfcal.io.read_image, so files decode to `images`
-    cv2 = _cv2()
+    cv2 = import_cv2()
     bgr = cv2.imdecode(np.frombuffer(data, dtype=np.uint8),
                        cv2.IMREAD_UNCHANGED | cv2.IMREAD_IGNORE_ORIENTATION)
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
@@ -850,7 +850,7 @@ def _jpeg_round_trip(codes: np.ndarray, quality: int,
 
         data = encode_image(codes, ".jpg", jpeg_quality=int(quality))
         return _decode_jpeg(data), data
-    cv2 = _cv2()
+    cv2 = import_cv2()
     factor = {"4:2:2": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_422,
               "4:4:4": cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444}[chroma_subsampling]
     ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(codes[:, :, ::-1]),
@@ -1057,7 +1057,7 @@ class SyntheticStack:
         InputError
             For an unknown format, or JPEG output of a 16-bit stack.
         """
-        from ..io.images import _exif_bytes, write_bytes_atomic, write_image
+        from ..io.images import exif_bytes, write_bytes_atomic, write_image
 
         ext = {"jpg": "jpg", "jpeg": "jpg", "png": "png", "tif": "tif",
                "tiff": "tif"}.get(str(fmt).lower().lstrip("."))
@@ -1076,14 +1076,14 @@ class SyntheticStack:
                 import piexif
 
                 out = _io.BytesIO()
-                piexif.insert(_exif_bytes(**meta), self._encoded[i], out)
+                piexif.insert(exif_bytes(**meta), self._encoded[i], out)
                 write_bytes_atomic(path, out.getvalue(), force=force)
             elif ext == "jpg":
                 write_image(path, image, force=force, jpeg_quality=jpeg_quality, **meta)
             elif ext == "png":
                 from ..io.images import encode_image
 
-                data = _png_with_exif(encode_image(image, ".png"), _exif_bytes(**meta))
+                data = _png_with_exif(encode_image(image, ".png"), exif_bytes(**meta))
                 write_bytes_atomic(path, data, force=force)
             else:
                 write_bytes_atomic(path, _tiff_with_exif_tags(image, t, self.f_number,

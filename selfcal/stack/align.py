@@ -44,14 +44,14 @@ import numpy as np
 from ..errors import InputError
 from .frames import (
     DEFAULT_CLIP_MARGIN,
-    _apply_lut,
-    _clip_limits,
-    _default_reference,
-    _Frames,
-    _Lineariser,
-    _max_code,
+    apply_lut,
+    clip_limits,
+    default_reference,
+    StackFrames,
+    Lineariser,
+    max_code_of,
 )
-from ..io.images import _cv2
+from ..io.images import import_cv2
 
 __all__ = ["estimate_alignment", "warp_to_reference"]
 
@@ -101,7 +101,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
         Per frame, the 3×3 map from reference pixel coordinates to the frame's (use
         :func:`warp_to_reference`).
     """
-    frames = images if isinstance(images, _Frames) else _Frames(images, linear)
+    frames = images if isinstance(images, StackFrames) else StackFrames(images, linear)
     n = len(frames)
     if method is True:
         method = "mtb"
@@ -112,7 +112,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
         if method == "homography":
             raise InputError("homography alignment needs the frames' exposures")
     exposures = np.asarray(exposures, dtype=float)
-    ref = _default_reference(exposures) if reference is None else int(reference)
+    ref = default_reference(exposures) if reference is None else int(reference)
     warnings = [] if warnings is None else warnings
     transforms = [np.eye(3) for _ in range(n)]
     order = [ref] + [k for k in range(n) if k != ref]
@@ -133,7 +133,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
         return transforms
 
     # homography: MTB translation, then ECC, on downscaled (linearised) images
-    cv2 = _cv2()
+    cv2 = import_cv2()
     if model is None:
         model = _GammaModel()
     full_h, full_w = frames.shape
@@ -148,8 +148,8 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
         if (img.shape[1], img.shape[0]) != size:
             img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
         if lin is None:
-            lin = _Lineariser(model, linear, _max_code(img))
-        lo, hi = _clip_limits(lin.max_code, clip_margin, linear)
+            lin = Lineariser(model, linear, max_code_of(img))
+        lo, hi = clip_limits(lin.max_code, clip_margin, linear)
         g, glo, ghi = _log_clamped(img, lin, exposures[k], lo, hi)
         grey = _to_grey8(img)
         del img
@@ -204,7 +204,7 @@ def warp_to_reference(image: np.ndarray, transform: np.ndarray, *, border_value=
     numpy.ndarray
         Same shape and dtype.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     h = np.asarray(transform, dtype=np.float64)
     hh, ww = image.shape[:2]
     flags = (cv2.INTER_LINEAR if interpolation == "linear" else cv2.INTER_NEAREST) \
@@ -238,7 +238,7 @@ def _shift_integer(image, tx: int, ty: int, border_value) -> np.ndarray:
 
 def _to_grey8(image: np.ndarray) -> np.ndarray:
     """8-bit grey image for median threshold bitmaps (codes, not linear values)."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     if image.dtype == np.uint16:
         image = (image >> 8).astype(np.uint8)
     elif image.dtype != np.uint8:
@@ -263,7 +263,7 @@ def _mtb_shift(ref_grey: np.ndarray, grey: np.ndarray, max_bits: int | None = No
     largest shift when the bitmaps carry no information, and MTB is fragile on very noisy
     frames (then use the homography).
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     if max_bits is None:
         max_bits = int(np.clip(math.floor(math.log2(min(ref_grey.shape) / 8)), 1, 6))
     mtb = cv2.createAlignMTB(max_bits, exclude_range, False)
@@ -292,16 +292,16 @@ def _mtb_shift(ref_grey: np.ndarray, grey: np.ndarray, max_bits: int | None = No
 # homographies: ECC (Evangelidis & Psarakis 2008), ORB + RANSAC
 # --------------------------------------------------------------------------------------
 
-def _log_clamped(image, lin: _Lineariser, exposure: float, lo: float, hi: float):
+def _log_clamped(image, lin: Lineariser, exposure: float, lo: float, hi: float):
     """log radiance (grey) of a small image, and its unclipped range (log)."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     # the unclipped range, conservatively: every channel unclipped at both ends
     lo_x, hi_x = 1e-4, 1.0
     if lin.table is not None and lin.kind != "linear":
         lo_x = float(np.max(lin.table[int(lo) + 1]))
         hi_x = float(np.min(lin.table[int(math.ceil(hi)) - 1]))
     if lin.table is not None and lin.kind == "lut":
-        x = _apply_lut(image, lin.table.astype(np.float32))
+        x = apply_lut(image, lin.table.astype(np.float32))
     else:
         x = lin.values(image)
     grey = cv2.cvtColor(np.ascontiguousarray(x, dtype=np.float32), cv2.COLOR_RGB2GRAY)
@@ -316,7 +316,7 @@ def _ecc_homography(template, image, init: np.ndarray, levels: int = 3) -> tuple
     ``template`` and ``image`` are float32 grey images of one size; returns the 3×3 map
     from template to image coordinates and the final correlation coefficient.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     pyr_t, pyr_i = [template], [image]
     for _ in range(levels - 1):
         if min(pyr_t[-1].shape) < 64:
@@ -340,7 +340,7 @@ def _ecc_homography(template, image, init: np.ndarray, levels: int = 3) -> tuple
 
 def _orb_homography(template, image) -> np.ndarray | None:
     """ORB features (Rublee et al., ICCV 2011) + RANSAC homography, template → image."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
 
     def to8(g):
         lo, hi = np.percentile(g, [1, 99])
@@ -414,7 +414,7 @@ def _plausible(h: np.ndarray, shape, limit: float = 0.1) -> bool:
     return bool(np.all(np.hypot(*(moved - corners[:, :2]).T) < limit * math.hypot(hh, ww)))
 
 
-def _working_reduce(frames: _Frames, size: int) -> int:
+def _working_reduce(frames: StackFrames, size: int) -> int:
     """JPEG DCT-scaling factor that keeps the long side at least ``size``."""
     long_side = max(frames.shape)
     r = 1
@@ -423,13 +423,13 @@ def _working_reduce(frames: _Frames, size: int) -> int:
     return r
 
 
-def aligned_working_frames(frames: _Frames, transforms, max_side: int = 2048) -> list:
+def aligned_working_frames(frames: StackFrames, transforms, max_side: int = 2048) -> list:
     """The frames warped onto the reference, downscaled to ``max_side`` (for calibration).
 
     Calibration samples block means on a coarse grid, so a reduced copy loses little, and
     17 frames of 24 MP then take about 80 MB instead of 1.2 GB.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     full_h, full_w = frames.shape
     s0 = min(1.0, max_side / max(full_h, full_w))
     size = (max(8, round(full_w * s0)), max(8, round(full_h * s0)))

@@ -4,17 +4,17 @@ The rooms above -- :mod:`selfcal.stack.align`, the response path's "align, then 
 (:func:`selfcal.response.calibrate.calibrate_aligned`) and the merge of :mod:`selfcal.hdr`
 -- all see a bracketed stack through the pieces here:
 
-* :class:`_Frames`: the frames, arrays used as they are or paths decoded one at a time
+* :class:`StackFrames`: the frames, arrays used as they are or paths decoded one at a time
   (JPEG/PNG/TIFF through :mod:`selfcal.io`, camera raw through :mod:`selfcal.io.raw`), with
   their sizes and sample types checked before any pixel work;
-* :class:`_Lineariser`: what a response model makes of codes, as a table of the inverse
+* :class:`Lineariser`: what a response model makes of codes, as a table of the inverse
   response ``f⁻¹`` at every code (a :class:`~selfcal.ResponseModel` of Lin, Kim, Süsstrunk
   & Brown, *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011, §5,
   Eq. 7) and of its slope, or the backward map ``to_raw`` of a pipeline model, or nothing
   for linear data;
-* :func:`_clip_limits`: which codes count as clipped (the calibration's rule,
+* :func:`clip_limits`: which codes count as clipped (the calibration's rule,
   :func:`selfcal.stack.samples.frame_masks`);
-* the relative exposure ``e_j`` of each frame (:func:`_resolve_exposures`): given times,
+* the relative exposure ``e_j`` of each frame (:func:`resolve_exposures`): given times,
   or EXIF ``t · ISO/100 / N²`` so that several brackets of one session come out on one
   radiance scale.
 
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..io.images import _cv2, _is_path, read_exposure_info, read_image, read_image_size
+from ..io.images import import_cv2, is_path, read_exposure_info, read_image, read_image_size
 from ..io.raw import is_raw_path, read_raw_exposure_info, read_raw_linear
 
 #: Codes (on the 8-bit scale) within this distance of 0 or of the maximum count as clipped
@@ -40,14 +40,14 @@ from ..io.raw import is_raw_path, read_raw_exposure_info, read_raw_linear
 DEFAULT_CLIP_MARGIN = 2.0
 
 #: Rows per strip are chosen so that a strip holds about this many pixels.
-_STRIP_PIXELS = 1 << 20
+STRIP_PIXELS = 1 << 20
 
 
 # --------------------------------------------------------------------------------------
 # frames
 # --------------------------------------------------------------------------------------
 
-class _Frames:
+class StackFrames:
     """The stack's frames: arrays (used as they are) or paths (decoded when needed)."""
 
     def __init__(self, images, linear: bool):
@@ -62,9 +62,9 @@ class _Frames:
             # raw files are linear camera RGB: merged directly, no response needed
             linear = True
         self.linear = linear
-        self.sources = [str(f) if _is_path(f) else f"array #{k}"
+        self.sources = [str(f) if is_path(f) else f"array #{k}"
                         for k, f in enumerate(self.items)]
-        self.paths = [Path(f) if _is_path(f) else None for f in self.items]
+        self.paths = [Path(f) if is_path(f) else None for f in self.items]
         self._check()
 
     def __len__(self):
@@ -77,7 +77,7 @@ class _Frames:
             if self.raw_files[k]:
                 hw = _raw_size(item)
                 dt = None
-            elif _is_path(item):
+            elif is_path(item):
                 hw = read_image_size(item)
                 dt = None
             else:
@@ -117,7 +117,7 @@ class _Frames:
                                  f"{self.shape[1]}x{self.shape[0]} its header gave",
                                  self.sources[k])
             return arr
-        if _is_path(item):
+        if is_path(item):
             arr = read_image(item, reduce=reduce)
             if arr.shape[:2] != self.shape and reduce == 1:
                 raise InputError("frame size changed while reading", self.sources[k])
@@ -137,10 +137,10 @@ def _raw_size(path) -> tuple:
 
 
 def _is_raw_file(item) -> bool:
-    return _is_path(item) and is_raw_path(item)
+    return is_path(item) and is_raw_path(item)
 
 
-def _max_code(arr) -> int | None:
+def max_code_of(arr) -> int | None:
     if arr.dtype == np.uint8:
         return 255
     if arr.dtype == np.uint16:
@@ -152,7 +152,7 @@ def _max_code(arr) -> int | None:
 # linearisers: codes -> linear values per frame, and per-frame LUTs
 # --------------------------------------------------------------------------------------
 
-class _Lineariser:
+class Lineariser:
     """What a model (or linear data) makes of codes.
 
     kinds: ``"lut"`` (per-channel inverse response tables; ResponseModel or anything with
@@ -208,7 +208,7 @@ class _Lineariser:
         return np.asarray(strip, dtype=np.float32)
 
 
-def _apply_lut(codes: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None):
+def apply_lut(codes: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None):
     """Per-channel table lookup: ``out[..., c] = lut[codes[..., c], c]`` as float32.
 
     uint8 codes go through ``cv2.LUT`` (one pass, multi-threaded); uint16 through numpy
@@ -216,8 +216,8 @@ def _apply_lut(codes: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None
     """
     if codes.dtype == np.uint8:
         if out is None:
-            return _cv2().LUT(codes, lut.reshape(1, 256, 3))
-        return _cv2().LUT(codes, lut.reshape(1, 256, 3), dst=out)
+            return import_cv2().LUT(codes, lut.reshape(1, 256, 3))
+        return import_cv2().LUT(codes, lut.reshape(1, 256, 3), dst=out)
     if out is None:
         out = np.empty(codes.shape, dtype=np.float32)
     for c in range(3):
@@ -225,7 +225,7 @@ def _apply_lut(codes: np.ndarray, lut: np.ndarray, out: np.ndarray | None = None
     return out
 
 
-def _clip_limits(max_code, clip_margin: float, linear: bool):
+def clip_limits(max_code, clip_margin: float, linear: bool):
     """(lo, hi): values ≤ lo or ≥ hi are clipped.
 
     Codes: within ``clip_margin`` (8-bit scale) of 0 or the maximum.  Linear data: 0 (black
@@ -330,13 +330,13 @@ def stuck_code_levels(values, log_exposures, *, clip_margin: float = DEFAULT_CLI
 # exposures and the reference frame
 # --------------------------------------------------------------------------------------
 
-def _default_reference(exposures) -> int:
+def default_reference(exposures) -> int:
     """The middle frame by exposure (the lower middle for an even count)."""
     order = np.argsort(np.asarray(exposures, dtype=float), kind="stable")
     return int(order[(len(order) - 1) // 2])
 
 
-def _given_exposures(frames: _Frames, exposure_times):
+def given_exposures(frames: StackFrames, exposure_times):
     """The caller's times (checked) or EXIF ``t · ISO/100 / N²``; None where unknown."""
     n = len(frames)
     given = [None] * n
@@ -367,14 +367,14 @@ def _given_exposures(frames: _Frames, exposure_times):
     return given, source
 
 
-def _name_arrays(text: str, sources) -> str:
+def name_arrays(text: str, sources) -> str:
     """Replace ``array #k`` in a message by the k-th frame's name."""
     for k in range(len(sources) - 1, -1, -1):
         text = text.replace(f"array #{k}", str(sources[k]))
     return text
 
 
-def _model_frame_index(model, frames: _Frames, fresh: bool):
+def model_frame_index(model, frames: StackFrames, fresh: bool):
     """Index of each frame in the model's sources (None where it is not there)."""
     n = len(frames)
     sources = list(getattr(model, "sources", []) or [])
@@ -401,7 +401,7 @@ def _model_frame_index(model, frames: _Frames, fresh: bool):
     return out
 
 
-def _resolve_exposures(frames: _Frames, exposure_times, model, fresh: bool, warnings):
+def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, warnings):
     """Relative exposure e_j of each frame, and where it came from.
 
     Given times (the caller's) or EXIF ``t · ISO/100 / N²`` set the scale; the model's
@@ -410,10 +410,10 @@ def _resolve_exposures(frames: _Frames, exposure_times, model, fresh: bool, warn
     contradict), and fill frames whose time is unknown.
     """
     n = len(frames)
-    given, source = _given_exposures(frames, exposure_times)
+    given, source = given_exposures(frames, exposure_times)
 
     # the model's estimates, in its own units
-    idx = _model_frame_index(model, frames, fresh) if model is not None else [None] * n
+    idx = model_frame_index(model, frames, fresh) if model is not None else [None] * n
     est = [None] * n
     contradicted = set()
     refined = False

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..io.images import _cv2
+from ..io.images import import_cv2
 from .frames import DEFAULT_CLIP_MARGIN
 
 #: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
@@ -60,7 +60,7 @@ def content_digest(image: np.ndarray) -> str:
 
 def _grey_thumbnail(blocks: np.ndarray, max_code: int) -> np.ndarray:
     """The block means as a grey uint8 image, long side at most :data:`THUMBNAIL_SIDE`."""
-    cv2 = _cv2()
+    cv2 = import_cv2()
     h, w = blocks.shape[:2]
     scale = THUMBNAIL_SIDE / max(h, w)
     if scale < 1:
@@ -118,7 +118,7 @@ def reduce_frame(image, *, block: int, source: str = "array",
     digest : str, optional
         The frame's :func:`content_digest` when known (computed from ``image`` otherwise).
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     arr = _as_image_array(image, source)
     max_code = 255 if arr.dtype == np.uint8 else 65535
     h, w = arr.shape[:2]
@@ -231,7 +231,7 @@ def _local_contrast(blocks: np.ndarray) -> np.ndarray:
     DoRF curve of acceptance 1 (see ``bench/BENCHMARKS.md``), raised the median f⁻¹ RMSE
     from 0.0050 to 0.0084.
     """
-    cv2 = _cv2()
+    cv2 = import_cv2()
     # per-channel reductions through OpenCV: numpy's axis=2 reductions of an (h, w, 3)
     # array are strided and cost more than the rest of the sampling
     c0, c1, c2 = cv2.split(np.ascontiguousarray(blocks, dtype=np.float32))
@@ -283,7 +283,7 @@ def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: 
             continue
         # the grey level of every block, then gathered: the channel mean of the block
         # means in the same float32 order as ``blocks.mean(axis=-1)``, on whole planes
-        c0, c1, c2 = _cv2().split(r.blocks)
+        c0, c1, c2 = import_cv2().split(r.blocks)
         level = ((c0 + c1 + c2) / np.float32(3)).ravel()[cand] / max_code
         bins = np.minimum((level * n_bins).astype(np.int16), n_bins - 1)
         # a stable sort by bin keeps the flattest-first order inside each bin
