@@ -365,7 +365,7 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     import numpy as np
 
     import selfcal
-    from selfcal.choose.groups import linear_evidence
+    from selfcal.stack.linear_evidence import linear_evidence
     from selfcal.hdr.io import read_radiance
 
     times = (1 / 60, 1 / 15, 1 / 4)

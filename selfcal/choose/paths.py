@@ -31,7 +31,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from .groups import InputGroups, group_inputs, linear_evidence
+from ..stack.linear_evidence import linear_evidence
+from .groups import InputGroups, group_inputs
 from ..io.images import (ExposureInfo, effective_exposure_times, format_exposure_time,
                          read_exposure_info, read_image, read_image_size)
 from ..pipeline.pairs import collect_pair_samples, raw_exposure_ratios
@@ -305,7 +306,7 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
         When the inputs support neither path; the message says what is missing, e.g.
         ``"3 JPEGs all at 1/60 s and no raw files: need frames at ≥ 2 exposures, or a
         RAW+JPEG pair"``.  Also for a bracket of linear TIFFs (raw converter output,
-        :func:`selfcal.choose.groups.linear_evidence`), which has no response.
+        :func:`selfcal.stack.linear_evidence.linear_evidence`), which has no response.
     """
     if exposure_source not in ("auto", "raw", "exif", "unknown"):
         raise InputError(f"exposure_source must be auto, raw, exif or unknown, got "

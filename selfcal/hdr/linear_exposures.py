@@ -24,7 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..io.images import effective_exposure_times, is_path, read_exposure_info
 from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, given_exposures
+from ..stack.linear_evidence import linear_evidence
 from ..pipeline.pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
@@ -188,8 +190,6 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
     """:func:`measure_linear_exposures` for :func:`selfcal.merge_hdr`: the times (given,
     else EXIF) read, the summary put in ``diagnostics["linear_exposures"]`` and the
     warnings that say what was used.  Returns ``(exposures, source)``."""
-    from ..stack.frames import StackFrames, given_exposures
-
     times, times_source = given_exposures(frames, exposure_times)
     lin = measure_linear_exposures(frames, times, times_source, use=use,
                                    clip_margin=clip_margin, progress=progress)
@@ -214,14 +214,11 @@ def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: floa
 
 def linear_tiff_evidence(images, exposure_times=None) -> str | None:
     """Why ``images`` -- every one a TIFF path -- are linear data rather than rendered
-    frames (:func:`selfcal.choose.groups.linear_evidence`), or None.
+    frames (:func:`selfcal.stack.linear_evidence.linear_evidence`), or None.
 
     ``exposure_times`` (None: EXIF ``t · ISO/100 / N²``) make the test decisive: linear
     ratios follow them to the power 1.
     """
-    from ..choose.groups import linear_evidence
-    from ..io.images import is_path, effective_exposure_times, read_exposure_info
-
     if not images or not all(is_path(p) and Path(p).suffix.lower() in (".tif", ".tiff")
                              for p in images):
         return None
