@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from selfcal import sim
-from selfcal.sim.scoring import (best_scale_rmse, delta_eq12, log_linearisation_error,
-                             log_linearisation_error_by_saturation, per_code_floor, rmse)
+from selfcal.response.delta import delta_eq12
+from selfcal.sim.scoring import (best_scale_rmse, log_linearisation_error,
+                                 log_linearisation_error_by_saturation, per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 
@@ -34,7 +35,7 @@ def noiseless_stack():
                                 gamut="none")
     return sim.simulate_stack(sim.make_scene(48, 64, seed=3), pipe, TIMES, jitter=0.0,
                                 sensor=sim.SensorModel.ideal(), jpeg_quality=None,
-                                bit_depth=16, seed=3)
+                                output=sim.FrameOutput(bit_depth=16), seed=3)
 
 
 def _delta_inputs(stack):

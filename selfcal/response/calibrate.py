@@ -24,8 +24,8 @@ from ..stack.frames import (
 )
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
-from ..sim.scoring import delta_eq12
 from ..stack.samples import collect_samples, frame_masks
+from .delta import delta_eq12
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
 from .verdict import CONTRADICTED_UNUSABLE_SHARE as CONTRADICTED_MAJORITY
 from .verdict import judge_calibration
@@ -639,7 +639,7 @@ def _diagnostics(result, *, verdict, reasons, evidence, warnings, exposure_sourc
                  frames_used, delta, samples, contradictions) -> dict:
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
-    ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.sim.scoring.delta_eq12`) per channel over the
+    ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.response.delta.delta_eq12`) per channel over the
     solve's frame pairs and inliers (samples neither clipped nor above β in either frame:
     what the curve was fitted to), not over all points as paper 002 scores its Fig. 4.
     """

@@ -5,7 +5,8 @@ Computer Vision*, ICCV 2011.
 
 - :func:`rmse`, :func:`best_scale_rmse`: distance of an estimated f⁻¹ from a known one
   (synthetic stacks, where the truth is known).
-- :func:`delta_eq12`: the linearisation error δ_c of paper 002, §7, Eq. 12.
+- the linearisation error δ_c of paper 002, §7, Eq. 12, is
+  :func:`selfcal.response.delta.delta_eq12` (the response path reports it).
 - :func:`log_linearisation_error` and its split by HSV saturation,
   :func:`log_linearisation_error_by_saturation`: ours, the scale-free measure of issue 3
   (acceptance 2) on real stacks, where the truth is unknown.
@@ -16,8 +17,6 @@ A bottom room: numpy and selfcal's own bottom rooms only.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -71,77 +70,6 @@ def best_scale_rmse(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean((s * estimate - truth) ** 2)))
 
 
-def delta_eq12(values, intensity, inverse, log_exposures, pairs, valid=None) -> np.ndarray:
-    """Linearisation error δ_c of paper 002 (§7, Eq. 12), per channel.
-
-    δ_c = sqrt( Σ_n Σ_x (k′_n f⁻¹(i_cx) − f⁻¹(i′_cx))² / (N |A|) ) over the frame pairs n
-    with exposure ratio k′_n = exp(log_exposures[b] − log_exposures[a]).  Here the points x
-    are sample locations (block means), and |A| is counted per pair, so pairs may use
-    different points.
-
-    Parameters
-    ----------
-    values : ndarray, shape (frames, samples, 3)
-        Codes on the scale of ``intensity`` (normalised to [0, 1]).
-    intensity : ndarray, shape (m,)
-        Grid of f⁻¹.
-    inverse : ndarray, shape (m, 3)
-        f⁻¹ per channel on that grid.
-    log_exposures : ndarray, shape (frames,)
-        Log exposure per frame.
-    pairs : iterable of (int, int)
-        Frame pairs (a, b).
-    valid : ndarray of bool, shape (frames, samples), optional
-        Points to score, kept in a pair where valid in both frames.  None scores every
-        point.
-
-    Returns
-    -------
-    ndarray, shape (3,)
-
-    Notes
-    -----
-    The paper's A is "the set of all image points", and its Fig. 4 includes the outliers
-    of §5 (clipped and highly saturated colours); excluding them, it notes, δ "converges
-    almost to 0".  :func:`selfcal.calibrate_response` reports δ over the inliers of its
-    solve only (``diagnostics["delta_eq12"]``: samples neither clipped nor above the
-    saturation threshold β in either frame, what the curve was fitted to).  Over its
-    samples the paper's version would say little more: they are chosen flat and
-    near-neutral first, so adding back the saturated ones among the unclipped moves δ of
-    the fixture stack by under 0.1 % (and not at all on the demo stacks), while adding
-    the clipped ones measures the clipping (k′ f⁻¹(i) of a mid-tone against
-    f⁻¹(255) = 1), not the curve.  The paper also scores every image of a camera, not
-    only the ones calibrated on.
-
-    Examples
-    --------
-    A linear camera whose codes double with the exposure:
-
-    >>> grid = np.linspace(0.0, 1.0, 5)
-    >>> linear = np.stack([grid] * 3, axis=1)
-    >>> codes = np.array([[[0.25] * 3, [0.5] * 3], [[0.5] * 3, [1.0] * 3]])
-    >>> delta_eq12(codes, grid, linear, np.log([1.0, 2.0]), [(0, 1)]).tolist()
-    [0.0, 0.0, 0.0]
-    """
-    def inverse_fn(vals):
-        return np.stack([np.interp(vals[:, c], intensity, inverse[:, c]) for c in range(3)],
-                        axis=1)
-
-    sq = np.zeros(3)
-    count = 0
-    for a, b in pairs:
-        both = (np.ones(values.shape[1], dtype=bool) if valid is None
-                else valid[a] & valid[b])
-        if not both.any():
-            continue
-        k = math.exp(log_exposures[b] - log_exposures[a])
-        lin_a = inverse_fn(values[a][both])
-        lin_b = inverse_fn(values[b][both])
-        sq += np.sum((k * lin_a - lin_b) ** 2, axis=0)
-        count += int(both.sum())
-    return np.sqrt(sq / max(count, 1))
-
-
 def _adjacent_pairs(images_rgb, times, lo, hi):
     """Yield (ia, ib, ok, log(t′/t)) per adjacent exposure pair (sorted by time): ok marks
     the pixels with all channels in [lo, hi] in both frames (the metric's pixels)."""
@@ -171,7 +99,8 @@ def log_linearisation_error(images_rgb, times, inverse_lut: np.ndarray,
     RMS over adjacent pairs (sorted by time) and pixels with all channels in [lo, hi] in
     both frames of log f⁻¹(I′) − log f⁻¹(I) − log(t′/t).  It is Eq. 8 of paper 002
     (g(I′) − g(I) = K′) used as a score: in the log domain, so free of f⁻¹'s scale, and
-    with the given times rather than fitted ones.  Not the paper's δ (:func:`delta_eq12`).
+    with the given times rather than fitted ones.  Not the paper's δ
+    (:func:`selfcal.response.delta.delta_eq12`).
 
     Parameters
     ----------
