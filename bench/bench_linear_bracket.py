@@ -20,7 +20,7 @@ true, jittered ones, that of the nominal times, and the radiance's median relati
 (best scale, pixels lit in the truth) merged with each.
 
 Tuning split: seeds < 1000 (nothing was tuned on this bench: the measurement's thresholds
-are those of :func:`selfcal.pipeline.pairs.raw_exposure_ratios`, set for the RAW+JPEG path); held
+are those of :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`, set for the RAW+JPEG path); held
 out: seeds ≥ 1000 and the two real raws.
 
     python bench/bench_linear_bracket.py                 # both splits

@@ -120,8 +120,8 @@ def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):
 
 def test_split_halves_remove_the_selection_bias_of_noisy_ratios():
     """Choosing pixels by the values whose ratio is taken biases it (noise pushed into the
-    band); choosing by the other half of the pixels does not (selfcal.pipeline.pairs)."""
-    from selfcal.pipeline.pairs import raw_exposure_ratios, split_thumbnails
+    band); choosing by the other half of the pixels does not (selfcal.stack.exposure_ratios)."""
+    from selfcal.stack.exposure_ratios import raw_exposure_ratios, split_thumbnails
 
     scene = sim.make_scene(200, 300, dynamic_range_stops=10, seed=5)
     scene = scene / np.median(scene) * 0.1

@@ -35,7 +35,8 @@ from ..stack.linear_evidence import linear_evidence
 from .groups import InputGroups, group_inputs
 from ..io.images import (ExposureInfo, effective_exposure_times, format_exposure_time,
                          read_exposure_info, read_image, read_image_size)
-from ..pipeline.pairs import collect_pair_samples, raw_exposure_ratios
+from ..pipeline.pairs import collect_pair_samples
+from ..stack.exposure_ratios import raw_exposure_ratios
 from ..pipeline import fit_pipeline
 from ..io.raw import read_raw_exposure_info
 from ..response.calibrate import calibrate_response
@@ -254,7 +255,7 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
       :func:`selfcal.pipeline.fit_pipeline` (Gong et al., rank-based radiometric
       calibration, §3; Lin et al. §6).
     * Both, for a bracketed RAW+JPEG session; the response path's exposures then come from
-      the raws (:func:`selfcal.pipeline.pairs.raw_exposure_ratios`, Lin et al. §5: median ratio of
+      the raws (:func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`, Lin et al. §5: median ratio of
       unclipped, well-exposed raw values), which removes the shutter error and the
       exponential ambiguity.  They are put in seconds by the geometric mean of the frames'
       EXIF times (scaled to the first frame's ISO and aperture) when those are known --
@@ -537,9 +538,9 @@ def _plan_response(group: _SizeGroup, pair_data, infos, eff, given_times, exposu
 def _raw_ratios(frames, pair_data, exposure_source, report: _Report):
     """Relative exposures of the frames with raws, from the raws themselves.
 
-    :func:`selfcal.pipeline.pairs.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
+    :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
     directly computed by dividing the raw values between two images"), on the two halves
-    of :func:`selfcal.pipeline.pairs.split_thumbnails` (pixels chosen on one, measured on the
+    of :func:`selfcal.stack.exposure_ratios.split_thumbnails` (pixels chosen on one, measured on the
     other: no selection bias).  Returns
     ``(raw_rel, framed)``: frame → (relative exposure, connected set), for the frames whose
     ratio is known, and the frames that have a raw.

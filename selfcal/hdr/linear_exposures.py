@@ -4,7 +4,7 @@ Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), §5: "with RAW images, the 
 ratio can be directly computed by dividing the raw values between two images".  Linear data
 have the identity for a response, so a bracket of raws (or of a raw converter's linear
 16-bit TIFFs) needs no calibration: the ratios of the frames' values at pixels well exposed
-in both are the exposure ratios (:func:`selfcal.pipeline.pairs.raw_exposure_ratios`), free of the
+in both are the exposure ratios (:func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`), free of the
 shutter's error, and the frames merge to HDR directly (:func:`selfcal.merge_hdr` with
 ``linear=True``).
 
@@ -25,9 +25,9 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..io.images import effective_exposure_times, is_path, read_exposure_info
+from ..stack.exposure_ratios import raw_exposure_ratios, split_thumbnails
 from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, given_exposures
 from ..stack.linear_evidence import linear_evidence
-from ..pipeline.pairs import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
            "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE"]
@@ -92,7 +92,7 @@ class LinearExposures:
 
 def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
     """Frame ``k`` of a :class:`selfcal.stack.frames.StackFrames` on [0, 1] (white = 1), as the two
-    half-frame thumbnails of :func:`selfcal.pipeline.pairs.split_thumbnails` (values, selection)."""
+    half-frame thumbnails of :func:`selfcal.stack.exposure_ratios.split_thumbnails` (values, selection)."""
     if frames.raw_files[k]:
         from ..io.raw import read_raw_linear
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import import_cv2
+from ..stack.exposure_ratios import check_linear_raw
 
 __all__ = ["Registration", "register_raw_jpeg", "MIN_CORRELATION", "MIN_OVERLAP"]
 
@@ -92,16 +93,6 @@ def _as_float_rendered(rendered) -> np.ndarray:
             raise InputError("the rendered image contains NaN or infinite values")
         return out
     raise InputError(f"unsupported rendered image type {img.dtype} (uint8, uint16 or float)")
-
-
-def _check_raw(raw_rgb) -> np.ndarray:
-    raw = np.asarray(raw_rgb)
-    if raw.ndim != 3 or raw.shape[2] < 3:
-        raise InputError(f"expected an HxWx3 linear raw image, got shape {raw.shape}")
-    raw = raw[..., :3]
-    if not np.issubdtype(raw.dtype, np.floating):
-        raise InputError(f"the raw image must be float linear RGB in [0, 1], got {raw.dtype}")
-    return raw
 
 
 def _grey_raw(raw: np.ndarray) -> np.ndarray:
@@ -373,7 +364,7 @@ def register_raw_jpeg(raw_rgb, rendered, *, scale_range=(0.85, 1.04), coarse_siz
     -------
     Registration
     """
-    raw = _check_raw(raw_rgb)
+    raw = check_linear_raw(raw_rgb)
     ren = np.asarray(rendered)
     if ren.ndim != 3 or ren.shape[2] < 3:
         raise InputError(f"expected an HxWx3 rendered image, got shape {ren.shape}",
