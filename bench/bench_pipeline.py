@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import Timer, data_dir, table  # noqa: E402
+from common import Timer, camera_name, data_dir, table  # noqa: E402
 
 from selfcal.sim.scoring import rmse  # noqa: E402
 
@@ -305,7 +305,7 @@ def main(argv=None):
     data_dir("raw")
     t0 = time.perf_counter()
     datasets = synthetic_datasets() + nus_datasets(cam)
-    print(f"## selfcal pipeline benchmark ({cam!r}; rendering the real raws took "
+    print(f"## selfcal pipeline benchmark ({camera_name(cam)}; rendering the real raws took "
           f"{sum(d.get('render_seconds', 0) for d in datasets if d['group'] == 'b'):.0f} s)")
     if "accuracy" in parts:
         accuracy_tables(datasets, cam)

@@ -63,7 +63,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pipeline import jpeg, read_raw_superpixels  # noqa: E402
-from common import data_dir, table  # noqa: E402
+from common import camera_name, data_dir, table  # noqa: E402
 
 WB_CODE = 14
 SCENES = ("chart", "blackmagic", "sim-ramps", "sim-ramps-sat", "sim-outdoor",
@@ -114,7 +114,8 @@ def ssf_scene(illuminant, reflectances, seed, gains, size=SIZE):
     illuminant's white, then divided by the camera model's WB gains."""
     import colour
 
-    from selfcal.sim.synth import SensorModel, _unit_noise
+    from selfcal.sim import SensorModel
+    from selfcal.sim.scenes import _unit_noise
 
     wl, ssf = ssf_table()
     sd = colour.SDS_ILLUMINANTS[illuminant]
@@ -148,7 +149,7 @@ def synth_scene(kind, seed, gains, size=SIZE):
     """make_scene (kind "ramps-<saturation>") or natural_scene (kind "outdoor-<palette>")
     as white-balanced camera RGB, exposed by SensorModel, divided by the WB gains."""
     from selfcal import sim
-    from selfcal.sim import conditions as synth_conditions
+    from selfcal.sim import conditions
 
     h, w = size
     if kind.startswith("ramps"):
@@ -156,7 +157,7 @@ def synth_scene(kind, seed, gains, size=SIZE):
                                  saturation=float(kind.split("-")[1]), seed=seed)
         exposure = 0.6
     else:
-        scene = synth_conditions.natural_scene(h, w, palette=kind.split("-")[1], seed=seed)
+        scene = conditions.natural_scene(h, w, palette=kind.split("-")[1], seed=seed)
         exposure = 0.35
     raw = sim.SensorModel().expose(scene, exposure, np.random.default_rng(seed + 7))
     return raw.astype(np.float64) / gains
@@ -700,7 +701,7 @@ def main(argv=None):
         names |= set(TUNING)
     scenes = {n: load_scene(n, cam, args.cache) for n in sorted(names)}
     hulls = {n: Hull(scenes[n]["raw"]) for n in scenes}
-    print(f"## selfcal cross-scene benchmark ({cam!r}; scenes {', '.join(sorted(scenes))}; "
+    print(f"## selfcal cross-scene benchmark ({camera_name(cam)}; scenes {', '.join(sorted(scenes))}; "
           f"JPEG q95)")
     if "same" in parts:
         same_scene_table(cam, args.cache)

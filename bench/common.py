@@ -134,3 +134,9 @@ def colour_hdri_inverse_response(images, times, meta=None) -> np.ndarray:
 
     return np.asarray(camera_response_functions_Debevec1997(
         colour_hdri_stack(images, times, meta)), dtype=np.float64)
+
+
+def camera_name(cam) -> str:
+    """An NUS camera model as a table title names it: its folder's name, not the path of
+    one machine."""
+    return repr(cam).replace(repr(str(cam.folder)), repr(cam.folder.name))

@@ -3,7 +3,7 @@
 :func:`load_model` reads the versioned envelope (:mod:`selfcal.io.model_file`), checks the
 content of its ``kind`` (:func:`selfcal.io.model_file.check_response_content`,
 :func:`~selfcal.io.model_file.check_pipeline_content`) and hands it to the model class of that
-kind: :class:`selfcal.response.ResponseModel` (the JPEG-only path) or
+kind: :class:`selfcal.response.model.ResponseModel` (the JPEG-only path) or
 :class:`selfcal.pipeline.PipelineModel` (the RAW path).  A folder of NUS in-camera model
 files (Kim et al. PAMI 2012, :mod:`selfcal.pipeline.nus`) loads as a pipeline model too
 (:class:`selfcal.pipeline.nus.NUSPipelineModel`, baked into dense tables).  It lives
