@@ -66,13 +66,14 @@ def _times(frames: int):
 
 
 def _write_body(args):
-    from selfcal.sim.cards import default_bodies, write_library
+    from selfcal.sim.cards import Shots, default_bodies, write_library
 
     root, b, per_body, height, width, frames = args
     body = default_bodies()[b]
     t0 = time.perf_counter()
-    write_library(root, bodies=[body], sessions_per_body=per_body, height=height,
-                  width=width, times=_times(frames), seed=b + 1, per_folder=999)
+    write_library(root, bodies=[body], sessions_per_body=per_body,
+                  shots=Shots(height=height, width=width, times=_times(frames)), seed=b + 1,
+                  per_folder=999)
     return time.perf_counter() - t0
 
 

@@ -153,7 +153,8 @@ def rendered_controls(seeds, split, args, root):
                 ("default camera", sim.default_pipeline(seed=seed), p["with_times"]),
                 ("gamma 2.2", sim.CameraPipeline(matrix=np.eye(3), curves=sim.ToneCurve.gamma(2.2), gamut="none"), True)):
             stack = sim.simulate_stack(scene, pipeline, times, jitter=args.jitter,
-                                         seed=seed, bit_depth=16, jpeg_quality=None)
+                                         seed=seed, output=sim.FrameOutput(bit_depth=16),
+                                         jpeg_quality=None)
             folder = root / f"rendered{seed}-{label.replace(' ', '')}"
             paths = stack.write(folder, fmt="tif")
             known = list(times) if timed else [None] * len(times)

@@ -402,7 +402,8 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
 
     scene = sim.make_scene(48, 64, dynamic_range_stops=8, saturation=0.3, seed=3)
     rendered = sim.simulate_stack(scene, sim.default_pipeline(seed=3), list(times),
-                                    jitter=0.0, seed=3, bit_depth=16, jpeg_quality=None)
+                                    jitter=0.0, seed=3, output=sim.FrameOutput(bit_depth=16),
+                                    jpeg_quality=None)
     files = rendered.write(tmp_path / "rendered16", fmt="tif")
     assert linear_evidence(files, list(times)) is None
     assert linear_evidence(files, [None] * 3) is None

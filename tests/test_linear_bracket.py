@@ -148,6 +148,6 @@ def test_merge_hdr_takes_linear_tiffs_for_linear_without_being_told(tmp_path):
     assert np.max(np.abs(_ratios(result.exposures) / true - 1)) < 0.01
     # rendered 16-bit TIFFs of the same scene are still calibrated
     rendered = sim.simulate_stack(stack.radiance, stack.pipeline, list(TIMES), seed=7,
-                                    bit_depth=16, jpeg_quality=None)
+                                    output=sim.FrameOutput(bit_depth=16), jpeg_quality=None)
     files = rendered.write(tmp_path / "rendered", fmt="tif")
     assert "linear_evidence" not in selfcal.merge_hdr(files).diagnostics

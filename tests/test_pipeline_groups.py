@@ -25,11 +25,11 @@ FAST = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4)
 def two_pairs():
     """One simulated camera, two scenes of different content (a chart-and-ramps scene and
     a natural one) and size (so calibrate does not take them for a bracketed stack)."""
-    from selfcal.sim import conditions as synth_conditions
+    from selfcal.sim import conditions
 
     camera = sim.default_pipeline(seed=0)
     scenes = [sim.make_scene(96, 144, dynamic_range_stops=7.0, saturation=0.6, seed=1),
-              synth_conditions.natural_scene(112, 160, palette="colourful", seed=2)]
+              conditions.natural_scene(112, 160, palette="colourful", seed=2)]
     return [sim.simulate_raw_jpeg_pair(s, camera, exposure=e, seed=k)
             for k, (s, e) in enumerate(zip(scenes, (1.0, 0.6)))]
 

@@ -107,7 +107,8 @@ def _simulate(b: Bracket) -> list:
     pipe = sim.default_pipeline(gamut=b.gamut, curves=b.tone_curve(), seed=b.seed)
     times = [1 / 250 * 2.0 ** (k * b.stops) for k in range(b.frames)]
     stack = sim.simulate_stack(scene, pipe, times, jitter=0.03, repeats=b.repeats,
-                                 jpeg_quality=b.jpeg, bit_depth=b.bits, seed=b.seed)
+                                 jpeg_quality=b.jpeg, output=sim.FrameOutput(bit_depth=b.bits),
+                                 seed=b.seed)
     assert np.allclose(stack.exposure_times, b.times)
     return stack.images
 
@@ -298,7 +299,7 @@ def model_files() -> dict:
                                                      max_samples=SAMPLES)}
     scene = sim.make_scene(40, 60, dynamic_range_stops=10.0, seed=6)
     stack = sim.simulate_stack(scene, sim.default_pipeline(seed=6), [1 / 250, 1 / 60,
-                                 1 / 15], bit_depth=16, seed=6)
+                                 1 / 15], output=sim.FrameOutput(bit_depth=16), seed=6)
     white = np.full_like(stack.images[0], 65535)
     models["response16"] = selfcal.calibrate_response(stack.images + [white],
                                                       max_samples=SAMPLES)

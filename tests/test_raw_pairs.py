@@ -87,7 +87,7 @@ def test_linear_tiff_reads_as_raw():
 
 
 def test_exposure_tags_of_tiff_structured_raws(tmp_path):
-    from selfcal.sim.synth import _tiff_with_exif_tags
+    from selfcal.sim.encoding import _tiff_with_exif_tags
 
     path = tmp_path / "linear.tiff"
     write_bytes_atomic(path, _tiff_with_exif_tags(np.zeros((8, 8, 3), np.uint16),

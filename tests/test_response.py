@@ -244,7 +244,7 @@ def test_sixteen_bit_stack():
     pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=5)
     scene = sim.make_scene(128, 192, seed=5)
     stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=None,
-                                 bit_depth=16, seed=5)
+                                 output=sim.FrameOutput(bit_depth=16), seed=5)
     model = selfcal.calibrate_response(stack.images, TIMES)
     assert model.max_code == 65535
     assert rmse_vs_truth(model, stack) < 0.01

@@ -277,7 +277,7 @@ def test_stack_sharpening_and_chroma_subsampling():
     usm = sim.UnsharpMask(0.7, 1.2)
     times = [1 / 60, 1 / 15]
     a = simulate_stack(scene, p, times, jitter=0.0, sensor=SensorModel.ideal(),
-                       jpeg_quality=None, sharpening=usm)
+                       jpeg_quality=None, output=sim.FrameOutput(sharpening=usm))
     for image, raw in zip(a.images, a.raws):
         expected = np.round(usm.apply(p.render(raw)) * 255).astype(np.uint8)
         np.testing.assert_array_equal(image, expected)
@@ -286,13 +286,20 @@ def test_stack_sharpening_and_chroma_subsampling():
     assert default.chroma_subsampling == "4:2:0"
     assert default._encoded[0] == io.encode_image(
         np.round(p.render(default.raws[0]) * 255).astype(np.uint8), ".jpg", jpeg_quality=90)
-    full = simulate_stack(scene, p, times, jpeg_quality=90, seed=1, chroma_subsampling="4:4:4")
+    full = simulate_stack(scene, p, times, jpeg_quality=90, seed=1,
+                          output=sim.FrameOutput(chroma_subsampling="4:4:4"))
     assert full.chroma_subsampling == "4:4:4" and full._encoded[0] != default._encoded[0]
     np.testing.assert_array_equal(full.raws[0], default.raws[0])
     with pytest.raises(InputError, match="chroma_subsampling"):
-        simulate_stack(scene, p, times, chroma_subsampling="4:1:1")
+        sim.FrameOutput(chroma_subsampling="4:1:1")
     with pytest.raises(InputError, match="UnsharpMask"):
-        simulate_stack(scene, p, times, sharpening=0.5)
+        sim.FrameOutput(sharpening=0.5)
+    with pytest.raises(InputError, match="bit_depth"):
+        sim.FrameOutput(bit_depth=12)
+    with pytest.raises(InputError, match="FrameOutput"):
+        simulate_stack(scene, p, times, output=sim.UnsharpMask())
+    with pytest.raises(TypeError):          # the knobs are FrameOutput's, not keywords
+        simulate_stack(scene, p, times, chroma_subsampling="4:4:4")
 
 
 def test_default_curves_differ_between_channels():
@@ -432,7 +439,8 @@ def test_default_exposure_scale_and_demo_bracket():
 
 
 def test_sixteen_bit_stack_has_no_jpeg():
-    stack = simulate_stack(make_scene(32, 48), default_pipeline(), [0.01, 0.04], bit_depth=16)
+    stack = simulate_stack(make_scene(32, 48), default_pipeline(), [0.01, 0.04],
+                           output=sim.FrameOutput(bit_depth=16))
     assert stack.images[0].dtype == np.uint16 and stack.max_code == 65535
     assert stack.jpeg_quality is None and stack.images[1].max() > 255
     assert stack.inverse_response().shape == (65536, 3)
@@ -459,7 +467,7 @@ def test_write_jpeg_decodes_to_images_with_nominal_exif(tmp_path):
 @pytest.mark.parametrize("fmt", ["png", "tif"])
 def test_write_lossless_sixteen_bit(tmp_path, fmt):
     stack = simulate_stack(make_scene(32, 48), default_pipeline(), [1 / 100, 1 / 25],
-                           bit_depth=16, seed=2)
+                           output=sim.FrameOutput(bit_depth=16), seed=2)
     paths = stack.write(tmp_path, fmt=fmt)
     for path, image, t in zip(paths, stack.images, stack.exposure_times):
         back = io.read_image(path)

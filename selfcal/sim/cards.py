@@ -10,7 +10,6 @@ Ours; the simulator is :func:`selfcal.sim.simulate_stack`.
 
 from __future__ import annotations
 
-import io as _io
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from fractions import Fraction
@@ -18,7 +17,11 @@ from pathlib import Path
 
 import numpy as np
 
-from . import synth
+from .camera import default_pipeline
+from .encoding import _jpeg_with_exif, _rational
+from .scenes import make_scene
+from .stacks import simulate_stack
+from .tone import ToneCurve
 
 #: The bracket of every simulated session (seconds), darkest first.
 DEFAULT_TIMES = (1 / 250, 1 / 60, 1 / 15, 1 / 4, 1.0)
@@ -61,11 +64,6 @@ class SimulatedLibrary:
     extra: list = field(default_factory=list)
 
 
-def _rational(x: float, max_den: int = 1_000_000) -> tuple:
-    fr = Fraction(float(x)).limit_denominator(max_den)
-    return fr.numerator, fr.denominator
-
-
 def camera_exif(body: SimulatedBody, *, when: datetime, exposure_time: float,
                 f_number: float = 8.0, iso: float = 100.0, bias: float = 0.0) -> bytes:
     """An EXIF block as a camera writes it for one frame of an auto bracket (piexif)."""
@@ -92,17 +90,56 @@ def default_bodies() -> list:
     """Two bodies of one make with different responses (film-like curves; sRGB)."""
     return [
         SimulatedBody("Simcam", "S1", "1001", "Simlens 35mm F2",
-                      synth.default_pipeline(seed=1), prefix="IMG_"),
+                      default_pipeline(seed=1), prefix="IMG_"),
         SimulatedBody("Simcam", "S2", "2002", "Simlens 50mm F1.8",
-                      synth.default_pipeline(curves=synth.ToneCurve.gamma(2.2), seed=2),
+                      default_pipeline(curves=ToneCurve.gamma(2.2), seed=2),
                       prefix="DSC_"),
     ]
 
 
-def write_library(root, *, bodies=None, sessions_per_body=3, height: int = 128,
-                  width: int = 192, times=DEFAULT_TIMES, per_folder: int = 12,
+@dataclass(frozen=True)
+class Shots:
+    """What every session of :func:`write_library` shoots: frame size, bracket, JPEG quality.
+
+    Attributes
+    ----------
+    height, width : int
+        Frame size in pixels.
+    times : tuple of float
+        The bracket (seconds), darkest first.
+    jpeg_quality : int
+        Quality of the camera's JPEGs.
+    """
+
+    height: int = 128
+    width: int = 192
+    times: tuple = DEFAULT_TIMES
+    jpeg_quality: int = 90
+
+
+def _write_session(root, body: SimulatedBody, counter: int, stack, when: datetime,
+                   per_folder: int, mid: float) -> list:
+    """Write one session's frames as the body's card files, in shot order, from frame
+    number ``counter + 1``; each frame's EXIF says when it was shot and its exposure bias
+    from the bracket's middle time ``mid``.  Returns the paths."""
+    frames = []
+    for i, t in enumerate(stack.exposure_times):
+        n = counter + 1 + i
+        folder = root / "DCIM" / f"{100 + (n - 1) // per_folder}SIMCM"
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{body.prefix}{n:04d}.JPG"
+        exif = camera_exif(body, when=when, exposure_time=float(t),
+                           bias=round(float(np.log2(t / mid)) * 3) / 3)
+        path.write_bytes(_jpeg_with_exif(stack._encoded[i], exif))
+        frames.append(path)
+        when += timedelta(seconds=float(t) + 0.3)
+    return frames
+
+
+def write_library(root, *, bodies=None, sessions_per_body: int = 3,
+                  shots: Shots | None = None, per_folder: int = 12,
                   start=datetime(2024, 5, 1, 10, 0, 0), session_gap: float = 120.0,
-                  seed: int = 0, pipelines=None, jpeg_quality: int = 90) -> SimulatedLibrary:
+                  seed: int = 0, pipelines=None) -> SimulatedLibrary:
     """Write a card dump of bracketed JPEG sessions, two or more bodies shooting in turn.
 
     Session ``k`` of body ``b`` starts at ``start + k·session_gap + b·7 s``; its frames
@@ -118,56 +155,44 @@ def write_library(root, *, bodies=None, sessions_per_body=3, height: int = 128,
     bodies : list of SimulatedBody, optional
         Default :func:`default_bodies`.
     sessions_per_body : int
-    height, width : int
-        Frame size.
-    times : sequence of float
-        The bracket.
+    shots : Shots, optional
+        Frame size, bracket and JPEG quality of every session; default ``Shots()``
+        (128 × 192, :data:`DEFAULT_TIMES`, quality 90).
     per_folder : int
         Frames per DCIM folder.
+    start : datetime.datetime
+        When the first session starts.
+    session_gap : float
+        Seconds between one round of sessions (one per body) and the next.
     seed : int
         Scenes and noise derive from it.
     pipelines : dict, optional
         ``(body index, session index) -> pipeline`` to render a session with another
         pipeline than its body's (a picture style EXIF does not tell).
-    jpeg_quality : int
 
     Returns
     -------
     SimulatedLibrary
     """
-    import piexif
-
     root = Path(root)
     bodies = default_bodies() if bodies is None else list(bodies)
+    shots = Shots() if shots is None else shots
     pipelines = pipelines or {}
     lib = SimulatedLibrary(root=root)
     counters = [0] * len(bodies)
-    mid = float(np.sqrt(times[0] * times[-1]))
+    mid = float(np.sqrt(shots.times[0] * shots.times[-1]))
     for k in range(sessions_per_body):
         for b, body in enumerate(bodies):
             s_seed = seed * 1000 + 10 * k + b
             pipe = pipelines.get((b, k), body.pipeline)
-            scene = synth.make_scene(height, width, seed=s_seed)
-            stack = synth.simulate_stack(scene, pipe, list(times), seed=s_seed,
-                                         jpeg_quality=jpeg_quality)
+            scene = make_scene(shots.height, shots.width, seed=s_seed)
+            stack = simulate_stack(scene, pipe, list(shots.times), seed=s_seed,
+                                   jpeg_quality=shots.jpeg_quality)
             when = start + timedelta(seconds=k * session_gap + 7 * b)
-            frames = []
-            for i, t in enumerate(stack.exposure_times):
-                counters[b] += 1
-                n = counters[b]
-                folder = root / "DCIM" / f"{100 + (n - 1) // per_folder}SIMCM"
-                folder.mkdir(parents=True, exist_ok=True)
-                path = folder / f"{body.prefix}{n:04d}.JPG"
-                exif = camera_exif(body, when=when, exposure_time=float(t),
-                                   bias=round(float(np.log2(t / mid)) * 3) / 3)
-                out = _io.BytesIO()
-                piexif.insert(exif, stack._encoded[i], out)
-                path.write_bytes(out.getvalue())
-                frames.append(path)
-                when += timedelta(seconds=float(t) + 0.3)
+            frames = _write_session(root, body, counters[b], stack, when, per_folder, mid)
+            counters[b] += len(frames)
             lib.sessions.append(SimulatedSession(
-                body=body, frames=frames, exposure_times=[float(t) for t in
-                                                          stack.exposure_times],
-                start=start + timedelta(seconds=k * session_gap + 7 * b), pipeline=pipe,
-                seed=s_seed))
+                body=body, frames=frames,
+                exposure_times=[float(t) for t in stack.exposure_times], start=when,
+                pipeline=pipe, seed=s_seed))
     return lib

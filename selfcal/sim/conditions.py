@@ -1,8 +1,8 @@
 """A matrix of named simulator conditions: stacks that do not flatter a calibrator.
 
 Each condition is a deterministic function ``(curve, seed) -> SyntheticStack`` built on
-:mod:`selfcal.sim` (the pipeline ``P = f(Γ(M ρ))`` of Gong et al., rank-based
-radiometric calibration, Eq. 1a).  What varies from cell to cell:
+:mod:`selfcal.sim` (the pipeline ``P = f(Γ(M ρ))`` of [Gong2018], Eq. 1a).  What varies
+from cell to cell:
 
 * the scene (:func:`natural_scene`): ``neutral`` (every surface grey), ``colourful``
   (natural colours) or ``saturated`` (the same colours pushed to and past the gamut
@@ -23,8 +23,8 @@ the same draws in every cell, so one seed gives the same scene, camera and JPEG 
 all cells and two cells differ only in what their names say.  The sensor noise and the
 shutter jitter come from :func:`selfcal.sim.simulate_stack` with the same seed.
 
-The conditions, the scene and their parameters are ours (issue 15 of the project): a
-measuring stick, not a method from a paper.
+The conditions, the scene and their parameters are ours: a measuring stick for the
+calibrators, not a method from a paper.
 
 Examples
 --------
@@ -43,16 +43,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .synth import (
-    DEMO_EXPOSURE_TIMES,
-    CameraPipeline,
-    SyntheticStack,
-    ToneCurve,
-    UnsharpMask,
-    _unit_noise,
-    random_color_matrix,
-    simulate_stack,
-)
+from .camera import _LUMA, CameraPipeline, random_color_matrix
+from .encoding import FrameOutput, UnsharpMask
+from .scenes import _unit_noise
+from .stacks import DEMO_EXPOSURE_TIMES, SyntheticStack, simulate_stack
+from .tone import ToneCurve
 
 __all__ = ["SCENES", "Condition", "CONDITIONS", "natural_scene", "channel_curves",
            "ModelCamera"]
@@ -61,7 +56,6 @@ SCENES = ("neutral", "colourful", "saturated")
 # chroma gain k of c' = Y + k (c - Y) per scene, and the floor (fraction of Y) it may reach
 _CHROMA = {"neutral": 0.0, "colourful": 1.0, "saturated": 2.2}
 _FLOOR = -0.04
-_LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 # the ColorChecker Classic in 8-bit sRGB (X-Rite's published values), row by row
 _CHART_SRGB = np.array([
@@ -405,11 +399,11 @@ class Condition:
         sharpening = (UnsharpMask(d["sharpen_amount"], d["sharpen_sigma"]) if self.sharpen
                       else None)
         scale = d["white_in_shortest"] / min(self.exposure_times)
+        output = FrameOutput(chroma_subsampling=self.chroma_subsampling,
+                             sharpening=sharpening)
         stack = simulate_stack(scene, pipe, self.exposure_times, jitter=self.jitter,
-                               jpeg_quality=d["jpeg_quality"], seed=int(seed),
-                               exposure_scale=scale,
-                               chroma_subsampling=self.chroma_subsampling,
-                               sharpening=sharpening)
+                               jpeg_quality=d["jpeg_quality"], output=output,
+                               exposure_scale=scale, seed=int(seed))
         stack.condition = self.name
         stack.params = d
         return stack
