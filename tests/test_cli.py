@@ -335,7 +335,6 @@ def test_verdict_doubtful_is_said_with_its_reasons(capsys, tmp_path):
 def test_verdict_unusable_writes_nothing_unless_forced(capsys, tmp_path):
     """Exposures 1.1x apart cannot determine a curve: exit 4 and nothing written; with
     --force it is written, with a warning."""
-    pytest.importorskip("selfcal.response.verdict", reason="the library's verdict levels")
     _, frames = _bracket(tmp_path / "close", (1 / 60, 1.1 / 60))
     out, plot = tmp_path / "m.json", tmp_path / "m.png"
     code, text = run(["calibrate", *frames, "-o", out, "--plot", plot], capsys)
