@@ -7,7 +7,6 @@ make it fast, :data:`FAST_FIT`); a recording wrapper only notes what it was give
 
 from __future__ import annotations
 
-import functools
 import warnings
 from pathlib import Path
 
@@ -32,21 +31,6 @@ CANON = SHARED / "raw" / "colorchart_canon550d.dng"
 #: regulariser weights (no leave-one-out search), a 17³ baked table.
 FAST_FIT = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4,
                 lut_smoothness=3e-3)
-
-
-@pytest.fixture
-def fit_calls(monkeypatch):
-    """Record what calibrate / calibrate_pipeline give the real fit_pipeline, which runs."""
-    calls = []
-    fit = selfcal.choose.paths.fit_pipeline
-
-    @functools.wraps(fit)   # the signature routes calibrate's options, so keep it
-    def recording_fit(raw_samples, rendered_samples, **options):
-        calls.append((raw_samples, rendered_samples, options))
-        return fit(raw_samples, rendered_samples, **options)
-
-    monkeypatch.setattr(selfcal.choose.paths, "fit_pipeline", recording_fit)
-    return calls
 
 
 def assert_model_fits_its_samples(model, raw, rendered):

@@ -4,8 +4,6 @@ leave-one-scene-out (the weight that predicts a scene the fit did not see)."""
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import pytest
 
@@ -32,21 +30,6 @@ def two_pairs():
               conditions.natural_scene(112, 160, palette="colourful", seed=2)]
     return [sim.simulate_raw_jpeg_pair(s, camera, exposure=e, seed=k)
             for k, (s, e) in enumerate(zip(scenes, (1.0, 0.6)))]
-
-
-@pytest.fixture
-def fit_calls(monkeypatch):
-    """Record the options calibrate / calibrate_pipeline give the real fit_pipeline."""
-    calls = []
-    fit = selfcal.choose.paths.fit_pipeline
-
-    @functools.wraps(fit)   # calibrate routes its options by this signature
-    def recording_fit(raw_samples, rendered_samples, **options):
-        calls.append((raw_samples, rendered_samples, options))
-        return fit(raw_samples, rendered_samples, **options)
-
-    monkeypatch.setattr(selfcal.choose.paths, "fit_pipeline", recording_fit)
-    return calls
 
 
 def _scene_fold_lut(model, raw, rendered, groups):

@@ -9,17 +9,13 @@ import numpy as np
 import pytest
 
 import selfcal
+from conftest import rmse_vs_truth
 from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, ModelFileError
 
 TIMES = list(sim.DEMO_EXPOSURE_TIMES)
 
 
-def rmse_vs_truth(model, stack):
-    truth = stack.inverse_response()
-    est = model.inverse_response(np.arange(stack.max_code + 1))
-    inner = slice(1, stack.max_code)
-    return float(np.sqrt(np.mean((est[inner] - truth[inner]) ** 2)))
 
 
 @pytest.fixture(scope="module")

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import conftest
 import selfcal
 from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, SelfcalWarning
@@ -58,8 +59,7 @@ def good_model(stack):
 
 
 def rmse_vs_truth(model, stack):
-    truth = stack.inverse_response()[5:251]
-    return float(np.sqrt(np.mean((model.inverse_response()[5:251] - truth) ** 2)))
+    return conftest.rmse_vs_truth(model, stack, slice(5, 251))
 
 
 # ------------------------------------------------------------------ point 4
