@@ -56,7 +56,7 @@ def residual(model, frames, exposures, transforms, ref):
 def main():
     import selfcal
     from selfcal.stack.align import estimate_alignment
-    from selfcal.hdr import merge_hdr
+    from selfcal.hdr import MergeOptions, merge_hdr
     from selfcal.io import read_exposure_info, read_image
 
     paths = sorted(data_dir("piccante_canon_t2i", "stack_alignment").glob("*.jpg"))
@@ -77,8 +77,7 @@ def main():
                           estimate_alignment(frames, exposures, model, method=method,
                                              reference=ref))
         res = residual(model, frames, exposures, transforms, ref)
-        merged = merge_hdr(frames, exposures, model, align=method or False, deghost=True,
-                           reference=ref)
+        merged = merge_hdr(frames, exposures, model, align=method or False, deghost=True, options=MergeOptions(reference=ref))
         rms = np.sqrt(np.mean([v[0] ** 2 for v in res.values()]))
         summary[method] = rms
         moves = []

@@ -22,7 +22,7 @@ def cmd_merge(args) -> int:
     import numpy as np
 
     import selfcal
-    from selfcal.hdr import merge_hdr
+    from selfcal.hdr import MergeOptions, merge_hdr
     from selfcal.hdr.io import RADIANCE_SUFFIXES, write_preview, write_radiance
     from selfcal.io import StagedOutputs
 
@@ -52,9 +52,9 @@ def cmd_merge(args) -> int:
                 "least two frames to calibrate), or --linear for a linear image")
 
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
-                       align=args.align or False, deghost=args.deghost,
-                       reference=args.reference, linear=args.linear,
-                       linear_exposures=args.linear_exposures,
+                       align=args.align or False, deghost=args.deghost, linear=args.linear,
+                       options=MergeOptions(reference=args.reference,
+                                            linear_exposures=args.linear_exposures),
                        progress=progress_bar("merge"))
     args.linear = args.linear or "linear_evidence" in result.diagnostics
     if model is None and not args.linear:

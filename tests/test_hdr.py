@@ -15,7 +15,8 @@ import cv2  # noqa: E402
 import selfcal  # noqa: E402
 from selfcal import sim  # noqa: E402
 from selfcal.stack.align import estimate_alignment, warp_to_reference  # noqa: E402
-from selfcal.hdr import HDRResult, NoiseModel, linearize_images, merge_hdr  # noqa: E402
+from selfcal.hdr import (HDRResult, MergeOptions, NoiseModel, linearize_images,  # noqa: E402
+                         merge_hdr)
 from selfcal.hdr.io import (  # noqa: E402
     OutputWriteError,
     read_radiance,
@@ -156,7 +157,7 @@ def test_clipped_channel_gives_zero_weight():
     long[1, 2, 0] = 255          # red clipped in the long frame at one pixel
     long[2, 3, 2] = 1            # blue crushed in the long frame at another
     # lossless frames: no widening of the clipped pixel (it would cover this tiny frame)
-    result = merge_hdr([short, long], [1.0, 4.0], model, lossy=False)
+    result = merge_hdr([short, long], [1.0, 4.0], model, options=MergeOptions(lossy=False))
     lin = model.inverse_response()
     only_short = lin[100] / 1.0
     for y, x in [(1, 2), (2, 3)]:
@@ -228,8 +229,7 @@ def test_contradicted_exif_time_uses_model_estimate(tmp_path):
 
 
 def test_refined_exposures_are_used_with_a_warning(stack):
-    result = merge_hdr(stack.images, np.array(stack.exposure_times) * [1, 1.05, 1, 1],
-                       calibrate_options={"refine_exposures": True})
+    result = merge_hdr(stack.images, np.array(stack.exposure_times) * [1, 1.05, 1, 1], options=MergeOptions(calibrate_options={"refine_exposures": True}))
     assert any("refined" in w for w in result.warnings), result.warnings
 
 
@@ -274,8 +274,8 @@ def test_mtb_recovers_integer_shift():
     # the merge with alignment agrees with the truth much better than without
     truth = truth_radiance(st)[16:112, 16:160]
     model = true_model(st)
-    plain = merge_hdr(frames, st.true_exposures, model, reference=1)
-    aligned = merge_hdr(frames, st.true_exposures, model, align="mtb", reference=1)
+    plain = merge_hdr(frames, st.true_exposures, model, options=MergeOptions(reference=1))
+    aligned = merge_hdr(frames, st.true_exposures, model, align="mtb", options=MergeOptions(reference=1))
     inner = np.zeros((96, 144), bool)
     inner[8:-8, 8:-8] = True
     e_plain = rel_error(plain.radiance, truth, inner & ~plain.unmeasured)
@@ -299,7 +299,7 @@ def textured_scene(h, w, seed):
 def test_on_the_fly_calibration_uses_aligned_frames():
     shifts = [(5, -3), (0, 0), (0, 0), (-4, 6)]
     st, frames = _shifted_stack(shifts)
-    result = merge_hdr(frames, st.true_exposures, align="mtb", reference=1)
+    result = merge_hdr(frames, st.true_exposures, align="mtb", options=MergeOptions(reference=1))
     assert "aligned" in result.diagnostics["calibrated_on"]
     assert not any("contradict" in w for w in result.warnings), result.warnings
     for (dx, dy), t in zip(shifts, result.transforms):
@@ -367,9 +367,8 @@ def test_deghosting_flags_a_moving_object():
     truth = truth_radiance(a)
     # lossy=False: `usable` below is the clip test alone, without the widening of clipped
     # regions for JPEG ringing (which takes pixels near them from frame 2 before deghosting)
-    plain = merge_hdr(frames, a.true_exposures, model, reference=1, lossy=False)
-    clean = merge_hdr(frames, a.true_exposures, model, reference=1, deghost=True,
-                      lossy=False)
+    plain = merge_hdr(frames, a.true_exposures, model, options=MergeOptions(reference=1, lossy=False))
+    clean = merge_hdr(frames, a.true_exposures, model, deghost=True, options=MergeOptions(reference=1, lossy=False))
     obj = np.zeros((96, 144), bool)
     obj[32:58, 92:118] = True
     # where frame 2 saw the object and the reference frame is unclipped
@@ -658,8 +657,7 @@ def test_black_floor_detected_and_given_zero_weight(floored):
     truth = truth_radiance(floored)
     model = true_model(floored)
     default = merge_hdr(floored.images, floored.true_exposures, model)
-    hat = merge_hdr(floored.images, floored.true_exposures, model, weighting="hat",
-                    stuck_codes=False)
+    hat = merge_hdr(floored.images, floored.true_exposures, model, weighting="hat", options=MergeOptions(stuck_codes=False))
     floor = np.asarray(default.diagnostics["stuck_codes"]["floor"])
     assert np.all(floor >= FLOOR) and np.all(floor <= FLOOR + 4), floor
     mask = ~default.unmeasured
@@ -702,7 +700,7 @@ def test_pixels_clipped_in_every_frame_are_flagged(highlights):
     assert result.unmeasured[clipped_everywhere].all()
     assert any("clipped in every frame" in w for w in result.warnings)
     # without the widening for JPEG ringing, some are not (the fault)
-    plain = merge_hdr(st.images, st.true_exposures, true_model(st), lossy=False)
+    plain = merge_hdr(st.images, st.true_exposures, true_model(st), options=MergeOptions(lossy=False))
     assert not plain.unmeasured[clipped_everywhere].all()
 
 
@@ -717,7 +715,7 @@ def test_shortest_frame_only_pixels_within_five_percent(highlights):
     y_true = truth[only_short] @ [0.2126, 0.7152, 0.0722]
     assert np.max(np.abs(y / y_true - 1)) <= 0.05
     # without the widening for JPEG ringing, some are not (the fault)
-    plain = merge_hdr(st.images, st.true_exposures, true_model(st), lossy=False)
+    plain = merge_hdr(st.images, st.true_exposures, true_model(st), options=MergeOptions(lossy=False))
     both = ~clipped[0] & np.all(clipped[1:], axis=0) & ~plain.unmeasured
     y = plain.radiance[both] @ [0.2126, 0.7152, 0.0722]
     y_true = truth[both] @ [0.2126, 0.7152, 0.0722]

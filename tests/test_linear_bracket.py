@@ -8,6 +8,7 @@ import pytest
 
 import selfcal
 from selfcal import sim
+from selfcal.hdr import MergeOptions
 from selfcal.hdr.linear_exposures import REPORT_DIFFERENCE
 
 TIMES = (1 / 125, 1 / 30, 1 / 8, 1 / 2)
@@ -65,7 +66,7 @@ def test_exif_times_scale_the_measured_ratios(tmp_path):
     assert any("instead of the EXIF exposures" in w and f"raw_{worst}.tif" in w
                for w in result.warnings)
     # "times": the EXIF times as they are
-    held = selfcal.merge_hdr(paths, linear=True, linear_exposures="times")
+    held = selfcal.merge_hdr(paths, linear=True, options=MergeOptions(linear_exposures="times"))
     assert held.exposure_source == "exif"
     np.testing.assert_allclose(held.exposures, exif, rtol=1e-6)
 
@@ -77,7 +78,7 @@ def test_given_times_are_kept_unless_measured_is_asked_for(tmp_path):
     assert kept.exposure_source == "given"
     np.testing.assert_allclose(kept.exposures, given)
     assert any("kept as given" in w for w in kept.warnings)
-    measured = selfcal.merge_hdr(paths, given, linear=True, linear_exposures="measured")
+    measured = selfcal.merge_hdr(paths, given, linear=True, options=MergeOptions(linear_exposures="measured"))
     assert measured.exposure_source == "measured+given"
     true = _ratios(stack.true_exposures)
     assert np.max(np.abs(_ratios(measured.exposures) / true - 1)) < 0.01
@@ -95,7 +96,7 @@ def test_linear_arrays_and_a_frame_nothing_measures(tmp_path):
     with pytest.raises(selfcal.CalibrationError, match=r"array #2: shares too few"):
         selfcal.merge_hdr(black, linear=True)
     with pytest.raises(selfcal.InputError, match="linear_exposures must be one of"):
-        selfcal.merge_hdr(arrays, linear=True, linear_exposures="exif")
+        selfcal.merge_hdr(arrays, linear=True, options=MergeOptions(linear_exposures="exif"))
 
 
 def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):

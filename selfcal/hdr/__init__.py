@@ -31,11 +31,12 @@ from .io import (
     write_preview,
     write_radiance,
 )
-from .merge import HDRResult, linearize_images, merge_hdr
+from .merge import HDRResult, MergeOptions, linearize_images, merge_hdr
 from .weights import NoiseModel, noise_variance, weight_hat
 
 __all__ = [
     "HDRResult",
+    "MergeOptions",
     "merge_hdr",
     "linearize_images",
     "NoiseModel",

@@ -28,7 +28,7 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
 * **clipping follows exposure**, as in the calibration (``selfcal.stack.samples.frame_masks``):
   frames are merged shortest first, and a pixel some shorter frame saw clipped at white
   gets zero weight in every longer frame where it is bright (any channel at least
-  :data:`WHITE_FOLLOWS` of white); in a **lossy** (JPEG) frame the clipped region is
+  :data:`.accumulate.WHITE_FOLLOWS` of white); in a **lossy** (JPEG) frame the clipped region is
   widened by :data:`RINGING_RADIUS` pixels (``cv2.dilate``), because ringing at a
   highlight edge leaves clipped pixels a few codes below white;
 * **the same frames as the calibration**: a frame the model's calibration ignored is not
@@ -72,44 +72,35 @@ References
 
 from __future__ import annotations
 
-import os
-import threading
 import warnings as _pywarnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..stack.align import _negligible, estimate_alignment, warp_to_reference
-from ..errors import CalibrationError, InputError, SelfcalWarning
+from ..errors import CalibrationError, InputError, SelfcalWarning, options_from_keywords
+from ..io.images import JPEG_SUFFIXES, is_path, read_image
+from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
+from ..stack.align import estimate_alignment
 from ..stack.frames import (
-    STRIP_PIXELS,
     DEFAULT_CLIP_MARGIN,
-    apply_lut,
-    clip_limits,
-    default_reference,
-    StackFrames,
+    STRIP_PIXELS,
     Lineariser,
+    StackFrames,
+    apply_lut,
+    default_reference,
     max_code_of,
     model_frame_index,
     name_arrays,
     resolve_exposures,
     stuck_code_levels,
 )
-from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image
-from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
 from ..stack.samples import collect_samples
+from .accumulate import FrameWeighing, MergeSums, accumulate_frames
+from .deghost import _misalignment_warning, _poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
-from .deghost import (
-    _ghost_mask,
-    _misalignment_warning,
-    _neighbour_residual,
-    _poor_agreement,
-    _small_log_luma,
-)
-from .weights import DEFAULT_NOISE, NoiseModel, _FrameTables
+from .weights import DEFAULT_NOISE, NoiseModel
 
-__all__ = ["HDRResult", "merge_hdr", "linearize_images"]
+__all__ = ["HDRResult", "MergeOptions", "merge_hdr", "linearize_images"]
 
 #: Pixels by which a lossy (JPEG) frame's white-clipped region is widened: ringing at a
 #: highlight edge leaves codes a few below white that pass the clip test (ours).  Chosen
@@ -118,14 +109,45 @@ __all__ = ["HDRResult", "merge_hdr", "linearize_images"]
 #: 3 / 4 / 5 (3 / 0 / 0 visibly clipped), off by > 5 % where only the shortest frame
 #: measures, with the true f⁻¹: 2 / 1 / 0; the median error rose 0.0141 -> 0.0148.
 RINGING_RADIUS = 5
-#: A pixel some shorter frame saw clipped white is clipped in a longer frame where any of
-#: its channels is at least this fraction of the maximum code there (ours).
-WHITE_FOLLOWS = 0.5
 
-#: Coverage mask of a warped frame: value of clipped pixels; 255 is outside the frame, and
-#: interpolated values above _OUTSIDE count as outside (for the fill of unmeasured pixels).
-_CLIPPED = 100
-_OUTSIDE = 177
+
+@dataclass(frozen=True)
+class MergeOptions:
+    """The finer settings of :func:`merge_hdr`; the defaults suit most stacks.
+
+    Attributes
+    ----------
+    reference : int, optional
+        Index of the reference frame (alignment, deghosting); default the middle one by
+        exposure.
+    noise : NoiseModel, optional
+        For ``weighting="noise"`` and deghosting.  Default :data:`.weights.DEFAULT_NOISE`.
+    clip_margin : float
+        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped
+        (default 2, as in calibration).
+    deghost_threshold, deghost_tolerance : float
+        ``k`` and the relative error floor of the deghosting test (see ``deghost``).
+    lossy : bool, optional
+        Widen white-clipped regions by :data:`RINGING_RADIUS` px.  Default: for JPEG files
+        and 8-bit arrays (maybe decoded JPEGs: pass False for lossless ones).
+    stuck_codes : dict or False, optional
+        ``{"floor": [R, G, B], "ceiling": [R, G, B]}``, normalised codes.  Default: the
+        model's ``diagnostics["stuck_codes"]``, else measured; False: none.
+    linear_exposures : {"auto", "measured", "times"}
+        Linear frames' exposures (:func:`.linear_exposures.measure_linear_exposures`).
+    calibrate_options : dict, optional
+        Keyword arguments for :func:`selfcal.calibrate_response` when it runs on the fly.
+    """
+
+    reference: int | None = None
+    noise: NoiseModel | None = None
+    clip_margin: float = DEFAULT_CLIP_MARGIN
+    deghost_threshold: float = 3.0
+    deghost_tolerance: float = 0.1
+    lossy: bool | None = None
+    stuck_codes: dict | bool | None = None
+    linear_exposures: str = "auto"
+    calibrate_options: dict | None = None
 
 
 @dataclass
@@ -186,11 +208,8 @@ class HDRResult:
 # --------------------------------------------------------------------------------------
 
 def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
-              align=False, deghost: bool = False, reference: int | None = None,
-              linear: bool = False, linear_exposures: str = "auto", noise=None,
-              clip_margin: float = DEFAULT_CLIP_MARGIN, deghost_threshold: float = 3.0,
-              deghost_tolerance: float = 0.1, calibrate_options: dict | None = None,
-              lossy: bool | None = None, stuck_codes=None, progress=None) -> HDRResult:
+              align=False, deghost: bool = False, linear: bool = False,
+              options: MergeOptions | None = None, progress=None, **old_keywords) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -244,34 +263,23 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     deghost : bool
         Per pixel, exclude frames whose luminance disagrees with the reference frame's
         beyond the noise, ``(g·Y_j − Y_ref)² > k² (g²·Var[Y_j] + Var[Y_ref])`` with
-        ``k = deghost_threshold`` and a relative floor ``max(deghost_tolerance, s)``
-        (``g``, ``s``: median and spread of the frame's ratio to the reference), then a
-        5×5 median filter (:mod:`.deghost`).  Where the reference is clipped, all frames
-        are kept.  :attr:`HDRResult.ghost` marks where a frame was excluded.
-    reference : int, optional
-        Index of the reference frame; default the middle one by exposure.
+        ``k = options.deghost_threshold`` and a relative floor
+        ``max(options.deghost_tolerance, s)`` (``g``, ``s``: median and spread of the
+        frame's ratio to the reference), then a 5×5 median filter (:mod:`.deghost`).
+        Where the reference is clipped, all frames are kept.  :attr:`HDRResult.ghost`
+        marks where a frame was excluded.
     linear : bool
         Linear frames (raw files and TIFFs showing linear data are, with a warning).
-    noise : NoiseModel, optional
-        For ``weighting="noise"`` and deghosting.  Default :data:`.weights.DEFAULT_NOISE`.
-    clip_margin : float
-        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped
-        (default 2, as in calibration).
-    deghost_threshold, deghost_tolerance : float
-        ``k`` and the relative error floor of the deghosting test.
-    calibrate_options : dict, optional
-        Keyword arguments for :func:`selfcal.calibrate_response` when it runs on the fly.
-    lossy : bool, optional
-        Widen white-clipped regions by :data:`RINGING_RADIUS` px.  Default: for JPEG files
-        and 8-bit arrays (maybe decoded JPEGs: pass False for lossless ones).
-    stuck_codes : dict or False, optional
-        ``{"floor": [R, G, B], "ceiling": [R, G, B]}``, normalised codes.  Default: the
-        model's ``diagnostics["stuck_codes"]``, else measured; False: none.
-    linear_exposures : {"auto", "measured", "times"}
-        Linear frames' exposures (:func:`.linear_exposures.measure_linear_exposures`).
+    options : MergeOptions, optional
+        The finer settings: reference frame, noise model, clip margin, deghosting
+        thresholds, JPEG ringing, stuck codes, linear frames' exposures, the on-the-fly
+        calibration's options.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` with stages ``"read"``/``"solve"`` (the
         calibration), ``"exposures"`` (linear frames), ``"align"`` and ``"merge"``.
+    **old_keywords
+        The settings that are now :class:`MergeOptions` fields (``reference=``,
+        ``noise=``, ``clip_margin=`` ...), still accepted with a ``DeprecationWarning``.
 
     Returns
     -------
@@ -293,42 +301,39 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     >>> result.radiance.dtype, result.radiance.shape
     (dtype('float32'), (256, 384, 3))
     """
-    align, noise = _check_options(weighting, align, linear, model, linear_exposures, noise)
+    opts = options_from_keywords(MergeOptions, options, old_keywords, "merge_hdr")
+    align, noise = _check_options(weighting, align, linear, model, opts)
     warnings: list[str] = []
     diagnostics: dict = {"weighting": weighting if isinstance(weighting, str)
                          else getattr(weighting, "__name__", "callable")}
     frames = stack_frames(images, exposure_times, model, linear, warnings, diagnostics)
     linear = frames.linear  # raw files, and TIFFs that show linear data, are linear
-    n = len(frames)
 
     fresh, transforms, ref0 = False, None, None
     if model is None and not linear:
-        model, transforms, ref0 = _calibrate_on_the_fly(
-            frames, exposure_times, align, reference, clip_margin, calibrate_options,
-            progress, warnings, diagnostics)
+        model, transforms, ref0 = _calibrate_on_the_fly(frames, exposure_times, align, opts,
+                                                        progress, warnings, diagnostics)
         fresh = True
     exposures, exposure_source = resolve_linear_exposures(
-        frames, exposure_times, linear_exposures, clip_margin, warnings, diagnostics,
-        progress) if linear else resolve_exposures(frames, exposure_times, model, fresh,
-                                                      warnings)
-    ref = default_reference(exposures) if reference is None else int(reference)
-    if not 0 <= ref < n:
-        raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
-    transforms = _align_to_reference(frames, exposures, model, align, ref, transforms, ref0,
-                                     linear=linear, clip_margin=clip_margin,
-                                     warnings=warnings, progress=progress)
+        frames, exposure_times, opts.linear_exposures, opts.clip_margin, warnings,
+        diagnostics, progress) if linear else resolve_exposures(frames, exposure_times,
+                                                                model, fresh, warnings)
+    ref = _reference_frame(exposures, opts.reference, len(frames))
+    if transforms is not None:
+        transforms = _relative_to(transforms, ref0, ref)
+    elif align and len(frames) > 1:
+        transforms = estimate_alignment(frames, exposures, model, method=align, reference=ref,
+                                        linear=linear, clip_margin=opts.clip_margin,
+                                        warnings=warnings, progress=progress)
 
-    used, ref, stuck, radius = _merge_plan(
-        frames, model, fresh, exposures, ref, reference, linear=linear, lossy=lossy,
-        stuck_codes=stuck_codes, clip_margin=clip_margin, warnings=warnings,
-        diagnostics=diagnostics)
-    sums = _MergeSums(frames.shape, exposures, ref, used)
+    used, ref, stuck, radius = _merge_plan(frames, model, fresh, exposures, ref, opts,
+                                           linear=linear, warnings=warnings,
+                                           diagnostics=diagnostics)
+    sums = MergeSums(frames.shape, exposures, ref, used)
     need_x = deghost and len(used) > 1
-    _accumulate_frames(sums, frames, exposures, model, transforms, linear=linear,
-                       weighting=weighting, noise=noise, clip_margin=clip_margin,
-                       stuck=stuck, radius=radius, deghost=need_x,
-                       deghost_threshold=deghost_threshold,
-                       deghost_tolerance=deghost_tolerance, progress=progress)
+    weighing = FrameWeighing(weighting, noise, opts.clip_margin, linear, stuck, radius, need_x,
+                             opts.deghost_threshold, opts.deghost_tolerance)
+    accumulate_frames(sums, frames, exposures, model, transforms, weighing, progress)
     unmeasured = _finish(sums, frames, need_x, transforms is None, exposure_source,
                          warnings, diagnostics)
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
@@ -337,9 +342,16 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                      frame_count=sums.count, diagnostics=diagnostics, model=model)
 
 
-def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int, reference, *,
-                linear: bool, lossy, stuck_codes, clip_margin: float, warnings: list,
-                diagnostics: dict):
+def _reference_frame(exposures, reference, n: int) -> int:
+    """The reference frame asked for, else the middle one by exposure."""
+    ref = default_reference(exposures) if reference is None else int(reference)
+    if not 0 <= ref < n:
+        raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
+    return ref
+
+
+def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
+                opts: MergeOptions, *, linear: bool, warnings: list, diagnostics: dict):
     """(frames to merge, reference, per-channel floors and ceilings or None, ringing radius).
 
     The reference moves to the middle merged frame when the calibration ignored it (an
@@ -347,20 +359,19 @@ def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int, re
     """
     used = _frames_to_merge(frames, model, fresh, warnings, diagnostics)
     if ref not in used:
-        ref = used[default_reference(exposures[used])] if reference is None else ref
+        ref = used[default_reference(exposures[used])] if opts.reference is None else ref
     if ref not in used:
         raise InputError(f"reference frame {ref} was ignored by the calibration: choose "
                          "another", frames.sources[ref])
-    stuck = None if linear or stuck_codes is False else _stuck_levels(
-        model, frames, exposures, used, clip_margin, diagnostics, stuck_codes)
-    if lossy is None:
-        lossy = _looks_lossy(frames, linear)
+    stuck = None if linear or opts.stuck_codes is False else _stuck_levels(
+        model, frames, exposures, used, opts.clip_margin, diagnostics, opts.stuck_codes)
+    lossy = _looks_lossy(frames, linear) if opts.lossy is None else opts.lossy
     radius = RINGING_RADIUS if lossy else 0
     diagnostics["ringing_radius"] = radius
     return used, ref, stuck, radius
 
 
-def _finish(sums: _MergeSums, frames: StackFrames, deghosted: bool, unaligned: bool,
+def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bool,
             exposure_source: str, warnings: list, diagnostics: dict) -> np.ndarray:
     """The radiance from the sums, the fill, and what the merge has to say about them.
 
@@ -458,7 +469,7 @@ def _looks_lossy(frames: StackFrames, linear: bool) -> bool:
     return False
 
 
-def _check_options(weighting, align, linear: bool, model, linear_exposures: str, noise):
+def _check_options(weighting, align, linear: bool, model, opts: MergeOptions):
     """``align`` as a method name or False (``True`` means ``"mtb"``), and the noise model
     (default :data:`.weights.DEFAULT_NOISE`); errors for bad options."""
     if weighting not in ("hat", "noise") and not callable(weighting):
@@ -469,13 +480,13 @@ def _check_options(weighting, align, linear: bool, model, linear_exposures: str,
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
     if linear and model is not None:
         raise InputError("linear=True: the frames are linear already; do not pass a model")
-    if linear_exposures not in USES:
+    if opts.linear_exposures not in USES:
         raise InputError(f"linear_exposures must be one of {', '.join(USES)}")
-    return align, (DEFAULT_NOISE if noise is None else noise)
+    return align, (DEFAULT_NOISE if opts.noise is None else opts.noise)
 
 
-def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, reference, clip_margin,
-                          calibrate_options, progress, warnings: list, diagnostics: dict):
+def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: MergeOptions,
+                          progress, warnings: list, diagnostics: dict):
     """The frames' own response (Lin et al., ICCV 2011, §5), when no model is given.
 
     With ``align``, calibrated on the frames aligned first
@@ -490,15 +501,15 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, reference,
     if len(frames) < 2:
         raise CalibrationError("one frame and no model: give a model (a response needs "
                                "at least two frames to calibrate)")
-    options = dict(calibrate_options or {})
+    options = dict(opts.calibrate_options or {})
     transforms = ref0 = None
     # its warnings are the merge's (below, in HDRResult.warnings), not warned twice
     with _pywarnings.catch_warnings():
         _pywarnings.simplefilter("ignore", SelfcalWarning)
         if align:
             model, transforms, ref0 = calibrate_aligned(
-                frames, exposure_times, method=align, reference=reference,
-                clip_margin=clip_margin, warnings=warnings, progress=progress, **options)
+                frames, exposure_times, method=align, reference=opts.reference,
+                clip_margin=opts.clip_margin, warnings=warnings, progress=progress, **options)
             diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
         else:
             model = calibrate_response(frames.items, exposure_times, progress=progress,
@@ -513,342 +524,16 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, reference,
     return model, transforms, ref0
 
 
-def _align_to_reference(frames: StackFrames, exposures, model, align, ref: int, transforms,
-                        ref0, *, linear: bool, clip_margin: float, warnings: list, progress):
-    """Per frame, the map from reference pixel coordinates to its own (None without align).
-
-    Transforms from an aligned calibration (``transforms``, relative to frame ``ref0``) are
-    reused; when the model's exposures moved the reference, they are re-expressed relative
-    to the new one.
-    """
-    if align and len(frames) > 1 and transforms is None:
-        return estimate_alignment(frames, exposures, model, method=align, reference=ref,
-                                  linear=linear, clip_margin=clip_margin,
-                                  warnings=warnings, progress=progress)
-    if transforms is not None and ref != ref0:
-        inv = np.linalg.inv(transforms[ref])
-        transforms = [t @ inv for t in transforms]
-        transforms = [t / t[2, 2] for t in transforms]
-        transforms[ref] = np.eye(3)
+def _relative_to(transforms, ref0: int, ref: int):
+    """An aligned calibration's transforms (relative to frame ``ref0``) re-expressed
+    relative to ``ref``, the reference when the model's exposures moved it."""
+    if ref == ref0:
+        return transforms
+    inv = np.linalg.inv(transforms[ref])
+    transforms = [t @ inv for t in transforms]
+    transforms = [t / t[2, 2] for t in transforms]
+    transforms[ref] = np.eye(3)
     return transforms
-
-
-# --------------------------------------------------------------------------------------
-# accumulation in strips
-# --------------------------------------------------------------------------------------
-
-class _MergeSums:
-    """A merge in progress: its float32 sums over row strips, and what each frame left.
-
-    ``num`` = Σ_j w_j·f⁻¹(I_j)/e_j and ``den`` = Σ_j w_j per channel (Eq. 6 of Debevec &
-    Malik, on linear values), ``count`` the frames each pixel got, ``ghost`` the pixels
-    deghosting took a frame from, ``white`` the pixels some frame merged so far saw
-    clipped at white (widened for lossy frames: ours).  ``kept`` holds the codes (and
-    coverage masks) of the reference, darkest and brightest frames, for deghosting and the
-    fill; ``residuals`` the misalignment test of each pair of neighbours.
-    """
-
-    def __init__(self, shape, exposures, ref: int, used):
-        hh, ww = shape
-        n = len(exposures)
-        self.num = np.zeros((hh, ww, 3), dtype=np.float32)
-        self.den = np.zeros((hh, ww, 3), dtype=np.float32)
-        self.count = np.zeros((hh, ww), dtype=np.uint8)
-        self.ghost = np.zeros((hh, ww), dtype=bool)
-        self.white = np.zeros((hh, ww), dtype=np.uint8)
-        self.width = ww
-        self.rows = max(8, STRIP_PIXELS // max(ww, 1))
-        self.strips = [slice(y, min(y + self.rows, hh)) for y in range(0, hh, self.rows)]
-        self.ref = ref
-        e = np.asarray(exposures, dtype=float)
-        # shortest first: a pixel clipped in a shorter frame is clipped in every longer one
-        self.order = sorted(used, key=lambda k: (e[k], k))
-        self.darkest = self.order[0]
-        self.brightest = self.order[-1]
-        self.kept: dict[int, tuple] = {}          # frame -> (codes, coverage mask or None)
-        self.tables: dict[int, _FrameTables] = {}
-        self.used = [0.0] * n                     # pixels each frame contributed to
-        self.excluded = [0.0] * n                 # pixels deghosting took from each frame
-        self.ghost_stats: dict[int, dict] = {}    # frame -> agreement with the reference
-        self.residuals: list[dict] = []           # neighbour pairs: misalignment test
-        self.cv2 = import_cv2()
-        self._local = threading.local()
-
-    def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
-        """One strip of one frame into the sums (strips are disjoint: threads may share).
-
-        A pixel counts when every channel is inside the frame's limits, it is not clipped
-        white in the frame or (``self.white``) in any shorter frame, within the widening
-        of ``own_white``, and deghosting kept it.  Returns the number of pixels the frame
-        contributed and that deghosting excluded.
-        """
-        cv2 = self.cv2
-        codes = img[s]
-        valid = tab.valid(codes)
-        if cover is not None:
-            valid[cover[s] > 0] = 0
-        # clipped white in a shorter frame, or near this frame's clipped pixels: only
-        # where this frame is bright as well (ringing moves clipped codes a few below
-        # white; a dark pixel by a highlight, a frame's padding or a moving object is no
-        # highlight)
-        blocked = cv2.bitwise_or(self.white[s], own_white[s])
-        if cv2.countNonZero(blocked):
-            # (saturating) blocked & ~dim, then valid & ~blocked
-            cv2.subtract(blocked, cv2.inRange(codes, (0, 0, 0), (tab.bright,) * 3),
-                         dst=blocked)
-            cv2.subtract(valid, blocked, dst=valid)
-        excluded = 0
-        if off is not None:
-            o = off[s] > 0
-            o &= valid > 0
-            if o.any():
-                valid[o] = 0
-                self.ghost[s] |= o
-                excluded = int(o.sum())
-        n_valid = cv2.countNonZero(valid)
-        if n_valid == 0:
-            return 0, excluded
-        num, den = self.num, self.den
-        if tab.lut:
-            # invalid pixels -> the maximum code in every channel, where the tables
-            # hold zero weight: then plain (unmasked) sums.  Strip buffers are reused
-            # (fresh large allocations cost page faults).
-            rows_s = s.stop - s.start
-            bufs = _thread_buffers(self._local, self.rows, self.width, img.dtype)
-            if n_valid < valid.size:
-                buf = bufs["codes"][:rows_s]
-                np.copyto(buf, codes)
-                cv2.bitwise_or(buf, (max_code,) * 3 + (0,), dst=buf,
-                               mask=cv2.bitwise_not(valid))
-                codes = buf
-            a, w, _, _ = tab.evaluate(codes, need_x=False,
-                                      out=(bufs["a"][:rows_s], bufs["w"][:rows_s]))
-            np.add(num[s], a, out=num[s])
-            np.add(den[s], w, out=den[s])
-        else:
-            a, w, _, _ = tab.evaluate(codes, need_x=False)
-            cv2.add(num[s], a, dst=num[s], mask=valid)
-            cv2.add(den[s], w, dst=den[s], mask=valid)
-        np.add(self.count[s], valid >> 7, out=self.count[s])
-        return n_valid, excluded
-
-    def frame_diagnostics(self, sources, *, deghost: bool) -> dict:
-        """Per frame, the fraction of pixels used (and excluded by deghosting)."""
-        npix = float(self.num.shape[0] * self.num.shape[1])
-        out = {"frame_used_fraction": [u / npix for u in self.used]}
-        if deghost:
-            out["deghost_excluded_fraction"] = [e / npix for e in self.excluded]
-            out["deghost_reference_agreement"] = {
-                sources[k]: st for k, st in sorted(self.ghost_stats.items())}
-        return out
-
-    def divide_and_fill(self) -> np.ndarray:
-        """``num`` becomes the radiance ``num / den``; unmeasured channels are filled.
-
-        Returns the bool mask of the pixels no frame measured (:func:`_fill_strip`).
-        ``den`` is released.
-        """
-        hh, ww = self.num.shape[:2]
-        unmeasured = np.zeros((hh, ww), dtype=bool)
-
-        def strip(s):
-            ns, ds = self.num[s], self.den[s]
-            hole = ds <= 0
-            # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
-            # masked division is several times slower
-            with np.errstate(divide="ignore", invalid="ignore"):
-                np.divide(ns, ds, out=ns)
-            hole_px = _any_channel(hole)
-            if hole_px.any():
-                unmeasured[s] = hole_px
-                fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
-                                   self.ref)
-                np.copyto(ns, fill, where=hole)
-
-        # strips are disjoint, and numpy releases the GIL
-        with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
-            list(pool.map(strip, self.strips))
-        self.den = None
-        return unmeasured
-
-
-def _accumulate_frames(sums: _MergeSums, frames: StackFrames, exposures, model, transforms, *,
-                       linear: bool, weighting, noise: NoiseModel, clip_margin: float,
-                       stuck, radius: int, deghost: bool, deghost_threshold: float,
-                       deghost_tolerance: float, progress):
-    """Every frame into ``sums``, shortest exposure first (the reference first if deghosting).
-
-    Per frame: its tables of weights and radiance (:class:`.weights._FrameTables`), with
-    the clip limits raised to the black floor and lowered to the stuck ceiling of each
-    channel (``stuck``); its warp onto the reference grid with a coverage mask
-    (:data:`_CLIPPED` where it was clipped, 255 outside it); its own white-clipped pixels,
-    widened by ``radius`` pixels (``cv2.dilate``; JPEG ringing) -- those and every pixel a
-    shorter frame saw clipped white get zero weight (ours: clipping follows exposure, as
-    in the calibration's ``selfcal.stack.samples.frame_masks``); its deghosting mask against the
-    reference (:func:`.deghost._ghost_mask`); the misalignment test against the previous
-    frame (:func:`.deghost._neighbour_residual`); then its strips -- in parallel threads on the
-    table path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from
-    this thread only.
-    """
-    cv2 = sums.cv2
-    ref = sums.ref
-    order = sums.order
-    n = len(order)
-    lin = None
-    # a square: OpenCV dilates with it in two 1-D passes
-    kernel = np.ones((2 * radius + 1,) * 2, np.uint8) if radius > 0 else None
-    loaded = {}
-    if deghost:
-        loaded[ref] = frames.load(ref)       # deghosting compares every frame with it
-        order = [ref] + [k for k in order if k != ref]
-    prev = None
-    pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
-    try:
-        for done, (k, img) in enumerate(_read_ahead(frames, order, loaded)):
-            if lin is None:
-                mc = max_code_of(img)
-                lin = Lineariser(model, linear, mc)
-                lo, hi, floor = _frame_limits(mc, clip_margin, linear, stuck)
-            elif max_code_of(img) != lin.max_code:
-                raise InputError(f"sample type {img.dtype} differs from the other frames",
-                                 frames.sources[k])
-            tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
-                               deghost or k == ref, float(np.max(exposures[sums.order])),
-                               floor=floor)
-            # codes below this in every channel are not near white (see add_strip)
-            tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
-                          else WHITE_FOLLOWS)
-            sums.tables[k] = tab
-            cover = None
-            if (transforms is not None and k != ref
-                    and not _negligible(transforms[k], frames.shape)):
-                # clipped anywhere (before warping) -> _CLIPPED; outside the frame -> 255
-                bad = np.where(tab.valid(img) > 0, 0, _CLIPPED).astype(np.uint8)
-                img = warp_to_reference(img, transforms[k])
-                cover = warp_to_reference(bad, transforms[k], border_value=255)
-                del bad
-            if (k in (sums.darkest, sums.brightest)
-                    or (k == ref and (deghost or transforms is not None))):
-                sums.kept[k] = (img, cover)
-            own_white = tab.white(img)
-            if kernel is not None and cv2.countNonZero(own_white):
-                # (the default border of cv2.dilate is +inf: it would widen the edges)
-                own_white = cv2.dilate(own_white, kernel, borderType=cv2.BORDER_CONSTANT,
-                                       borderValue=0)
-            off = None
-            if deghost and k != ref:
-                off, stats = _ghost_mask(img, cover, sums.kept[ref][0], tab, sums.tables[ref],
-                                         sums.strips, deghost_threshold, deghost_tolerance)
-                sums.ghost_stats[k] = stats
-            small = _small_log_luma(img, cover, own_white, tab)
-            if prev is not None and not (deghost and (k == ref or prev[0] == ref)):
-                sums.residuals.append(_neighbour_residual(prev, (k, small), frames.sources))
-            prev = (k, small)
-
-            def accumulate(s, img=img, cover=cover, off=off, own_white=own_white, tab=tab):
-                return sums.add_strip(s, img, cover, off, own_white, tab, lin.max_code)
-
-            for n_valid, excluded in (pool.map if tab.lut else map)(accumulate, sums.strips):
-                sums.used[k] += float(n_valid)
-                sums.excluded[k] += float(excluded)
-            if not (deghost and k == ref):
-                # clipped here -> clipped in every longer frame (the reference, merged
-                # first when deghosting, passes its clipping on to nothing)
-                cv2.bitwise_or(sums.white, own_white, dst=sums.white)
-            else:
-                ref_white = own_white
-            del img, cover, own_white
-            if progress is not None:
-                progress("merge", done + 1, n, frames.sources[k])
-    finally:
-        pool.shutdown()
-    if deghost:
-        cv2.bitwise_or(sums.white, ref_white, dst=sums.white)
-
-
-def _read_ahead(frames: StackFrames, order, loaded: dict):
-    """``(k, codes)`` for each frame of ``order``, the next one decoded while the caller
-    works on this one.
-
-    Decoders release the GIL, so one reader thread overlaps decoding with the merge
-    arithmetic (ours: from files, the merge otherwise waits on every decode in turn).
-    At most two frames are held beyond ``loaded``: the one yielded and the next.
-    """
-    def load(k):
-        return loaded.pop(k) if k in loaded else frames.load(k)
-
-    with ThreadPoolExecutor(max_workers=1) as reader:
-        ahead = reader.submit(load, order[0]) if order else None
-        for i, k in enumerate(order):
-            img = ahead.result()
-            ahead = reader.submit(load, order[i + 1]) if i + 1 < len(order) else None
-            yield k, img
-            img = None  # noqa: F841 -- the caller's frame is released before the next
-
-
-def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
-    """Per channel (lo, hi, floor limit or None) for :class:`.weights._FrameTables`.
-
-    The clip limits of :func:`selfcal.stack.frames.clip_limits` (a pixel with any channel at
-    or beyond them is clipped), ``hi`` lowered to the stuck ceiling of each channel, and
-    the black floor of each channel, below which that channel's codes get zero weight
-    (``stuck``: normalised codes, :func:`selfcal.stack.frames.stuck_code_levels`; the codes
-    below the floor and from the ceiling up do not move with exposure, the floor code
-    itself is the first that does).  A floor zeroes its channel only: the other channels
-    of a dark, coloured pixel are still measured (zeroing every channel of a pixel with one
-    channel at its floor raised the odd/even median |log ratio| of ntu's night scene,
-    ``bench/bench_hdr_oddeven.py``, from 0.29 to 0.54).
-    """
-    lo, hi = clip_limits(max_code, clip_margin, linear)
-    lo = np.full(3, float(lo))
-    hi = np.full(3, float(hi))
-    floor = None
-    if stuck is not None and max_code is not None:
-        fl, ceiling = (np.asarray(v, dtype=float) * max_code for v in stuck)
-        floor = np.where(fl > 0, fl - 0.5, 0.0)
-        hi = np.minimum(hi, np.where(ceiling < max_code, ceiling, max_code))
-    return lo, hi, floor
-
-
-def _thread_buffers(local, rows: int, width: int, dtype) -> dict:
-    """Per-thread strip buffers (codes, weighted values, weights)."""
-    bufs = getattr(local, "bufs", None)
-    if bufs is None or bufs["codes"].dtype != dtype:
-        bufs = local.bufs = {"codes": np.empty((rows, width, 3), dtype=dtype),
-                             "a": np.empty((rows, width, 3), dtype=np.float32),
-                             "w": np.empty((rows, width, 3), dtype=np.float32)}
-    return bufs
-
-
-# --------------------------------------------------------------------------------------
-# the fill of unmeasured pixels
-# --------------------------------------------------------------------------------------
-
-def _any_channel(mask3: np.ndarray) -> np.ndarray:
-    """``mask3.any(axis=2)`` for 3 channels, without numpy's slow strided reduction."""
-    return mask3[..., 0] | mask3[..., 1] | mask3[..., 2]
-
-
-def _fill_strip(s, kept, tables, darkest, brightest, ref):
-    """Values for pixels no frame measured: darkest frame for highlights, else brightest.
-
-    A pixel is a highlight when some channel of the brightest frame is clipped at white
-    there (the darkest frame's codes may be JPEG ringing below white).  Where the chosen
-    frame was warped and does not reach the pixel, the reference frame's value is used.
-    """
-    dcodes, dcover = kept[darkest]
-    bcodes, bcover = kept[brightest]
-    high = tables[brightest].white(bcodes[s]) > 0
-    fill = np.where(high[..., None], tables[darkest].radiance(dcodes[s]),
-                    tables[brightest].radiance(bcodes[s]))
-    outside = np.zeros(high.shape, dtype=bool)
-    if dcover is not None:
-        outside |= high & (dcover[s] > _OUTSIDE)
-    if bcover is not None:
-        outside |= ~high & (bcover[s] > _OUTSIDE)
-    if outside.any():
-        fill[outside] = tables[ref].radiance(kept[ref][0][s])[outside]
-    return fill
 
 
 # --------------------------------------------------------------------------------------

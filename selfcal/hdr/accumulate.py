@@ -1,0 +1,392 @@
+"""The merge's weighted sums, accumulated frame by frame in strips of rows.
+
+:class:`MergeSums` holds Σ_j w_j·f⁻¹(I_j)/e_j and Σ_j w_j per pixel and channel -- the
+weighted mean of [Debevec1997]_ Eq. 6, on linear values -- and divides them at the end,
+filling the pixels no frame measured (:meth:`MergeSums.divide_and_fill`);
+:func:`accumulate_frames` adds every frame to them, shortest exposure first, with the
+weights of :mod:`.weights` and the zero weights that are ours (clipping that follows
+exposure, JPEG ringing, deghosting: :mod:`selfcal.hdr.merge` says which).  Used by
+:func:`selfcal.hdr.merge.merge_hdr`.
+
+References
+----------
+.. [Debevec1997] See ``docs/references.md``.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.images import import_cv2
+from ..stack.align import _negligible, warp_to_reference
+from ..stack.frames import STRIP_PIXELS, Lineariser, StackFrames, clip_limits, max_code_of
+from .deghost import _ghost_mask, _neighbour_residual, _small_log_luma
+from .weights import NoiseModel, _FrameTables
+
+__all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "WHITE_FOLLOWS"]
+
+#: A pixel some shorter frame saw clipped white is clipped in a longer frame where any of
+#: its channels is at least this fraction of the maximum code there (ours).
+WHITE_FOLLOWS = 0.5
+
+#: Coverage mask of a warped frame: value of clipped pixels; 255 is outside the frame, and
+#: interpolated values above _OUTSIDE count as outside (for the fill of unmeasured pixels).
+_CLIPPED = 100
+_OUTSIDE = 177
+
+
+@dataclass(frozen=True)
+class FrameWeighing:
+    """How :func:`accumulate_frames` weighs each frame's pixels.
+
+    Attributes
+    ----------
+    weighting : {"noise", "hat"} or callable
+        As :func:`selfcal.merge_hdr`'s ``weighting``.
+    noise : NoiseModel
+        The noise model of the ``"noise"`` weights and of deghosting.
+    clip_margin : float
+        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped.
+    linear : bool
+        Linear frames (no response to apply).
+    stuck : tuple or None
+        Per channel (floor, ceiling) as normalised codes, or None.
+    ringing_radius : int
+        Pixels by which a frame's white-clipped region is widened (0: none).
+    deghost : bool
+        Test every frame against the reference, per pixel.
+    deghost_threshold, deghost_tolerance : float
+        ``k`` and the relative error floor of the deghosting test.
+    """
+
+    weighting: object
+    noise: NoiseModel
+    clip_margin: float
+    linear: bool
+    stuck: tuple | None
+    ringing_radius: int
+    deghost: bool
+    deghost_threshold: float = 3.0
+    deghost_tolerance: float = 0.1
+
+
+
+class MergeSums:
+    """A merge in progress: its float32 sums over row strips, and what each frame left.
+
+    ``num`` = Σ_j w_j·f⁻¹(I_j)/e_j and ``den`` = Σ_j w_j per channel (Eq. 6 of Debevec &
+    Malik, on linear values), ``count`` the frames each pixel got, ``ghost`` the pixels
+    deghosting took a frame from, ``white`` the pixels some frame merged so far saw
+    clipped at white (widened for lossy frames: ours).  ``kept`` holds the codes (and
+    coverage masks) of the reference, darkest and brightest frames, for deghosting and the
+    fill; ``residuals`` the misalignment test of each pair of neighbours.
+    """
+
+    def __init__(self, shape, exposures, ref: int, used):
+        hh, ww = shape
+        n = len(exposures)
+        self.num = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.den = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.count = np.zeros((hh, ww), dtype=np.uint8)
+        self.ghost = np.zeros((hh, ww), dtype=bool)
+        self.white = np.zeros((hh, ww), dtype=np.uint8)
+        self.width = ww
+        self.rows = max(8, STRIP_PIXELS // max(ww, 1))
+        self.strips = [slice(y, min(y + self.rows, hh)) for y in range(0, hh, self.rows)]
+        self.ref = ref
+        e = np.asarray(exposures, dtype=float)
+        # shortest first: a pixel clipped in a shorter frame is clipped in every longer one
+        self.order = sorted(used, key=lambda k: (e[k], k))
+        self.darkest = self.order[0]
+        self.brightest = self.order[-1]
+        self.kept: dict[int, tuple] = {}          # frame -> (codes, coverage mask or None)
+        self.tables: dict[int, _FrameTables] = {}
+        self.used = [0.0] * n                     # pixels each frame contributed to
+        self.excluded = [0.0] * n                 # pixels deghosting took from each frame
+        self.ghost_stats: dict[int, dict] = {}    # frame -> agreement with the reference
+        self.residuals: list[dict] = []           # neighbour pairs: misalignment test
+        self.cv2 = import_cv2()
+        self._local = threading.local()
+
+    def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
+        """One strip of one frame into the sums (strips are disjoint: threads may share).
+
+        A pixel counts when every channel is inside the frame's limits, it is not clipped
+        white in the frame or (``self.white``) in any shorter frame, within the widening
+        of ``own_white``, and deghosting kept it.  Returns the number of pixels the frame
+        contributed and that deghosting excluded.
+        """
+        cv2 = self.cv2
+        codes = img[s]
+        valid = tab.valid(codes)
+        if cover is not None:
+            valid[cover[s] > 0] = 0
+        # clipped white in a shorter frame, or near this frame's clipped pixels: only
+        # where this frame is bright as well (ringing moves clipped codes a few below
+        # white; a dark pixel by a highlight, a frame's padding or a moving object is no
+        # highlight)
+        blocked = cv2.bitwise_or(self.white[s], own_white[s])
+        if cv2.countNonZero(blocked):
+            # (saturating) blocked & ~dim, then valid & ~blocked
+            cv2.subtract(blocked, cv2.inRange(codes, (0, 0, 0), (tab.bright,) * 3),
+                         dst=blocked)
+            cv2.subtract(valid, blocked, dst=valid)
+        excluded = 0
+        if off is not None:
+            o = off[s] > 0
+            o &= valid > 0
+            if o.any():
+                valid[o] = 0
+                self.ghost[s] |= o
+                excluded = int(o.sum())
+        n_valid = cv2.countNonZero(valid)
+        if n_valid == 0:
+            return 0, excluded
+        num, den = self.num, self.den
+        if tab.lut:
+            # invalid pixels -> the maximum code in every channel, where the tables
+            # hold zero weight: then plain (unmasked) sums.  Strip buffers are reused
+            # (fresh large allocations cost page faults).
+            rows_s = s.stop - s.start
+            bufs = _thread_buffers(self._local, self.rows, self.width, img.dtype)
+            if n_valid < valid.size:
+                buf = bufs["codes"][:rows_s]
+                np.copyto(buf, codes)
+                cv2.bitwise_or(buf, (max_code,) * 3 + (0,), dst=buf,
+                               mask=cv2.bitwise_not(valid))
+                codes = buf
+            a, w, _, _ = tab.evaluate(codes, need_x=False,
+                                      out=(bufs["a"][:rows_s], bufs["w"][:rows_s]))
+            np.add(num[s], a, out=num[s])
+            np.add(den[s], w, out=den[s])
+        else:
+            a, w, _, _ = tab.evaluate(codes, need_x=False)
+            cv2.add(num[s], a, dst=num[s], mask=valid)
+            cv2.add(den[s], w, dst=den[s], mask=valid)
+        np.add(self.count[s], valid >> 7, out=self.count[s])
+        return n_valid, excluded
+
+    def frame_diagnostics(self, sources, *, deghost: bool) -> dict:
+        """Per frame, the fraction of pixels used (and excluded by deghosting)."""
+        npix = float(self.num.shape[0] * self.num.shape[1])
+        out = {"frame_used_fraction": [u / npix for u in self.used]}
+        if deghost:
+            out["deghost_excluded_fraction"] = [e / npix for e in self.excluded]
+            out["deghost_reference_agreement"] = {
+                sources[k]: st for k, st in sorted(self.ghost_stats.items())}
+        return out
+
+    def divide_and_fill(self) -> np.ndarray:
+        """``num`` becomes the radiance ``num / den``; unmeasured channels are filled.
+
+        Returns the bool mask of the pixels no frame measured (:func:`_fill_strip`).
+        ``den`` is released.
+        """
+        hh, ww = self.num.shape[:2]
+        unmeasured = np.zeros((hh, ww), dtype=bool)
+
+        def strip(s):
+            ns, ds = self.num[s], self.den[s]
+            hole = ds <= 0
+            # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
+            # masked division is several times slower
+            with np.errstate(divide="ignore", invalid="ignore"):
+                np.divide(ns, ds, out=ns)
+            hole_px = _any_channel(hole)
+            if hole_px.any():
+                unmeasured[s] = hole_px
+                fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
+                                   self.ref)
+                np.copyto(ns, fill, where=hole)
+
+        # strips are disjoint, and numpy releases the GIL
+        with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
+            list(pool.map(strip, self.strips))
+        self.den = None
+        return unmeasured
+
+
+def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, transforms,
+                      weighing: FrameWeighing, progress=None):
+    """Every frame into ``sums``, shortest exposure first (the reference first if deghosting).
+
+    Per frame: its tables of weights and radiance (:class:`.weights._FrameTables`), with
+    the clip limits raised to the black floor and lowered to the stuck ceiling of each
+    channel (``weighing.stuck``); its warp onto the reference grid with a coverage mask
+    (:data:`_CLIPPED` where it was clipped, 255 outside it); its own white-clipped pixels,
+    widened by ``weighing.ringing_radius`` pixels (``cv2.dilate``; JPEG ringing) -- those and every pixel a
+    shorter frame saw clipped white get zero weight (ours: clipping follows exposure, as
+    in the calibration's ``selfcal.stack.samples.frame_masks``); its deghosting mask against the
+    reference (:func:`.deghost._ghost_mask`); the misalignment test against the previous
+    frame (:func:`.deghost._neighbour_residual`); then its strips -- in parallel threads on the
+    table path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from
+    this thread only.
+    """
+    w = weighing
+    linear, weighting, noise, clip_margin = w.linear, w.weighting, w.noise, w.clip_margin
+    stuck, radius, deghost = w.stuck, w.ringing_radius, w.deghost
+    cv2 = sums.cv2
+    ref = sums.ref
+    order = sums.order
+    n = len(order)
+    lin = None
+    # a square: OpenCV dilates with it in two 1-D passes
+    kernel = np.ones((2 * radius + 1,) * 2, np.uint8) if radius > 0 else None
+    loaded = {}
+    if deghost:
+        loaded[ref] = frames.load(ref)       # deghosting compares every frame with it
+        order = [ref] + [k for k in order if k != ref]
+    prev = None
+    pool = ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1)))
+    try:
+        for done, (k, img) in enumerate(_read_ahead(frames, order, loaded)):
+            if lin is None:
+                mc = max_code_of(img)
+                lin = Lineariser(model, linear, mc)
+                lo, hi, floor = _frame_limits(mc, clip_margin, linear, stuck)
+            elif max_code_of(img) != lin.max_code:
+                raise InputError(f"sample type {img.dtype} differs from the other frames",
+                                 frames.sources[k])
+            tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
+                               deghost or k == ref, float(np.max(exposures[sums.order])),
+                               floor=floor)
+            # codes below this in every channel are not near white (see add_strip)
+            tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
+                          else WHITE_FOLLOWS)
+            sums.tables[k] = tab
+            cover = None
+            if (transforms is not None and k != ref
+                    and not _negligible(transforms[k], frames.shape)):
+                # clipped anywhere (before warping) -> _CLIPPED; outside the frame -> 255
+                bad = np.where(tab.valid(img) > 0, 0, _CLIPPED).astype(np.uint8)
+                img = warp_to_reference(img, transforms[k])
+                cover = warp_to_reference(bad, transforms[k], border_value=255)
+                del bad
+            if (k in (sums.darkest, sums.brightest)
+                    or (k == ref and (deghost or transforms is not None))):
+                sums.kept[k] = (img, cover)
+            own_white = tab.white(img)
+            if kernel is not None and cv2.countNonZero(own_white):
+                # (the default border of cv2.dilate is +inf: it would widen the edges)
+                own_white = cv2.dilate(own_white, kernel, borderType=cv2.BORDER_CONSTANT,
+                                       borderValue=0)
+            off = None
+            if deghost and k != ref:
+                off, stats = _ghost_mask(img, cover, sums.kept[ref][0], tab, sums.tables[ref],
+                                         sums.strips, w.deghost_threshold, w.deghost_tolerance)
+                sums.ghost_stats[k] = stats
+            small = _small_log_luma(img, cover, own_white, tab)
+            if prev is not None and not (deghost and (k == ref or prev[0] == ref)):
+                sums.residuals.append(_neighbour_residual(prev, (k, small), frames.sources))
+            prev = (k, small)
+
+            def accumulate(s, img=img, cover=cover, off=off, own_white=own_white, tab=tab):
+                return sums.add_strip(s, img, cover, off, own_white, tab, lin.max_code)
+
+            for n_valid, excluded in (pool.map if tab.lut else map)(accumulate, sums.strips):
+                sums.used[k] += float(n_valid)
+                sums.excluded[k] += float(excluded)
+            if not (deghost and k == ref):
+                # clipped here -> clipped in every longer frame (the reference, merged
+                # first when deghosting, passes its clipping on to nothing)
+                cv2.bitwise_or(sums.white, own_white, dst=sums.white)
+            else:
+                ref_white = own_white
+            del img, cover, own_white
+            if progress is not None:
+                progress("merge", done + 1, n, frames.sources[k])
+    finally:
+        pool.shutdown()
+    if deghost:
+        cv2.bitwise_or(sums.white, ref_white, dst=sums.white)
+
+
+def _read_ahead(frames: StackFrames, order, loaded: dict):
+    """``(k, codes)`` for each frame of ``order``, the next one decoded while the caller
+    works on this one.
+
+    Decoders release the GIL, so one reader thread overlaps decoding with the merge
+    arithmetic (ours: from files, the merge otherwise waits on every decode in turn).
+    At most two frames are held beyond ``loaded``: the one yielded and the next.
+    """
+    def load(k):
+        return loaded.pop(k) if k in loaded else frames.load(k)
+
+    with ThreadPoolExecutor(max_workers=1) as reader:
+        ahead = reader.submit(load, order[0]) if order else None
+        for i, k in enumerate(order):
+            img = ahead.result()
+            ahead = reader.submit(load, order[i + 1]) if i + 1 < len(order) else None
+            yield k, img
+            img = None  # noqa: F841 -- the caller's frame is released before the next
+
+
+def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
+    """Per channel (lo, hi, floor limit or None) for :class:`.weights._FrameTables`.
+
+    The clip limits of :func:`selfcal.stack.frames.clip_limits` (a pixel with any channel at
+    or beyond them is clipped), ``hi`` lowered to the stuck ceiling of each channel, and
+    the black floor of each channel, below which that channel's codes get zero weight
+    (``stuck``: normalised codes, :func:`selfcal.stack.frames.stuck_code_levels`; the codes
+    below the floor and from the ceiling up do not move with exposure, the floor code
+    itself is the first that does).  A floor zeroes its channel only: the other channels
+    of a dark, coloured pixel are still measured (zeroing every channel of a pixel with one
+    channel at its floor raised the odd/even median |log ratio| of ntu's night scene,
+    ``bench/bench_hdr_oddeven.py``, from 0.29 to 0.54).
+    """
+    lo, hi = clip_limits(max_code, clip_margin, linear)
+    lo = np.full(3, float(lo))
+    hi = np.full(3, float(hi))
+    floor = None
+    if stuck is not None and max_code is not None:
+        fl, ceiling = (np.asarray(v, dtype=float) * max_code for v in stuck)
+        floor = np.where(fl > 0, fl - 0.5, 0.0)
+        hi = np.minimum(hi, np.where(ceiling < max_code, ceiling, max_code))
+    return lo, hi, floor
+
+
+def _thread_buffers(local, rows: int, width: int, dtype) -> dict:
+    """Per-thread strip buffers (codes, weighted values, weights)."""
+    bufs = getattr(local, "bufs", None)
+    if bufs is None or bufs["codes"].dtype != dtype:
+        bufs = local.bufs = {"codes": np.empty((rows, width, 3), dtype=dtype),
+                             "a": np.empty((rows, width, 3), dtype=np.float32),
+                             "w": np.empty((rows, width, 3), dtype=np.float32)}
+    return bufs
+
+
+# --------------------------------------------------------------------------------------
+# the fill of unmeasured pixels
+# --------------------------------------------------------------------------------------
+
+def _any_channel(mask3: np.ndarray) -> np.ndarray:
+    """``mask3.any(axis=2)`` for 3 channels, without numpy's slow strided reduction."""
+    return mask3[..., 0] | mask3[..., 1] | mask3[..., 2]
+
+
+def _fill_strip(s, kept, tables, darkest, brightest, ref):
+    """Values for pixels no frame measured: darkest frame for highlights, else brightest.
+
+    A pixel is a highlight when some channel of the brightest frame is clipped at white
+    there (the darkest frame's codes may be JPEG ringing below white).  Where the chosen
+    frame was warped and does not reach the pixel, the reference frame's value is used.
+    """
+    dcodes, dcover = kept[darkest]
+    bcodes, bcover = kept[brightest]
+    high = tables[brightest].white(bcodes[s]) > 0
+    fill = np.where(high[..., None], tables[darkest].radiance(dcodes[s]),
+                    tables[brightest].radiance(bcodes[s]))
+    outside = np.zeros(high.shape, dtype=bool)
+    if dcover is not None:
+        outside |= high & (dcover[s] > _OUTSIDE)
+    if bcover is not None:
+        outside |= ~high & (bcover[s] > _OUTSIDE)
+    if outside.any():
+        fill[outside] = tables[ref].radiance(kept[ref][0][s])[outside]
+    return fill
