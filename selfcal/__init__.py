@@ -30,7 +30,7 @@ from .response.model import ResponseModel
 from .pipeline import PipelineModel, fit_pipeline
 from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
 from .io.raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
-from .hdr import merge_hdr  # HDR radiance maps (selfcal.hdr)
+from .hdr import MergeOptions, merge_hdr  # HDR radiance maps (selfcal.hdr)
 
 __version__ = "0.1.0"
 
@@ -46,6 +46,7 @@ __all__ = [
     "fit_pipeline",
     "PipelineModel",
     "merge_hdr",
+    "MergeOptions",
     "errors",
     "CalibrationError",
     "InputError",
