@@ -2,11 +2,11 @@
 
 * Rendered frames (JPEG/PNG/TIFF) of one scene at two or more exposures → the JPEG-only
   **response path** (:func:`selfcal.calibrate_response`; Lin, Kim, Süsstrunk & Brown,
-  *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011 (paper 002),
+  *Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011 [Lin2011],
   §5, Eq. 7-8).
 * One or more RAW+JPEG pairs (a raw file and the rendered file of the same name in the same
   folder) → the **pipeline path** (:func:`selfcal.pipeline.fit_pipeline`; Gong et al.,
-  *Rank-based radiometric calibration* (paper 000), §3; Lin et al. §6).
+  *Rank-based radiometric calibration* [Gong2018], §3; Lin et al. §6).
 * A bracketed RAW+JPEG session → both, and the exposure ratios of the response path come
   from the raws (Lin et al. §5: "the exposure ratio can be directly computed by dividing
   the raw values between two images"), which fixes the shutter error and the exponential
@@ -784,7 +784,7 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
                        block: int | None = None, **fit_options):
     """Fit the camera pipeline (raw → rendered and back) to RAW+rendered pairs.
 
-    The RAW path: Gong et al., *Rank-based radiometric calibration* (paper 000), §3 (colour
+    The RAW path: Gong et al., *Rank-based radiometric calibration* [Gong2018], §3 (colour
     matrix from rank order, monotone tone curves, lattice gamut LUT) and the inverse colour
     mapping of Lin et al., ICCV 2011, §6 (Eq. 9-11), fitted by
     :func:`selfcal.pipeline.fit_pipeline` to block-mean correspondences

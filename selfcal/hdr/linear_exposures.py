@@ -1,6 +1,6 @@
 """Exposures of a linear bracket measured from its pixels: raw files, linear TIFFs.
 
-Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), §5: "with RAW images, the exposure
+Lin, Kim, Süsstrunk & Brown, ICCV 2011 [Lin2011], §5: "with RAW images, the exposure
 ratio can be directly computed by dividing the raw values between two images".  Linear data
 have the identity for a response, so a bracket of raws (or of a raw converter's linear
 16-bit TIFFs) needs no calibration: the ratios of the frames' values at pixels well exposed
@@ -10,8 +10,9 @@ shutter's error, and the frames merge to HDR directly (:func:`selfcal.merge_hdr`
 
 What is ours: how measured ratios and the times (EXIF or the caller's) are combined.  The
 ratios set the exposures; the times set only their absolute scale, by the median over the
-frames of ``log(time / measured)`` -- so one wrong time cannot move the others (issue 14's
-lesson on anchoring).  Times the caller gives are kept as they are (``use="auto"``), and a
+frames of ``log(time / measured)`` -- so one wrong time cannot move the others (anchored
+on one frame, its wrong time would move them all).  Times the caller gives are kept as
+they are (``use="auto"``), and a
 difference from the pixels is reported, as on the response path.
 """
 

@@ -1,8 +1,8 @@
 """Reading camera raw files as linear camera RGB.
 
-The RAW calibration path (Gong et al., *Rank-based radiometric calibration*, paper 000,
+The RAW calibration path (Gong et al., *Rank-based radiometric calibration* [Gong2018],
 Eq. 1a: ``P = f(Γ(M ρ))``) and the exposure ratios of Lin, Kim, Süsstrunk & Brown,
-*Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011 (paper 002,
+*Revisiting Radiometric Calibration for Color Computer Vision*, ICCV 2011 ([Lin2011],
 §5: "the exposure ratio can be directly computed by dividing the raw values between two
 images") both need ρ, the sensor's linear response: black level subtracted, scaled so the
 white (saturation) level is 1, and nothing else -- no white balance, no colour matrix, no
@@ -272,9 +272,9 @@ def _channel_levels(raw) -> tuple[np.ndarray, np.ndarray]:
 def read_raw_linear(path, *, half_size: bool = False) -> RawImage:
     """Read a camera raw file (or a 16-bit linear TIFF) as linear camera RGB in ``[0, 1]``.
 
-    The sensor values ρ of Gong et al., rank-based radiometric calibration (paper 000),
+    The sensor values ρ of Gong et al., rank-based radiometric calibration [Gong2018],
     Eq. 1a, and the RAW values whose ratios give exposure ratios in Lin et al., ICCV 2011
-    (paper 002), §5.  LibRaw (``rawpy``) decodes and demosaics with every rendering step
+    [Lin2011], §5.  LibRaw (``rawpy``) decodes and demosaics with every rendering step
     off: ``gamma=(1, 1)``, ``no_auto_bright``, unit white-balance multipliers, output in
     the camera's raw colour space, 16 bits, no automatic maximum adjustment, no rotation
     (``user_flip=0``: pixels stay in sensor order, as a camera JPEG's stored pixels do

@@ -463,7 +463,7 @@ def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, w
         new = est[k] * factor
         if given[k] is not None:
             dev = abs(math.log(new / given[k]))
-            if dev > 1e-6:          # any change is said (issue 13), not only above 1 %
+            if dev > 1e-6:          # any change is said, not only above 1 %
                 changed.append((dev, k, given[k], new))
         out[k] = new
     label = {"given": "given times", "exif": "EXIF exposures"}[source]

@@ -34,7 +34,7 @@ REJECTION_REASONS = ("clipped", "saturated", "not_flat")
 THUMBNAIL_SIDE = 1024
 #: A block within this many blocks of a clipped one counts as clipped (its block max/min
 #: taken over the neighbourhood), to keep samples away from JPEG ringing at clipped edges
-#: (issue 15, Build 2).  Off: tried at radius 0 / 1 / 3 / 8 on the tuning split of
+#: (an experiment, off by default).  Off: tried at radius 0 / 1 / 3 / 8 on the tuning split of
 #: ``bench/bench_response_matrix.py`` (256x384 frames, block 1), radius 1 gave 12 (was
 #: 11) of 14 cells with a median f⁻¹ RMSE ≤ 0.005 and 10 (was 7) with p90 ≤ 0.010, but
 #: ``bench_response_synthetic.py --step 10`` went from a median of 0.0044 to 0.0048, the
@@ -309,7 +309,7 @@ def working_block_size(shape, target_blocks: int = TARGET_BLOCKS) -> int:
     The edge is rounded down, so a frame has at least ``target_blocks`` blocks (when it
     has that many pixels) and fewer than four times as many; frames under 1.6 MP keep
     every pixel.  Rounding up instead (at most ``target_blocks``: 2×2 blocks for 1.5 MP
-    frames) was tried for issue 15, Build 4 and not kept: a 7-frame 1.5 MP stack then
+    frames) was tried and not kept: a 7-frame 1.5 MP stack then
     calibrated in 0.35 s instead of 1.51 s, but on 1.5 MP synthetic stacks (``bench_response_synthetic.py
     --size 1000x1500 --step 10``) the mean f⁻¹ RMSE rose from 0.0077 to 0.0086 (two
     times known, median 0.0038 to 0.0044).  See ``bench/BENCHMARKS.md``, "JPEG-only
