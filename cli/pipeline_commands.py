@@ -54,17 +54,24 @@ def _outputs(inputs, folder: Path, suffix: str, force: bool, model_path):
 
 def _convert_files(args, inputs, suffix: str, desc: str, convert) -> list:
     """Check every output, load the model, then ``convert(model, src, tmp)`` per file into
-    temporary files that become the outputs together at the end (none on a failure)."""
+    temporary files that become the outputs together at the end (none on a failure).
+
+    ``convert`` returns a warning about the file or None; the warnings are said at the end.
+    """
     from tqdm import tqdm
 
     from selfcal.io import StagedOutputs
 
     outs = _outputs(inputs, Path(args.output), suffix, args.force, args.model)
     model = _load_pipeline(args.model)
+    said = []
     with StagedOutputs(force=args.force, inputs=[*inputs, args.model]) as staged:
         for src, out in tqdm(list(zip(inputs, outs)), desc=desc, unit="image",
                              disable=None, leave=False):
-            staged.write(out, lambda tmp, src=src: convert(model, src, tmp))
+            said.append(staged.write(out, lambda tmp, src=src: convert(model, src, tmp)))
+    for w in said:
+        if w is not None:
+            warn(w)
     return outs
 
 
@@ -81,25 +88,16 @@ def _outside_warning(src, mask, kind: str) -> str | None:
             f"pair that shows such colours)")
 
 
-def _say_outside(warnings) -> None:
-    for w in warnings:
-        if w is not None:
-            warn(w)
-
-
 def cmd_to_raw(args) -> int:
     from selfcal.hdr.io import write_linear
     from selfcal.io import read_image
 
-    outside = []
-
     def convert(model, src, out):
         raw, mask = model.to_raw(read_image(src), return_mask=True)
         write_linear(out, raw, float32=args.float, force=True)
-        outside.append(_outside_warning(src, mask, "rendered"))
+        return _outside_warning(src, mask, "rendered")
 
     outs = _convert_files(args, args.images, ".tiff", "to-raw", convert)
-    _say_outside(outside)
     say(f"wrote {len(outs)} linear camera-raw TIFF{'s' if len(outs) != 1 else ''} "
          f"({'float32' if args.float else '16-bit'}) to {Path(args.output)}/")
     return EXIT_OK
@@ -111,16 +109,13 @@ def cmd_render(args) -> int:
     from selfcal.io import write_image
     from selfcal.io.raw import read_raw_linear
 
-    outside = []
-
     def convert(model, src, out):
         rendered, mask = model.render(read_raw_linear(src).rgb, return_mask=True)
         codes = np.clip(np.round(rendered * 255.0), 0, 255).astype(np.uint8)
         write_image(out, codes, jpeg_quality=args.quality, force=True)
-        outside.append(_outside_warning(src, mask, "raw"))
+        return _outside_warning(src, mask, "raw")
 
     outs = _convert_files(args, args.raws, ".jpg", "render", convert)
-    _say_outside(outside)
     say(f"wrote {len(outs)} rendered JPEG{'s' if len(outs) != 1 else ''} to "
          f"{Path(args.output)}/")
     return EXIT_OK
