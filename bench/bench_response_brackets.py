@@ -93,7 +93,7 @@ def non_monotone(curves) -> int:
 
 def cross_scene(curves, stacks) -> tuple[float, float]:
     """(own scene, mean over other scenes) log linearisation error of each scene's curve."""
-    from selfcal.sim.scoring import log_linearisation_error
+    from real_stack_metrics import log_linearisation_error
 
     own, other = [], []
     for i, curve in enumerate(curves):

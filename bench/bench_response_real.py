@@ -26,9 +26,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import opencv_inverse_response, real_stacks, table  # noqa: E402
-
-from selfcal.sim.scoring import (log_linearisation_error,  # noqa: E402
-                             log_linearisation_error_by_saturation, per_code_floor)
+from real_stack_metrics import (log_linearisation_error,  # noqa: E402
+                                log_linearisation_error_by_saturation, per_code_floor)
 
 SATURATION_BANDS = (0.0, 0.3, 0.5, 1.0)
 
