@@ -26,6 +26,62 @@ def _unit_noise(rng, shape, sigma) -> np.ndarray:
     return (n - n.mean()) / (n.std() + 1e-12)
 
 
+def _chart(shape, rng, dr: float, sat: float) -> tuple:
+    """The chart: 4 × 6 flat patches on a dark surround, 18 coloured (shuffled
+    luminances over the range, hues round the circle) and a bottom row of 6 greys.
+    Returns log2 luminance, hue and chroma of the region."""
+    h1, w1 = shape
+    log_l, hue, chroma = np.full(shape, -0.55 * dr), np.zeros(shape), np.zeros(shape)
+    rows, cols = 4, 6
+    n_col = (rows - 1) * cols
+    lums = rng.permutation(np.linspace(-dr, 0.0, n_col))
+    hues = rng.permutation(np.linspace(0, 2 * np.pi, n_col, endpoint=False))
+    hues = hues + rng.uniform(-0.15, 0.15, n_col)
+    chromas = sat * rng.uniform(0.35, 1.0, n_col)
+    greys = np.linspace(0.0, -dr, cols)
+    ys = np.linspace(0, h1, rows + 1).round().astype(int)
+    xs = np.linspace(0, w1, cols + 1).round().astype(int)
+    gap = max(1, min(h1 // rows, w1 // cols) // 8)
+    for r in range(rows):
+        for c in range(cols):
+            sl = (slice(ys[r] + gap, ys[r + 1] - gap), slice(xs[c] + gap, xs[c + 1] - gap))
+            if r < rows - 1:
+                i = r * cols + c
+                log_l[sl], hue[sl], chroma[sl] = lums[i], hues[i], chromas[i]
+            else:
+                log_l[sl] = greys[c]
+    return log_l, hue, chroma
+
+
+def _texture(shape, rng, dr: float, sat: float) -> tuple:
+    """Band-pass noise in log luminance (≈ ±4 stops), a fine checker, slowly varying hue
+    and chroma.  Returns log2 luminance, hue and chroma of the region."""
+    th, tw = shape
+    yy, xx = np.mgrid[0:th, 0:tw]
+    checker = np.sign(np.sin(2 * np.pi * (xx + 0.5) / 8) * np.sin(2 * np.pi * (yy + 0.5) / 8))
+    tex = (-0.45 * dr + 1.6 * _unit_noise(rng, (th, tw), max(th, tw) / 10)
+           + 0.4 * _unit_noise(rng, (th, tw), 1.0) + 0.35 * checker)
+    log_l = np.clip(tex, -dr, 0.0)
+    hue = np.pi * _unit_noise(rng, (th, tw), max(th, tw) / 6)
+    chroma = sat * 0.7 / (1 + np.exp(-1.5 * _unit_noise(rng, (th, tw), 4.0)))
+    return log_l, hue, chroma
+
+
+def _colour_ramps(shape, dr: float, sat: float) -> tuple:
+    """Hue (x) × chroma (y) at constant luminance on the left half, hue (x) × luminance
+    (y) at chroma ``sat`` on the right.  Returns log2 luminance, hue and chroma."""
+    bh, w = shape
+    half = w // 2
+    log_l, hue, chroma = np.zeros(shape), np.zeros(shape), np.zeros(shape)
+    log_l[:, :half] = -0.4 * dr
+    hue[:, :half] = np.linspace(0, 2 * np.pi, half, endpoint=False)[None, :]
+    chroma[:, :half] = np.linspace(0.0, sat, bh)[:, None]
+    log_l[:, half:] = np.linspace(0.0, -dr, bh)[:, None]
+    hue[:, half:] = np.linspace(0, 2 * np.pi, w - half, endpoint=False)[None, :]
+    chroma[:, half:] = sat
+    return log_l, hue, chroma
+
+
 def make_scene(height: int = 256, width: int = 384, *, dynamic_range_stops: float = 14.0,
                saturation: float = 0.5, seed: int = 0) -> np.ndarray:
     """A synthetic high-dynamic-range scene: linear radiance in camera RGB.
@@ -77,51 +133,13 @@ def make_scene(height: int = 256, width: int = 384, *, dynamic_range_stops: floa
     hue = np.zeros((h, w))
     chroma = np.zeros((h, w))
     h1, h2, w1 = h // 2, (5 * h) // 8, (2 * w) // 3
-
-    # chart
-    rows, cols = 4, 6
-    n_col = (rows - 1) * cols
-    log_l[:h1, :w1] = -0.55 * dr   # surround
-    lums = rng.permutation(np.linspace(-dr, 0.0, n_col))
-    hues = rng.permutation(np.linspace(0, 2 * np.pi, n_col, endpoint=False))
-    hues = hues + rng.uniform(-0.15, 0.15, n_col)
-    chromas = sat * rng.uniform(0.35, 1.0, n_col)
-    greys = np.linspace(0.0, -dr, cols)
-    ys = np.linspace(0, h1, rows + 1).round().astype(int)
-    xs = np.linspace(0, w1, cols + 1).round().astype(int)
-    gap = max(1, min(h1 // rows, w1 // cols) // 8)
-    for r in range(rows):
-        for c in range(cols):
-            sl = (slice(ys[r] + gap, ys[r + 1] - gap), slice(xs[c] + gap, xs[c + 1] - gap))
-            if r < rows - 1:
-                i = r * cols + c
-                log_l[sl], hue[sl], chroma[sl] = lums[i], hues[i], chromas[i]
-            else:
-                log_l[sl] = greys[c]
-
-    # texture
-    th, tw = h1, w - w1
-    yy, xx = np.mgrid[0:th, 0:tw]
-    checker = np.sign(np.sin(2 * np.pi * (xx + 0.5) / 8) * np.sin(2 * np.pi * (yy + 0.5) / 8))
-    tex = (-0.45 * dr + 1.6 * _unit_noise(rng, (th, tw), max(th, tw) / 10)
-           + 0.4 * _unit_noise(rng, (th, tw), 1.0) + 0.35 * checker)
-    log_l[:h1, w1:] = np.clip(tex, -dr, 0.0)
-    hue[:h1, w1:] = np.pi * _unit_noise(rng, (th, tw), max(th, tw) / 6)
-    chroma[:h1, w1:] = sat * 0.7 / (1 + np.exp(-1.5 * _unit_noise(rng, (th, tw), 4.0)))
-
+    chart, texture = (slice(0, h1), slice(0, w1)), (slice(0, h1), slice(w1, w))
+    log_l[chart], hue[chart], chroma[chart] = _chart((h1, w1), rng, dr, sat)
+    log_l[texture], hue[texture], chroma[texture] = _texture((h1, w - w1), rng, dr, sat)
     # neutral luminance ramp, log-linear over the whole range (and half a stop more)
     log_l[h1:h2, :] = np.linspace(-dr - 0.5, 0.0, w)[None, :]
-
-    # hue x chroma and hue x luminance ramps
-    bh, half = h - h2, w // 2
-    log_l[h2:, :half] = -0.4 * dr
-    hue[h2:, :half] = np.linspace(0, 2 * np.pi, half, endpoint=False)[None, :]
-    chroma[h2:, :half] = np.linspace(0.0, sat, bh)[:, None]
-    log_l[h2:, half:] = np.linspace(0.0, -dr, bh)[:, None]
-    hue[h2:, half:] = np.linspace(0, 2 * np.pi, w - half, endpoint=False)[None, :]
-    chroma[h2:, half:] = sat
+    log_l[h2:], hue[h2:], chroma[h2:] = _colour_ramps((h - h2, w), dr, sat)
 
     rgb = np.exp2(log_l)[..., None] * (1.0 + 0.97 * chroma[..., None] * _opponent(hue))
     rgb /= rgb.max()
     return rgb.astype(np.float32)
-
