@@ -212,10 +212,10 @@ def training_samples(scenes, names, seed=0):
 
 
 def fit_selfcal(samples, **options):
-    from selfcal.pipeline import fit_pipeline
+    from selfcal.pipeline import PipelineOptions, fit_pipeline
 
-    return fit_pipeline(samples.raw, samples.rendered, seed=0, groups=samples.groups,
-                        **options)
+    return fit_pipeline(samples.raw, samples.rendered, PipelineOptions(**options), seed=0,
+                        groups=samples.groups)
 
 
 def fit_baselines(samples):
@@ -278,12 +278,12 @@ def with_forward_lut(model, weight, samples, stretch):
     fit_pipeline does with them, but for the matrix search, which keeps its set)."""
     import copy
 
-    from selfcal.pipeline.lattice import lattice_regression_lut
+    from selfcal.pipeline.lattice import LatticeOptions, lattice_regression_lut
 
     y = np.clip(model.tone_curves(samples.raw @ model.matrix.T), 0.0, 1.0)
     out = copy.copy(model)
-    out.forward_lut = lattice_regression_lut(y, samples.rendered, smoothness=weight,
-                                             gamma=stretch)
+    out.forward_lut = lattice_regression_lut(y, samples.rendered,
+                                             LatticeOptions(gamma=stretch), smoothness=weight)
     return out
 
 
@@ -454,7 +454,7 @@ SWAP_TRAIN = ("chart", "blackmagic", "ssf-A", "sim-ramps-sat")
 
 def swap_table(scenes, hulls, fits, cam):
     """Which part carries the cross-scene error: each swapped for the camera's truth."""
-    from selfcal.pipeline.lattice import lattice_regression_lut
+    from selfcal.pipeline.lattice import LatticeOptions, lattice_regression_lut
     from selfcal.pipeline.tone import monotone_tone_curves
 
     weighting = fits[SWAP_TRAIN[0]]["selfcal"].diagnostics.get("neutral_weighting")
@@ -476,7 +476,7 @@ def swap_table(scenes, hulls, fits, cam):
                                                                        smoothness="auto")),
             "no LUT": Forward(model.matrix, model.tone_curves),
             "g=identity": Forward(model.matrix, model.tone_curves, lattice_regression_lut(
-                y, s.rendered, smoothness="auto", gamma=0.0)),
+                y, s.rendered, LatticeOptions(gamma=0.0), smoothness="auto")),
         }
         for b in SWAP_TRAIN:
             if b == a:
@@ -594,19 +594,19 @@ def diagnose_table(scenes, hulls):
     blocks clipped throughout (pair_samples keep_clipped)."""
     import copy
 
-    from selfcal.pipeline.pairs import collect_pair_samples
-    from selfcal.pipeline.lattice import lattice_regression_lut
+    from selfcal.pipeline.lattice import LatticeOptions, lattice_regression_lut
+    from selfcal.pipeline.pairs import BlockRejection, collect_pair_samples
 
     rows, cols = [], {k: [] for k in ("pixel", "sample", "affine", "clipped")}
     for a in TUNING:
         s = training_samples(scenes, [a])
         sk = collect_pair_samples([scenes[a]["image_raw"]], [scenes[a]["image_rendered"]],
-                                  seed=0, keep_clipped=True)[0]
+                                  seed=0, rejection=BlockRejection(keep_clipped=True))[0]
         m, mk = fit_selfcal(s, backward="lut"), fit_selfcal(sk, backward="lut")
         y = np.clip(m.tone_curves(s.raw @ m.matrix.T), 0.0, 1.0)
         ma = copy.copy(m)
-        ma.forward_lut = lattice_regression_lut(y, s.rendered, smoothness="auto",
-                                                affine=False)
+        ma.forward_lut = lattice_regression_lut(y, s.rendered, LatticeOptions(affine=False),
+                                                smoothness="auto")
         sample_hull = Hull(s.raw)
         for b in TUNING:
             t = scenes[b]

@@ -21,7 +21,7 @@ over codes 1…254 (``selfcal.sim.scoring.best_scale_rmse``), per channel.  The 
 mean and the largest score over the camera's scenes and channels.
 
 **Cross-scene linearisation** (reported, not a target: the metric's minimiser is biased,
-``bench_response_tradeoff.py``): ``selfcal.sim.scoring.log_linearisation_error`` of each scene's
+``bench_response_tradeoff.py``): ``bench.real_stack_metrics.log_linearisation_error`` of each scene's
 curve on each *other* scene of its camera (mean over the pairs), next to the same score of
 each scene's curve on its own scene.
 

@@ -1,6 +1,6 @@
 """Issue 3: do neutral and coloured pixels ask for the same per-channel curve on memorial and piccante?
 
-The acceptance-2 metric (``selfcal.sim.scoring.log_linearisation_error``) scores the residual
+The acceptance-2 metric (``bench.real_stack_metrics.log_linearisation_error``) scores the residual
 r = log f⁻¹(I′) − log f⁻¹(I) − log(t′/t) of every adjacent exposure pair, over pixels with
 all channels in [25, 235] in both frames.  If one per-channel curve could hold for all
 pixels, r would centre on 0 at every code whatever the pixel's colour.  This script

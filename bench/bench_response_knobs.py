@@ -6,7 +6,7 @@ Each row changes one setting of the shipped method and scores it on
   curve, and ``--srgb`` sRGB stacks; 384×576, 6 shots 1/250 … 1/8 s, ±3 % jitter, noise,
   smooth gamut map, JPEG q90): the median RMSE of f⁻¹ over codes 1 … 254;
 * the real stacks memorial and piccante with the acceptance-2 metric
-  (``selfcal.sim.scoring.log_linearisation_error``, nominal times), where the shipped method
+  (``bench.real_stack_metrics.log_linearisation_error``, nominal times), where the shipped method
   stays above OpenCV Robertson (bench_response_real.py).
 
 Knobs that are arguments of the solver (``solve_exposure_equations``) or of the sampling
@@ -38,7 +38,8 @@ from selfcal.sim.scoring import rmse  # noqa: E402
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 REAL = ("memorial", "piccante")
 
-# key -> (row label, calibrate_response kwargs, solver kwargs, sampling kwargs)
+# key -> (row label, ResponseOptions fields: of the sampling, of the solve; collect_samples
+# kwargs)
 KNOBS = [
     ("shipped", "as shipped", {}, {}, {}),
     ("beta1", "β = 1 (no saturation rejection; default 0.5)",
@@ -72,20 +73,19 @@ def _per_channel_contrast(blocks):
 
 @contextlib.contextmanager
 def knob(key):
-    """Wrap selfcal's solve and sampling for one knob; yields calibrate kwargs."""
+    """Wrap selfcal's sampling for one knob; yields calibrate kwargs (its options)."""
     import selfcal.response.calibrate as cal
     import selfcal.stack.samples as samples
+    from selfcal.response import ResponseOptions
 
     _, _, kwargs, solver_kw, sampling_kw = next(k for k in KNOBS if k[0] == key)
     saved = (cal.solve_exposure_equations, cal.collect_samples, samples._local_contrast)
     try:
-        if solver_kw:
-            cal.solve_exposure_equations = functools.partial(saved[0], **solver_kw)
         if sampling_kw:
             cal.collect_samples = functools.partial(saved[1], **sampling_kw)
         if key == "perchannel":
             samples._local_contrast = _per_channel_contrast
-        yield kwargs
+        yield {"options": ResponseOptions(**kwargs, **solver_kw)}
     finally:
         cal.solve_exposure_equations, cal.collect_samples, samples._local_contrast = saved
 

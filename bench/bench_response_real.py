@@ -9,7 +9,7 @@ which iterates over every pixel, runs in reasonable time and memory.
 
 The "per-code floor" column is the lowest value any per-channel curve can reach on the
 metric: a free log f⁻¹ value per code, least squares over the metric's own pixel pairs
-(``selfcal.sim.scoring.per_code_floor``).  It is not a calibration, only a scale for the others.
+(``bench.real_stack_metrics.per_code_floor``).  It is not a calibration, only a scale for the others.
 
 A second table splits the same metric by HSV saturation (the larger of the pair's): near-
 neutral pixels, where the per-channel model of Lin et al. §5 holds, and the coloured ones

@@ -22,7 +22,7 @@ image has it", which is what the metric rewards:
   (the metric's pairs);
 * ``+ N = 11``: the same with eleven basis functions per channel;
 * ``per-code floor``: one free log f⁻¹ per code, least squares over the metric's own
-  pixel pairs (``selfcal.sim.scoring.per_code_floor``): the metric fitted to itself.
+  pixel pairs (``bench.real_stack_metrics.per_code_floor``): the metric fitted to itself.
 
 The sampling and solver variants are applied by wrapping selfcal's own functions inside
 this script; the library keeps no switch for them.
@@ -66,9 +66,10 @@ def _random_contrast(blocks):
 
 @contextlib.contextmanager
 def variant(name):
-    """Patch selfcal's sampling and solve for one variant; yields calibrate kwargs."""
+    """Patch selfcal's sampling for one variant; yields calibrate kwargs (its options)."""
     import selfcal.response.calibrate as cal
     import selfcal.stack.samples as samples
+    from selfcal.response import ResponseOptions
 
     saved = (samples._local_contrast, cal.collect_samples, cal.solve_exposure_equations)
     kwargs = {}
@@ -80,11 +81,11 @@ def variant(name):
             # enough per intensity bin that the 20,000 draws are not capped by the bins
             cal.collect_samples = functools.partial(
                 saved[1], per_bin=PROPORTIONAL_SAMPLES // 48 + 1)
-            cal.solve_exposure_equations = functools.partial(saved[2], max_rank_gap=1)
-            kwargs = {"saturation_threshold": 1.0, "max_samples": PROPORTIONAL_SAMPLES}
+            kwargs = {"saturation_threshold": 1.0, "max_samples": PROPORTIONAL_SAMPLES,
+                      "max_rank_gap": 1}
             if name == "proportional_n11":
                 kwargs["n_components"] = 11
-        yield kwargs
+        yield {"options": ResponseOptions(**kwargs)}
     finally:
         samples._local_contrast, cal.collect_samples, cal.solve_exposure_equations = saved
 

@@ -1,7 +1,8 @@
 """Shared helpers of the benchmark scripts: data location, stacks, OpenCV baselines.
 
-The measures the benches print (RMSE of f⁻¹, the log-linearisation error and its
-saturation split, the per-code floor) live in :mod:`selfcal.sim.scoring`.
+The measures the benches print live in :mod:`selfcal.sim.scoring` (RMSE of f⁻¹ against
+the simulator's truth) and ``real_stack_metrics`` beside this file (the log-linearisation
+error, its saturation split, the per-code floor).
 """
 
 from __future__ import annotations
