@@ -83,8 +83,9 @@ def cmd_calibrate(args) -> int:
     result = selfcal.calibrate(
         images, exposure_times=args.times, progress=progress_bar("calibrate"),
         exposure_source="unknown" if args.unknown_exposures else "auto",
-        refine_exposures=args.refine_exposures, n_components=args.components,
-        saturation_threshold=args.saturation_threshold, basis=basis,
+        refine_exposures=args.refine_exposures, basis=basis,
+        response_options={"options": selfcal.ResponseOptions(
+            n_components=args.components, saturation_threshold=args.saturation_threshold)},
         **({"align": args.align} if args.align else {}))
     for line in result.summary_lines():
         say(line)

@@ -25,7 +25,7 @@ from .errors import (
 )
 
 from .choose.loading import load_model
-from .response.calibrate import calibrate_response
+from .response.calibrate import ResponseOptions, calibrate_response
 from .response.model import ResponseModel
 from .pipeline import PipelineModel, fit_pipeline
 from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
@@ -41,6 +41,7 @@ __all__ = [
     "read_raw_linear",
     "RawImage",
     "calibrate_response",
+    "ResponseOptions",
     "load_model",
     "ResponseModel",
     "fit_pipeline",

@@ -1,4 +1,4 @@
-"""Property-based tests (hypothesis) of the response calibration and of model files (issue 14).
+"""Property-based tests (hypothesis) of the response calibration and of model files.
 
 The calibration properties: the order of the frames does not change the model; scaling all
 times by a constant scales the exposures only; the same inputs give byte-identical model
@@ -31,7 +31,9 @@ from hypothesis import strategies as st
 import selfcal
 from selfcal import sim
 from selfcal.errors import ModelFileError, SelfcalError
-from selfcal.pipeline import PipelineModel, fit_pipeline
+from selfcal.pipeline import (BackwardStages, ForwardStages, PipelineModel, PipelineOptions,
+                              fit_pipeline)
+from selfcal.response import ResponseOptions
 from selfcal.response.model import ResponseModel
 
 #: Fixed examples, no database (nothing written beside the repository), no deadline (a
@@ -139,7 +141,8 @@ def calibrate(images, times, mode="given"):
     try:
         model = selfcal.calibrate_response(
             images, None if mode == "unknown" else times,
-            refine_exposures=mode == "refine", max_samples=SAMPLES)
+            refine_exposures=mode == "refine",
+            options=ResponseOptions(max_samples=SAMPLES))
     except SelfcalError as exc:
         event(f"{mode}: {type(exc).__name__}")
         return exc
@@ -295,29 +298,31 @@ def model_files() -> dict:
     from pathlib import Path
 
     bracket = Bracket(("srgb",), frames=4, stops=1.5, seed=5)
-    models = {"response": selfcal.calibrate_response(bracket.images, bracket.times,
-                                                     max_samples=SAMPLES)}
+    models = {"response": selfcal.calibrate_response(
+        bracket.images, bracket.times, options=ResponseOptions(max_samples=SAMPLES))}
     scene = sim.make_scene(40, 60, dynamic_range_stops=10.0, seed=6)
     stack = sim.simulate_stack(scene, sim.default_pipeline(seed=6), [1 / 250, 1 / 60,
                                  1 / 15], output=sim.FrameOutput(bit_depth=16), seed=6)
     white = np.full_like(stack.images[0], 65535)
-    models["response16"] = selfcal.calibrate_response(stack.images + [white],
-                                                      max_samples=SAMPLES)
+    models["response16"] = selfcal.calibrate_response(
+        stack.images + [white], options=ResponseOptions(max_samples=SAMPLES))
     assert np.isnan(models["response16"].exposures[-1])
     pair = sim.simulate_raw_jpeg_pair(sim.make_scene(48, 64, dynamic_range_stops=8.0,
                                                          saturation=0.6, seed=7), seed=7)
     raw = pair["raw"].reshape(-1, 3).astype(np.float64)
     jpg = pair["rendered"].reshape(-1, 3)
     idx = np.random.default_rng(7).choice(raw.shape[0], 400, replace=False)
-    rbf = fit_pipeline(raw[idx], jpg[idx] / 255.0, seed=0, n_sets=2, backward="rbf",
-                       lut_smoothness=3e-3, inverse_smoothness=1e-5, n_centres=150)
+    rbf = fit_pipeline(raw[idx], jpg[idx] / 255.0,
+                       PipelineOptions(n_sets=2, backward="rbf", lut_smoothness=3e-3,
+                                       inverse_smoothness=1e-5, n_centres=150), seed=0)
     assert rbf.clipped_corrections.get("rbf") is not None
     models["pipeline_rbf"] = rbf
     # what fit_pipeline(..., backward="lut") writes: no RBF, the LUT's correction only
     models["pipeline_lut"] = PipelineModel(
-        rbf.matrix, rbf.tone_curves, rbf.forward_lut, rbf.inverse_tone_curves,
-        rbf.backward_lut, rbf=None, backward="lut", diagnostics=rbf.diagnostics,
-        clipped_corrections={"lut": rbf.clipped_corrections["lut"]})
+        ForwardStages(rbf.matrix, rbf.tone_curves, rbf.forward_lut),
+        BackwardStages(rbf.inverse_tone_curves, rbf.backward_lut, rbf=None,
+                       clipped_corrections={"lut": rbf.clipped_corrections["lut"]}),
+        backward="lut", diagnostics=rbf.diagnostics)
     with tempfile.TemporaryDirectory() as folder:
         return {name: m.save(Path(folder) / f"{name}.json").read_bytes()
                 for name, m in models.items()}

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -12,6 +14,8 @@ import selfcal
 from conftest import rmse_vs_truth
 from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, ModelFileError
+from selfcal.response import ResponseOptions
+from selfcal.stack.samples import collect_samples
 
 TIMES = list(sim.DEMO_EXPOSURE_TIMES)
 
@@ -178,8 +182,8 @@ def test_steep_top_scale_comes_from_the_clipping_threshold(knee_stack, monkeypat
     with_rows = rmse_vs_truth(selfcal.calibrate_response(knee_stack.images, TIMES),
                               knee_stack)
     solve = cal.solve_exposure_equations
-    monkeypatch.setattr(cal, "solve_exposure_equations",
-                        lambda *a, **k: solve(*a, white_threshold=False, **k))
+    monkeypatch.setattr(cal, "solve_exposure_equations", lambda *a, options, **k: solve(
+        *a, options=dataclasses.replace(options, white_threshold=False), **k))
     without = rmse_vs_truth(selfcal.calibrate_response(knee_stack.images, TIMES),
                             knee_stack)
     assert with_rows < 0.004
@@ -220,11 +224,49 @@ def test_rejections_are_counted_by_reason():
     pipe = sim.default_pipeline(gamut="smooth", seed=4)
     scene = sim.make_scene(192, 288, saturation=1.0, seed=4)
     stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=90, seed=4)
-    model = selfcal.calibrate_response(stack.images, TIMES, saturation_threshold=0.3)
+    model = selfcal.calibrate_response(stack.images, TIMES,
+                                       options=ResponseOptions(saturation_threshold=0.3))
     rejected = model.diagnostics["samples"]["rejected"]
     assert rejected["clipped"] > 0 and rejected["saturated"] > 0
-    strict = selfcal.calibrate_response(stack.images, TIMES, saturation_threshold=0.15)
+    # the old keyword argument still works, with a DeprecationWarning naming the field
+    with pytest.warns(DeprecationWarning, match=r"options=ResponseOptions\(saturation_thr"):
+        strict = selfcal.calibrate_response(stack.images, TIMES, saturation_threshold=0.15)
     assert strict.diagnostics["samples"]["rejected"]["saturated"] > rejected["saturated"]
+    assert strict.diagnostics["saturation_threshold"] == 0.15
+
+
+def test_options_and_old_keywords(srgb_stack, srgb_model):
+    frames = srgb_stack.images[:3]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DeprecationWarning)
+        new = selfcal.calibrate_response(frames, TIMES[:3], options=ResponseOptions(
+            n_components=4, clip_margin=3.0, max_samples=1500))
+    with pytest.warns(DeprecationWarning) as caught:
+        old = selfcal.calibrate_response(frames, TIMES[:3], n_components=4, clip_margin=3.0,
+                                         max_samples=1500)
+    message = str(next(w.message for w in caught if w.category is DeprecationWarning))
+    assert "clip_margin=..., max_samples=..., n_components=..." in message
+    np.testing.assert_array_equal(old.inverse, new.inverse)
+    assert new.diagnostics["n_components"] == 4 and new.diagnostics["clip_margin"] == 3.0
+    with pytest.raises(TypeError, match="n_componets"):
+        selfcal.calibrate_response(frames, TIMES[:3], n_componets=4)
+    # the defaults are the options' defaults (the shared model was calibrated without any)
+    assert srgb_model.diagnostics["n_components"] == ResponseOptions().n_components
+
+
+def test_solver_options_and_old_keywords():
+    from selfcal.response import SolverOptions
+    from selfcal.response.basis import builtin_basis
+    from selfcal.response.solver import solve_exposure_equations
+
+    samples = collect_samples(sim.demo_stack(seed=0).images[:3], max_samples=600)
+    log_times = np.log(TIMES[:3])
+    new = solve_exposure_equations(samples, builtin_basis(), log_times,
+                                   options=SolverOptions(max_rank_gap=1, huber_k=2.0))
+    with pytest.warns(DeprecationWarning, match="huber_k=..., max_rank_gap=..."):
+        old = solve_exposure_equations(samples, builtin_basis(), log_times, max_rank_gap=1,
+                                       huber_k=2.0)
+    np.testing.assert_array_equal(old.coefficients, new.coefficients)
 
 
 def test_contradicting_time_is_reported(srgb_stack):

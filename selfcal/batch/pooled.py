@@ -47,7 +47,8 @@ from ..stack.frames import DEFAULT_CLIP_MARGIN, stuck_code_levels
 from ..response.calibrate import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
-from ..response.solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
+from ..response.solver import (DEFAULT_SATURATION_THRESHOLD, SolverOptions,
+                               solve_exposure_equations)
 from ..stack.samples import SampleSet, collect_samples, frame_masks
 
 #: A session disagrees with the shared curve when its code residual under that curve
@@ -267,9 +268,9 @@ def fit_shared_response(sessions, *, n_components: int = DEFAULT_N_COMPONENTS,
     basis, N = _log_basis(basis, n_components)
     samples, masks, log_times, _ = _pooled_sample_set(sessions)
     result = solve_exposure_equations(
-        samples, basis, log_times, n_components=N, refine_exposures=False,
-        saturation_threshold=saturation_threshold, clip_margin=clip_margin,
-        max_rank_gap=max_rank_gap, masks=masks)
+        samples, basis, log_times, refine_exposures=False, masks=masks,
+        options=SolverOptions(n_components=N, saturation_threshold=saturation_threshold,
+                              clip_margin=clip_margin, max_rank_gap=max_rank_gap))
     g = basis.mean[None, :] + result.coefficients @ basis.components[:N]
     # as calibrate_response: f⁻¹ = exp(g), made non-decreasing (f⁻¹(1) = 1 by the basis)
     inverse = np.maximum.accumulate(np.exp(g).T, axis=0)

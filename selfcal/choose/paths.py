@@ -39,7 +39,7 @@ from ..pipeline.pairs import collect_pair_samples
 from ..stack.exposure_ratios import raw_exposure_ratios
 from ..pipeline import fit_pipeline
 from ..io.raw import read_raw_exposure_info
-from ..response.calibrate import calibrate_response
+from ..response.calibrate import ResponseOptions, calibrate_response
 
 __all__ = ["CalibrationResult", "calibrate", "calibrate_pipeline"]
 
@@ -201,8 +201,10 @@ def _brightness_changes(paths) -> bool:
 def _split_options(options: dict, response_options, pipeline_options):
     """Route ``calibrate``'s extra keyword options by name to the path that takes them."""
     resp, pipe = dict(response_options or {}), dict(pipeline_options or {})
-    resp_names = set(inspect.signature(calibrate_response).parameters) - {
-        "images", "exposure_times", "progress"}
+    # ResponseOptions' fields: calibrate_response's old keywords (a DeprecationWarning there)
+    resp_names = (set(inspect.signature(calibrate_response).parameters) - {
+        "images", "exposure_times", "progress", "legacy"}) | set(
+            ResponseOptions.__dataclass_fields__)
     pipe_names = set(inspect.signature(fit_pipeline).parameters) - {
         "raw_samples", "rendered_samples", "progress"}
     unknown = []

@@ -1,19 +1,23 @@
 """``calibrate_response``: the JPEG-only path, from frames to a ResponseModel.
 
-Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration for Color Computer
-Vision*, ICCV 2011, §5 (Eq. 7-8, outlier rejection) and §7 (δ, Eq. 12); unknown exposures
-solved jointly after Kim & Pollefeys, PAMI 2008.
+[Lin2011] §5 (Eq. 7-8, outlier rejection) and §7 (δ, Eq. 12); unknown exposures solved
+jointly after Kim & Pollefeys, PAMI 2008.  The stages, in the order they run: the
+exposure times (:mod:`.exposure_times`), the samples and the frames the solve can use
+(:mod:`.frame_choice`), the solve of Eq. 8 (:mod:`.solver`), δ (:mod:`.delta`) and the
+verdict (:mod:`.verdict`).  Their finer settings travel together in
+:class:`ResponseOptions`.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..stack.align import aligned_working_frames, estimate_alignment
-from ..errors import CalibrationError, InputError, SelfcalWarning
+from ..errors import CalibrationError, InputError, SelfcalWarning, options_from_keywords
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
     default_reference,
@@ -24,14 +28,22 @@ from ..stack.frames import (
 )
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
-from ..stack.samples import collect_samples, frame_masks
+from ..stack.samples import SampleSet, collect_samples, frame_masks
 from .delta import delta_eq12
-from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
-from .verdict import CONTRADICTED_UNUSABLE_SHARE as CONTRADICTED_MAJORITY
+from .exposure_times import (
+    CONTRADICTION_FACTOR,
+    anchor_refined,
+    check_refine_option,
+    contradiction_messages,
+    corrected_times,
+    log_exposure_times,
+    refine_decision,
+    resolve_exposure_times,
+)
+from .frame_choice import subset, without_clipped_frames, without_duplicates
+from .solver import SolverOptions, solve_exposure_equations
 from .verdict import judge_calibration
 
-#: A frame whose given time and pixels disagree by more than this factor is reported.
-CONTRADICTION_FACTOR = 1.25
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
@@ -46,56 +58,62 @@ DEFAULT_N_COMPONENTS = 5
 DEFAULT_MAX_SAMPLES = 4000
 
 
-def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
-    """Given times per frame (None = unknown), from the caller or from EXIF, and their label.
+@dataclass(frozen=True)
+class ResponseOptions(SolverOptions):
+    """The finer settings of :func:`calibrate_response`: its sampling and its solve.
 
-    When EXIF gives f-number and ISO that vary over the stack, times are scaled to the
-    first frame's aperture and ISO (exposure ∝ t · ISO / N²), so the result stays in seconds
-    at the first frame's settings.
+    Every field of :class:`selfcal.response.solver.SolverOptions` (``saturation_threshold``
+    β, ``clip_margin``, ``huber_k``, the priors' weights, ...), and ``max_samples``.
 
-    The label (the model's ``diagnostics["exposure_source"]``) says where the times came
-    from: ``times_source`` (default ``"given"``) for times the caller gave, ``"exif"`` when
-    EXIF gave at least one, and ``"unknown"`` when no frame has a time (all given as None,
-    arrays without times, files without EXIF times).
+    Attributes
+    ----------
+    n_components : int
+        Number of PCA basis functions per channel (N of Eq. 7); see
+        :data:`DEFAULT_N_COMPONENTS`.  Capped at the basis' size.
+    saturation_threshold : float
+        β: samples whose HSV saturation exceeds it in either frame of a pair are rejected.
+        Default 0.5 (see :data:`selfcal.response.solver.DEFAULT_SATURATION_THRESHOLD`).
+    clip_margin : float
+        Codes (8-bit scale) from 0 or the maximum code that count as clipped.
+    max_samples : int
+        Number of sample locations (block means) drawn from the stack.
+
+    Examples
+    --------
+    >>> options = ResponseOptions(saturation_threshold=0.3)
+    >>> options.saturation_threshold, options.n_components, options.max_samples
+    (0.3, 5, 4000)
     """
-    n = len(frames)
-    if exposure_times is not None:
-        times = list(exposure_times)
-        if len(times) != n:
-            raise InputError(f"{len(times)} exposure times given for {n} frames")
-        out = []
-        for t, src in zip(times, sources):
-            if t is None:
-                out.append(None)
-                continue
-            try:
-                tf = float(t)
-            except (TypeError, ValueError):
-                raise InputError(f"exposure time {t!r} is not a number", src) from None
-            if not math.isfinite(tf) or tf <= 0:
-                raise InputError(f"exposure time {t!r} must be a positive number", src)
-            out.append(tf)
-        if all(t is None for t in out):
-            return out, "unknown"
-        return out, times_source or "given"
-    if not all(is_path(f) for f in frames):
-        return [None] * n, "unknown"
-    from ..io.images import effective_exposure_times, read_exposure_info
 
-    out = effective_exposure_times([read_exposure_info(f) for f in frames])
-    return out, "exif" if any(t is not None for t in out) else "unknown"
+    n_components: int = DEFAULT_N_COMPONENTS
+    max_samples: int = DEFAULT_MAX_SAMPLES
 
 
-def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
-                       n_components: int = DEFAULT_N_COMPONENTS, saturation_threshold: float =
-                       DEFAULT_SATURATION_THRESHOLD, clip_margin: float = DEFAULT_CLIP_MARGIN,
-                       basis=None, max_samples: int = DEFAULT_MAX_SAMPLES, seed: int = 0,
-                       align=False, progress=None, times_source: str | None = None):
+#: The fields of :class:`ResponseOptions`: old keyword arguments of the calibration.
+_OPTION_FIELDS = frozenset(ResponseOptions.__dataclass_fields__)
+
+
+@dataclass(frozen=True)
+class _Call:
+    """What one calibration was asked for (:func:`calibrate_response`'s arguments)."""
+
+    options: ResponseOptions
+    refine_exposures: object = "auto"
+    basis: object = None
+    seed: int = 0
+    progress: object = None
+    times_source: str | None = None
+
+
+def calibrate_response(images, exposure_times=None, *, refine_exposures="auto", basis=None,
+                       seed: int = 0, align=False, progress=None,
+                       times_source: str | None = None,
+                       options: ResponseOptions | None = None, **legacy):
     """Estimate each channel's camera response from an exposure stack.
 
-    Implements Lin et al., ICCV 2011, §5: log-domain PCA model (Eq. 7) fitted to the
-    exposure equation g(I′) − g(I) = K′ (Eq. 8) over sample pairs, with clipped and
-    highly saturated samples rejected and a Huber loss for the rest.
+    Implements [Lin2011] §5: log-domain PCA model (Eq. 7) fitted to the exposure equation
+    g(I′) − g(I) = K′ (Eq. 8) over sample pairs, with clipped and highly saturated
+    samples rejected and a Huber loss for the rest.
 
     Parameters
     ----------
@@ -108,21 +126,12 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
     refine_exposures : {"auto", True, False}
         True: treat the given times as a prior and re-estimate them (shutters are
         inaccurate).  ``"auto"`` (default): refine EXIF times when the pixels contradict
-        some of them by more than :data:`CONTRADICTION_FACTOR` (ours: the contradiction is
-        then a warning, not a doubtful verdict); hold times the caller gave, and EXIF times
-        most of which are contradicted.  False: hold every time.
-    n_components : int
-        Number of PCA basis functions per channel (N of Eq. 7); see
-        :data:`DEFAULT_N_COMPONENTS`.
-    saturation_threshold : float
-        β: samples whose HSV saturation exceeds it in either frame of a pair are rejected.
-        Default 0.5 (see :data:`selfcal.response.solver.DEFAULT_SATURATION_THRESHOLD`).
-    clip_margin : float
-        Codes (8-bit scale) from 0 or the maximum code that count as clipped.
+        some of them by more than
+        :data:`selfcal.response.exposure_times.CONTRADICTION_FACTOR` (ours: the
+        contradiction is then a warning, not a doubtful verdict); hold times the caller
+        gave, and EXIF times most of which are contradicted.  False: hold every time.
     basis : ResponseBasis or path, optional
         Response basis; default the built-in log-PCA basis.
-    max_samples : int
-        Number of sample locations (block means) drawn from the stack.
     seed : int
         Seed of every random choice (the same input gives the same model).
     align : {False, "mtb", "homography"}
@@ -135,6 +144,13 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
         Where the given ``exposure_times`` came from, for the model's
         ``diagnostics["exposure_source"]`` (e.g. ``"raw"`` when the caller took them from
         raw files); default ``"given"``.  Times all None are ``"unknown"``.
+    options : ResponseOptions, optional
+        The finer settings of the sampling and the solve (number of components β, clip
+        margin, samples, Huber threshold, priors); default ``ResponseOptions()``.
+    legacy
+        The fields of :class:`ResponseOptions` as keyword arguments (``n_components=``,
+        ``saturation_threshold=``, ``clip_margin=``, ``max_samples=`` ...), the old way:
+        they still work, each with a :class:`DeprecationWarning` naming the field.
 
     Returns
     -------
@@ -149,6 +165,8 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
     SelfcalWarning
         Each of the model's ``diagnostics["warnings"]`` (frames ignored, contradicted
         times, the exponential ambiguity left to the prior, the verdict's reasons).
+    DeprecationWarning
+        For each call with ``legacy`` keyword arguments.
 
     Raises
     ------
@@ -159,11 +177,10 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
-    model = _calibrate_response(
-        images, exposure_times, refine_exposures=refine_exposures,
-        n_components=n_components, saturation_threshold=saturation_threshold,
-        clip_margin=clip_margin, basis=basis, max_samples=max_samples, seed=seed,
-        align=align, progress=progress, times_source=times_source)
+    options = options_from_keywords(ResponseOptions, options, legacy, "calibrate_response")
+    call = _Call(options=options, refine_exposures=refine_exposures, basis=basis, seed=seed,
+                 progress=progress, times_source=times_source)
+    model = _calibrate_response(images, exposure_times, call, align=align)
     emit_warnings(model)
     return model
 
@@ -176,74 +193,69 @@ def emit_warnings(model, stacklevel: int = 3) -> None:
         _warnings.warn(message, SelfcalWarning, stacklevel=stacklevel)
 
 
-def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
-                        n_components=DEFAULT_N_COMPONENTS,
-                        saturation_threshold=DEFAULT_SATURATION_THRESHOLD, clip_margin=DEFAULT_CLIP_MARGIN,
-                        basis=None, max_samples=DEFAULT_MAX_SAMPLES, seed=0, align=False,
-                        progress=None, times_source=None):
+@dataclass(frozen=True, eq=False)
+class _Usable:
+    """The frames the solve uses: their samples, masks, given times and names."""
+
+    samples: SampleSet
+    masks: dict
+    log_times: np.ndarray           # NaN where unknown
+    sources: list
+    times: list                     # seconds, None where unknown
+
+
+def _calibrate_response(images, exposure_times, call: _Call, align=False):
     """:func:`calibrate_response` without emitting its warnings (they are in the model)."""
     frames = list(images)
     if len(frames) < 2:
         raise CalibrationError(
             "one frame only: a response needs at least two frames at different exposures")
     if align:
-        return _calibrate_after_alignment(
-            frames, exposure_times, align, refine_exposures=refine_exposures,
-            n_components=n_components, saturation_threshold=saturation_threshold,
-            clip_margin=clip_margin, basis=basis, max_samples=max_samples, seed=seed,
-            progress=progress, times_source=times_source)
+        return _calibrate_after_alignment(frames, exposure_times, align, call)
 
     sources = [str(f) if is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
     times, time_source = resolve_exposure_times(frames, exposure_times, sources,
-                                                times_source)
+                                                call.times_source)
     warnings: list[str] = []
     if exposure_times is None and all(is_path(f) for f in frames):
         lacking = [src for src, t in zip(sources, times) if t is None]
         for src in lacking:
             warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
-    basis, n_components = _log_domain_basis(basis, n_components)
+    basis, n_components = _log_domain_basis(call.basis, call.options.n_components)
+    options = replace(call.options, n_components=n_components)
 
     samples, masks, keep = _sample_usable_frames(
-        frames, sources, times, warnings, max_samples=max_samples, clip_margin=clip_margin,
-        saturation_threshold=saturation_threshold, seed=seed, progress=progress)
-    sub = _subset(samples, keep)
-    sub_masks = {k: v[keep] for k, v in masks.items()}
+        frames, sources, times, warnings, options=options, seed=call.seed,
+        progress=call.progress)
     sub_times = [times[k] for k in keep]
-    used_sources = [sources[k] for k in keep]
-    log_times = _log_times(sub_times)
+    usable = _Usable(samples=subset(samples, keep),
+                     masks={k: v[keep] for k, v in masks.items()},
+                     log_times=log_exposure_times(sub_times),
+                     sources=[sources[k] for k in keep], times=sub_times)
 
-    solve = functools.partial(_solve, sub, basis, log_times, sub_masks,
-                              n_components=n_components,
-                              saturation_threshold=saturation_threshold,
-                              clip_margin=clip_margin, progress=progress)
-    refine_exposures = _check_refine_option(refine_exposures)
+    solve = functools.partial(_solve, usable, basis, options=options,
+                              progress=call.progress)
+    refine_exposures = check_refine_option(call.refine_exposures)
     result = solve(refine_exposures=refine_exposures is True)
     contradictions = []
-    if np.isfinite(log_times).sum() >= 2 and refine_exposures is not True:
-        contradictions = _contradicted_times(
-            sub, basis, log_times, sub_masks, used_sources, sub_times,
-            n_components=n_components, saturation_threshold=saturation_threshold,
-            clip_margin=clip_margin)
-    refine_exposures = _refine_decision(refine_exposures, time_source, contradictions,
-                                        log_times)
+    if np.isfinite(usable.log_times).sum() >= 2 and refine_exposures is not True:
+        contradictions = _contradicted_times(usable, basis, options)
+    refine_exposures = refine_decision(refine_exposures, time_source, contradictions,
+                                       usable.log_times)
     if refine_exposures and contradictions:        # decided now: EXIF times contradicted
         result = solve(refine_exposures=True)
     warnings.extend(result.warnings)
-    warnings.extend(_contradiction_messages(contradictions, refined=refine_exposures))
+    warnings.extend(contradiction_messages(contradictions, refined=refine_exposures))
     if refine_exposures:
-        result.log_exposures = _anchor_refined(result.log_exposures, log_times)
-    fit = _judged_fit(sub, sub_masks, basis, result, log_times, warnings,
-                      n_components=n_components, clip_margin=clip_margin,
-                      refine_exposures=refine_exposures, contradictions=contradictions,
-                      used_sources=used_sources, sub_times=sub_times)
+        result.log_exposures = anchor_refined(result.log_exposures, usable.log_times)
+    fit = _judged_fit(usable, basis, result, warnings, options=options,
+                      refine_exposures=refine_exposures, contradictions=contradictions)
 
     full_exposures = np.full(len(frames), np.nan)
     full_exposures[keep] = np.exp(result.log_exposures)
     diagnostics = _diagnostics(
-        result, verdict=fit["verdict"], reasons=fit["reasons"], evidence=fit["evidence"],
-        warnings=warnings, exposure_source=time_source, refine_exposures=refine_exposures,
-        n_components=n_components, saturation_threshold=saturation_threshold,
-        clip_margin=clip_margin, frames_used=used_sources, delta=fit["delta"],
+        result, fit, warnings=warnings, exposure_source=time_source,
+        refine_exposures=refine_exposures, options=options, frames_used=usable.sources,
         samples=samples, contradictions=contradictions)
     diagnostics["stuck_codes"] = fit["stuck"]
     from .model import ResponseModel
@@ -253,25 +265,28 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                           exposures=full_exposures, exposure_times=list(times),
                           sources=sources, max_code=samples.max_code,
                           diagnostics=diagnostics)
-    model.fit_data = _btf_data(sub, sub_masks, result, used_sources)
+    model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
     return model
 
 
-def _judged_fit(sub, sub_masks, basis, result, log_times, warnings, *, n_components,
-                clip_margin, refine_exposures, contradictions, used_sources, sub_times):
+def _judged_fit(usable: _Usable, basis, result, warnings, *, options, refine_exposures,
+                contradictions):
     """The fitted f⁻¹ table, δ of Eq. 12, the stuck code levels and the verdict.
 
     The verdict's reasons join ``warnings``.  With ``refine_exposures`` the verdict sees the
     times the pixels corrected (evidence only); otherwise the contradicted ones.
     """
-    grid, inverse = _inverse_response(basis, result.coefficients, n_components)
-    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
+    sub, log_times = usable.samples, usable.log_times
+    grid, inverse = _inverse_response(basis, result.coefficients, options.n_components)
+    valid = ~(usable.masks["clipped"] | usable.masks["saturated"])
     pairs = [tuple(p) for p in result.pair_frames]
     delta = delta_eq12(sub.values, grid, inverse, result.log_exposures, pairs, valid)
     # per channel, the black floor and stuck ceiling of the codes (the stuck-sample test
     # as code levels): the merge gives them zero weight, the verdict leaves them out
-    stuck = stuck_code_levels(sub.values, result.log_exposures, clip_margin=clip_margin)
-    corrected = (_corrected_times(result.log_exposures, log_times, used_sources, sub_times)
+    stuck = stuck_code_levels(sub.values, result.log_exposures,
+                              clip_margin=options.clip_margin)
+    corrected = (corrected_times(result.log_exposures, log_times, usable.sources,
+                                 usable.times)
                  if refine_exposures else contradictions)
     verdict, reasons, evidence = judge_calibration(
         sub, valid, grid, inverse, result.log_exposures, pairs, log_times=log_times,
@@ -281,31 +296,33 @@ def _judged_fit(sub, sub_masks, basis, result, log_times, warnings, *, n_compone
             "verdict": verdict, "reasons": reasons, "evidence": evidence}
 
 
-def _calibrate_after_alignment(frames, exposure_times, align, *, clip_margin, progress,
-                               **options):
+def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
     """``calibrate_response(..., align=...)``: align the frames, then calibrate.
 
-    The warnings of the alignment come first in the model's diagnostics.
+    The warnings of the alignment come first in the model's diagnostics.  The options'
+    clip margin serves the alignment and the calibration of the aligned frames; the
+    provisional calibration that supplies unknown times for the alignment uses the
+    default clip margin (as it always has).
     """
     if align is True:
         align = "mtb"
     if align not in ("mtb", "homography"):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
     warnings: list[str] = []
-    model, _, _ = _calibrate_aligned(
-        frames, exposure_times, method=align, clip_margin=clip_margin,
-        warnings=warnings, progress=progress, **options)
+    provisional = replace(call, options=replace(call.options, clip_margin=DEFAULT_CLIP_MARGIN))
+    model, _, _ = _calibrate_aligned(frames, exposure_times, provisional, method=align,
+                                     clip_margin=call.options.clip_margin, warnings=warnings)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
 
 def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
-                      clip_margin: float = DEFAULT_CLIP_MARGIN, warnings: list | None = None,
+                      clip_margin: float | None = None, warnings: list | None = None,
                       progress=None, max_side: int = 2048, **options):
     """Align a handheld stack to its reference frame, then calibrate its response.
 
-    Misaligned frames give wrong correspondences, and the solve of Lin et al. (ICCV 2011,
-    Eq. 8) then reads them as contradicted exposure times; so the frames are aligned first
+    Misaligned frames give wrong correspondences, and the solve of [Lin2011] Eq. 8 then
+    reads them as contradicted exposure times; so the frames are aligned first
     (:func:`selfcal.stack.align.estimate_alignment`; with unknown times, after a provisional
     calibration that supplies the exposures the homography needs) and the response is
     calibrated on the aligned frames, downscaled to ``max_side``
@@ -325,10 +342,15 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         Alignment (see :func:`selfcal.stack.align.estimate_alignment`).
     reference : int, optional
         Reference frame; default the middle exposure.
+    clip_margin : float, optional
+        Clip margin of the alignment and of the calibration of the aligned frames;
+        default the ``options``' (``ResponseOptions.clip_margin``).
     warnings : list, optional
         Receives the alignment's warnings (they are not in the model's).
     options
-        Passed on to :func:`calibrate_response`.
+        Keyword arguments of :func:`calibrate_response` (``refine_exposures``, ``basis``,
+        ``seed``, ``times_source``, ``options=ResponseOptions(...)``; the old keywords of
+        its options with a DeprecationWarning).
 
     Returns
     -------
@@ -344,26 +366,34 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     SelfcalWarning
         Each of the model's ``diagnostics["warnings"]``.
     """
+    legacy = {k: options.pop(k) for k in list(options) if k in _OPTION_FIELDS}
+    resolved = options_from_keywords(ResponseOptions, options.pop("options", None), legacy,
+                                     "calibrate_aligned")
+    call = _Call(options=resolved, progress=progress, **options)
     model, transforms, ref = _calibrate_aligned(
-        images, exposure_times, method=method, reference=reference, clip_margin=clip_margin,
-        warnings=warnings, progress=progress, max_side=max_side, **options)
+        images, exposure_times, call, method=method, reference=reference,
+        clip_margin=resolved.clip_margin if clip_margin is None else clip_margin,
+        warnings=warnings, max_side=max_side)
     emit_warnings(model)
     return model, transforms, ref
 
 
-def _calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
+def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", reference=None,
                        clip_margin: float = DEFAULT_CLIP_MARGIN,
-                       warnings: list | None = None, progress=None, max_side: int = 2048,
-                       **options):
-    """:func:`calibrate_aligned` without emitting the model's warnings."""
+                       warnings: list | None = None, max_side: int = 2048):
+    """:func:`calibrate_aligned` without emitting the model's warnings.
+
+    ``call`` serves the provisional calibration (unknown times); the aligned frames are
+    calibrated with ``clip_margin``, the alignment's.
+    """
     frames = images if isinstance(images, StackFrames) else StackFrames(images, False)
     n = len(frames)
+    progress = call.progress
     warnings = [] if warnings is None else warnings
     given, _ = given_exposures(frames, exposure_times)
     provisional = None
     if any(g is None for g in given):
-        provisional = _calibrate_response(frames.items, exposure_times, progress=progress,
-                                          **options)
+        provisional = _calibrate_response(frames.items, exposure_times, call)
         given = list(resolve_exposures(frames, exposure_times, provisional, True, [])[0])
     ref = default_reference(given) if reference is None else int(reference)
     if not 0 <= ref < n:
@@ -374,11 +404,10 @@ def _calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=N
     small = aligned_working_frames(frames, transforms, max_side=max_side)
     # the solve gets the frames' own times (seconds, None where unknown), as unaligned
     times, time_source = resolve_exposure_times(frames.items, exposure_times,
-                                                list(frames.sources),
-                                                options.get("times_source"))
-    options.setdefault("clip_margin", clip_margin)
-    model = _calibrate_response(small, times, progress=progress,
-                                **{**options, "times_source": time_source})
+                                                list(frames.sources), call.times_source)
+    aligned = replace(call, times_source=time_source,
+                      options=replace(call.options, clip_margin=clip_margin))
+    model = _calibrate_response(small, times, aligned)
     model.diagnostics["exposure_source"] = time_source
     model.sources = list(frames.sources)
     diag = model.diagnostics
@@ -413,8 +442,8 @@ def _log_domain_basis(basis, n_components: int):
     return basis, int(min(n_components, basis.n_components))
 
 
-def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip_margin,
-                          saturation_threshold, seed, progress):
+def _sample_usable_frames(frames, sources, times, warnings, *, options: ResponseOptions, seed,
+                          progress):
     """Read the frames' samples and masks; choose the frames the solve can use.
 
     Dropped, with a warning each and in this order: frames clipped almost everywhere
@@ -437,13 +466,14 @@ def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip
         if progress is not None:
             progress("read", k, n, src)
 
-    samples = collect_samples(frames, sources=sources, max_samples=max_samples,
+    clip_margin = options.clip_margin
+    samples = collect_samples(frames, sources=sources, max_samples=options.max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress)
     masks = frame_masks(samples, clip_margin=clip_margin,
-                        saturation_threshold=saturation_threshold)
-    keep = _without_clipped_frames(samples, masks, sources, warnings, clip_margin)
-    keep = _without_duplicates([samples.digests[k] for k in keep], [times[k] for k in keep],
-                               [sources[k] for k in keep], warnings, keep)
+                        saturation_threshold=options.saturation_threshold)
+    keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin)
+    keep = without_duplicates([samples.digests[k] for k in keep], [times[k] for k in keep],
+                              [sources[k] for k in keep], warnings, keep)
     # A frame that shares (almost) no unclipped samples with any other frame -- e.g. one
     # long exposure far beyond the rest of the bracket -- adds no usable equations: its few
     # pair rows sit at the clipping limits, and its exposure could be neither estimated nor
@@ -462,164 +492,40 @@ def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip
     return samples, masks, keep
 
 
-def _without_clipped_frames(samples, masks, sources, warnings, clip_margin) -> list[int]:
-    """Indices of the frames not clipped almost everywhere (< 1 % of samples unclipped).
-
-    The warning of a dropped frame says whether it is white (or black) everywhere, or
-    mostly white or black.
-    """
-    margin = clip_margin / 255.0
-    keep = []
-    for k in range(samples.n_frames):
-        clipped = float(masks["clipped"][k].mean())
-        if 1.0 - clipped >= 0.01:
-            keep.append(k)
-            continue
-        white = float(np.mean(samples.block_max[k] >= 1.0 - margin))
-        black = float(np.mean(samples.block_min[k] <= margin))
-        if white >= 0.999 or black >= 0.999:
-            what = "white" if white >= black else "black"
-            share = 100 * max(white, black)
-            warnings.append(f"{sources[k]}: all {what} ({share:.1f}% of samples clipped "
-                            f"{what}); ignored")
-        else:
-            warnings.append(f"{sources[k]}: clipped almost everywhere ({100 * clipped:.1f}% "
-                            f"of samples: {100 * white:.1f}% white, {100 * black:.1f}% "
-                            "black); ignored")
-    return keep
-
-
-def _without_duplicates(digests, times, sources, warnings, indices=None) -> list[int]:
-    """The frames that are not a copy of an earlier one (``indices`` of the ones kept).
-
-    ``digests`` are :func:`selfcal.stack.samples.content_digest` of every pixel.  Identical
-    pixels at different given times contradict each other: an InputError.
-    """
-    indices = list(range(len(digests))) if indices is None else list(indices)
-    keep = list(indices)
-    seen: dict[str, int] = {}
-    for k, dig in enumerate(digests):
-        if dig in seen:
-            j = seen[dig]
-            if times[j] is not None and times[k] is not None and not math.isclose(
-                    times[j], times[k], rel_tol=1e-3):
-                raise InputError(
-                    f"identical pixels to {sources[j]} but a different exposure time "
-                    f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
-            warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
-            keep.remove(indices[k])
-        else:
-            seen[dig] = k
-    return keep
-
-
-def _log_times(times) -> np.ndarray:
-    """Log exposure times (NaN where unknown); an error when all are known and equal."""
-    log_times = np.array([np.nan if t is None else math.log(t) for t in times])
-    known = np.isfinite(log_times)
-    if known.sum() >= 2 and np.ptp(log_times[known]) < math.log(1.0001) and known.all():
-        raise CalibrationError(
-            "all frames have the same exposure time: Eq. 8 needs exposure changes "
-            "(bracket the exposure, or pass --unknown-exposures if the times are wrong)")
-    return log_times
-
-
-def _solve(sub, basis, log_times, sub_masks, *, n_components, refine_exposures,
-           saturation_threshold, clip_margin, progress):
+def _solve(usable: _Usable, basis, *, options, refine_exposures, progress):
     """Eq. 8 over the usable frames' samples (:func:`solve_exposure_equations`)."""
     if progress is not None:
         progress("solve", 0, 1, "")
     result = solve_exposure_equations(
-        sub, basis, log_times, n_components=n_components,
-        refine_exposures=refine_exposures, saturation_threshold=saturation_threshold,
-        clip_margin=clip_margin, masks=sub_masks)
+        usable.samples, basis, usable.log_times, refine_exposures=refine_exposures,
+        masks=usable.masks, options=options)
     if progress is not None:
         progress("solve", 1, 1, "")
     return result
 
 
-def _contradicted_times(sub, basis, log_times, sub_masks, used_sources, sub_times, *,
-                        n_components, saturation_threshold, clip_margin):
-    """Given times the pixels contradict by more than :data:`CONTRADICTION_FACTOR`.
+def _contradicted_times(usable: _Usable, basis, options) -> list:
+    """Given times the pixels contradict by more than
+    :data:`.exposure_times.CONTRADICTION_FACTOR`.
 
     Re-solves with the times as a prior (``refine_exposures=True``, a short solve) and
     compares the estimated exposure ratios with the given ones.
     """
+    log_times = usable.log_times
     known = np.isfinite(log_times)
     contradictions = []
     free = solve_exposure_equations(
-        sub, basis, log_times, n_components=n_components, refine_exposures=True,
-        saturation_threshold=saturation_threshold, clip_margin=clip_margin,
-        masks=sub_masks, max_iterations=4, monotone=False)
+        usable.samples, basis, log_times, refine_exposures=True, masks=usable.masks,
+        options=replace(options, max_iterations=4, monotone=False))
     # compare ratios, not absolute values: the prior only pins the overall scale
     dev = free.log_exposures - log_times
     dev = dev - np.nanmedian(dev[known])
     for j in np.flatnonzero(known):
         if abs(dev[j]) > math.log(CONTRADICTION_FACTOR):
             est = math.exp(log_times[j] + dev[j])
-            contradictions.append({"frame": used_sources[j], "given": sub_times[j],
+            contradictions.append({"frame": usable.sources[j], "given": usable.times[j],
                                    "estimated": est})
     return contradictions
-
-
-def _check_refine_option(refine_exposures):
-    if refine_exposures not in (True, False, "auto"):
-        raise ValueError(f"refine_exposures must be True, False or 'auto', not "
-                         f"{refine_exposures!r}")
-    return refine_exposures
-
-
-def _refine_decision(refine_exposures, time_source, contradictions, log_times) -> bool:
-    """Whether the exposures are refined: ``"auto"`` refines EXIF times the pixels
-    contradict (ours; the mission's "shutters are inaccurate").
-
-    Times the caller gave are held (a contradiction is reported, the verdict is doubtful);
-    so are EXIF times when most of them are contradicted: then the times are wrong or
-    belong to other frames, and refining would hide it.
-    """
-    if refine_exposures != "auto":
-        return bool(refine_exposures)
-    known = int(np.isfinite(log_times).sum())
-    return (time_source == "exif" and bool(contradictions)
-            and len(contradictions) / known < CONTRADICTED_MAJORITY)
-
-
-def _contradiction_messages(contradictions, *, refined: bool) -> list[str]:
-    if refined:
-        return [f"{c['frame']}: the pixels contradict the EXIF exposure time "
-                f"({c['given']:g} s in EXIF, the pixels say about {c['estimated']:g} s): "
-                "shutters are inaccurate, so the exposures were refined "
-                "(--no-refine-exposures keeps the EXIF times)" for c in contradictions]
-    return [f"{c['frame']}: the pixels contradict the given exposure time "
-            f"({c['given']:g} s given, the pixels say about {c['estimated']:g} s); "
-            "consider --refine-exposures" for c in contradictions]
-
-
-def _anchor_refined(log_exposures, log_times) -> np.ndarray:
-    """Refined log exposures with their absolute scale set by the times that agree (ours).
-
-    Eq. 8 fixes exposure ratios only; the absolute scale is a free constant.  It is set
-    so that the median over the frames with a given time of ``log t − K`` is zero: the
-    frames whose times agree with the pixels keep them, whatever one wrong time says
-    (shifting every log exposure by one constant leaves the curve unchanged).
-    """
-    K = np.asarray(log_exposures, dtype=float)
-    known = np.isfinite(log_times)
-    if known.sum() < 2:
-        return K
-    return K + float(np.median(log_times[known] - K[known]))
-
-
-def _corrected_times(log_exposures, log_times, used_sources, sub_times) -> list:
-    """Frames whose refined exposure moved from the given time by more than
-    :data:`CONTRADICTION_FACTOR` (what ``refine_exposures`` corrected), as
-    ``contradicting_times`` entries."""
-    out = []
-    for j in np.flatnonzero(np.isfinite(log_times)):
-        if abs(log_exposures[j] - log_times[j]) > math.log(CONTRADICTION_FACTOR):
-            out.append({"frame": used_sources[j], "given": sub_times[j],
-                        "estimated": math.exp(log_exposures[j])})
-    return out
 
 
 def _inverse_response(basis, coefficients, n_components):
@@ -634,15 +540,16 @@ def _inverse_response(basis, coefficients, n_components):
     return grid, inverse
 
 
-def _diagnostics(result, *, verdict, reasons, evidence, warnings, exposure_source,
-                 refine_exposures, n_components, saturation_threshold, clip_margin,
-                 frames_used, delta, samples, contradictions) -> dict:
+def _diagnostics(result, fit: dict, *, warnings, exposure_source, refine_exposures,
+                 options: ResponseOptions, frames_used, samples, contradictions) -> dict:
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
-    ``delta_eq12`` is δ of Eq. 12 (:func:`selfcal.response.delta.delta_eq12`) per channel over the
-    solve's frame pairs and inliers (samples neither clipped nor above β in either frame:
-    what the curve was fitted to), not over all points as paper 002 scores its Fig. 4.
+    ``fit`` is :func:`_judged_fit`'s.  ``delta_eq12`` is δ of Eq. 12
+    (:func:`selfcal.response.delta.delta_eq12`) per channel over the solve's frame pairs
+    and inliers (samples neither clipped nor above β in either frame: what the curve was
+    fitted to), not over all points as [Lin2011] scores its Fig. 4.
     """
+    verdict, reasons, evidence = fit["verdict"], fit["reasons"], fit["evidence"]
     per_pair = {f"{frames_used[a]} -> {frames_used[b]}": v
                 for (a, b), v in result.per_pair_rms.items()}
     return {
@@ -653,13 +560,13 @@ def _diagnostics(result, *, verdict, reasons, evidence, warnings, exposure_sourc
         "exposure_source": exposure_source,
         "refine_exposures": bool(refine_exposures),
         "ambiguity_resolved_by_prior": bool(result.ambiguity_prior),
-        "n_components": n_components,
-        "saturation_threshold": saturation_threshold,
-        "clip_margin": clip_margin,
+        "n_components": options.n_components,
+        "saturation_threshold": options.saturation_threshold,
+        "clip_margin": options.clip_margin,
         "frames_used": frames_used,
         "residual_rms_log": result.residual_rms,
         "per_pair_rms_log": per_pair,
-        "delta_eq12": delta.tolist(),
+        "delta_eq12": fit["delta"].tolist(),
         "samples": {
             "locations": int(samples.n_samples),
             "block_size": int(samples.block),
@@ -694,14 +601,3 @@ def _btf_data(samples, masks, result, names):
     reason[masks["clipped"][a] | masks["clipped"][b]] = 1
     return {"frames": (names[a], names[b]), "ratio": ratio,
             "I": samples.values[a], "I2": samples.values[b], "reason": reason}
-
-
-def _subset(samples, keep):
-    from dataclasses import replace
-
-    return replace(samples, values=samples.values[keep], block_max=samples.block_max[keep],
-                   block_min=samples.block_min[keep],
-                   sources=[samples.sources[k] for k in keep],
-                   digests=[samples.digests[k] for k in keep],
-                   thumbnails=[samples.thumbnails[k] for k in keep
-                               if k < len(samples.thumbnails)])

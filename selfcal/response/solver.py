@@ -1,7 +1,7 @@
 """Joint solve for log-domain PCA response coefficients and log exposures (Eq. 8).
 
-Implements Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration for Color
-Computer Vision*, ICCV 2011 (paper 002), §5, with additions of selfcal's own.  The response
+Implements [Lin2011] (Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration
+for Color Computer Vision*, ICCV 2011), §5, with additions of selfcal's own.  The response
 of each channel is modelled in the log domain with a PCA basis (Eq. 7),
 
     g(I) = log f⁻¹(I) = g₀(I) + Σₙ hₙ(I) cₙ,
@@ -13,7 +13,7 @@ and every pair of samples (I, I′) of one scene point in two frames gives (Eq. 
 The equations are linear in the coefficients and the log exposures together, so the whole
 problem is a weighted linear least-squares fit, iterated for robust weights.
 
-Paper 002's parts (§5):
+[Lin2011]'s parts (§5):
 
 - Eq. 7, the log-domain PCA model: the basis is read at the sample codes (:mod:`.basis`).
 - Eq. 8, one row per sample pair and channel (:func:`.equations.build_pair_rows`).
@@ -65,7 +65,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ..errors import CalibrationError, options_from_keywords
 from ..stack.frames import DEFAULT_CLIP_MARGIN
 from ..stack.samples import SampleSet, frame_masks
 from .equations import (
@@ -155,35 +155,20 @@ class _Exposures:
         return bool((self.refine or self.known.sum() < 2) and not self.fixed.all())
 
 
-def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
-                             n_components: int = 5, refine_exposures: bool = False,
-                             saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
-                             clip_margin: float = DEFAULT_CLIP_MARGIN, exposure_prior_sigma: float = 0.05,
-                             max_rank_gap: int = 3, huber_k: float = 1.345,
-                             max_iterations: int | None = None, ridge: float = 1e-4,
-                             white_continuation_sigma: float = 0.03,
-                             prior_weight: float = 100.0, monotone: bool = True,
-                             white_threshold: bool = True,
-                             masks: dict | None = None) -> SolveResult:
-    """Solve Eq. 8 of Lin et al. (ICCV 2011) for three channels' coefficients and exposures.
+@dataclass(frozen=True)
+class SolverOptions:
+    """The finer settings of the Eq. 8 solve (:func:`solve_exposure_equations`).
 
-    Parameters
+    Attributes
     ----------
-    samples : SampleSet
-        Block-mean intensities across the stack (normalised to [0, 1]).
-    basis : ResponseBasis
-        A log-domain basis (``basis.domain == "log"``), Eq. 7.
-    log_times : ndarray, shape (F,)
-        Log of the given exposure of each frame, NaN where unknown.
     n_components : int
         Number of basis functions N in Eq. 7.
-    refine_exposures : bool
-        Treat given times as a prior (std ``exposure_prior_sigma`` in log units) and
-        re-estimate them; otherwise they are fixed.
     saturation_threshold : float
         β of §5: samples whose HSV saturation exceeds it are dropped.
     clip_margin : float
         Codes (8-bit scale) from 0 or the maximum that count as clipped.
+    exposure_prior_sigma : float
+        Std (log units) of the prior on the given times when they are refined.
     max_rank_gap : int
         Each frame is paired with the next ``max_rank_gap`` frames in exposure order.
     huber_k : float
@@ -204,35 +189,74 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Scale of the PCA-variance prior c_n ~ N(0, λ_n / prior_weight) from the basis' PCA
         variances λ_n (estimated for a basis without them, and then weighted by
         ``priors.ESTIMATED_PRIOR_SCALE``), on in every solve whatever the number of known
-        times.  The data
-        term counts every pair equation as independent, but one sample location enters up
-        to 3·(F−1) correlated equations (channels, pairs) and JPEG errors are spatially
-        correlated, so the prior is weighted up by about that factor; 100 was chosen on
-        synthetic stacks (every 10th DoRF curve rendered by selfcal.sim, see
-        bench/bench_response_synthetic.py) between 30 and 1000.
+        times.  The data term counts every pair equation as independent, but one sample
+        location enters up to 3·(F−1) correlated equations (channels, pairs) and JPEG
+        errors are spatially correlated, so the prior is weighted up by about that factor;
+        100 was chosen on synthetic stacks (every 10th DoRF curve rendered by selfcal.sim,
+        see bench/bench_response_synthetic.py) between 30 and 1000.
     monotone : bool
         Constrain f⁻¹ to be non-decreasing (a QP when the plain fit is not).
     white_threshold : bool
-        Add the censored white-threshold rows (:class:`.equations.ThresholdRows`: where each
-        channel starts to clip at the top code), which tie the scale of f⁻¹ to the data.
+        Add the censored white-threshold rows (:class:`.equations.ThresholdRows`: where
+        each channel starts to clip at the top code), which tie the scale of f⁻¹ to the
+        data.
+    """
+
+    n_components: int = 5
+    saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD
+    clip_margin: float = DEFAULT_CLIP_MARGIN
+    exposure_prior_sigma: float = 0.05
+    max_rank_gap: int = 3
+    huber_k: float = 1.345
+    max_iterations: int | None = None
+    ridge: float = 1e-4
+    white_continuation_sigma: float = 0.03
+    prior_weight: float = 100.0
+    monotone: bool = True
+    white_threshold: bool = True
+
+
+def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
+                             refine_exposures: bool = False, masks: dict | None = None,
+                             options: SolverOptions | None = None, **legacy) -> SolveResult:
+    """Solve Eq. 8 of [Lin2011] for three channels' coefficients and exposures.
+
+    Parameters
+    ----------
+    samples : SampleSet
+        Block-mean intensities across the stack (normalised to [0, 1]).
+    basis : ResponseBasis
+        A log-domain basis (``basis.domain == "log"``), Eq. 7.
+    log_times : ndarray, shape (F,)
+        Log of the given exposure of each frame, NaN where unknown.
+    refine_exposures : bool
+        Treat given times as a prior (std ``options.exposure_prior_sigma`` in log units)
+        and re-estimate them; otherwise they are fixed.
     masks : dict, optional
         ``"clipped"`` and ``"saturated"`` masks of :func:`selfcal.stack.samples.frame_masks`
-        (computed from the other arguments when not given).
+        (computed with ``options``' clip margin and β when not given).
+    options : SolverOptions, optional
+        The finer settings; default ``SolverOptions()``.
+    legacy
+        The fields of :class:`SolverOptions` as keyword arguments, the old way: each gives
+        a :class:`DeprecationWarning` naming the field.
 
     Returns
     -------
     SolveResult
     """
+    options = options_from_keywords(SolverOptions, options, legacy,
+                                    "solve_exposure_equations")
     if basis.domain != "log":
         raise CalibrationError(
             f"basis {basis.name!r} is a {basis.domain}-domain basis; Eq. 8 needs a "
             "log-domain basis (convert it with ResponseBasis.to_log_domain)")
     values = samples.values
     F, n, _ = values.shape
-    N = int(n_components)
+    N = int(options.n_components)
     if masks is None:
-        masks = frame_masks(samples, clip_margin=clip_margin,
-                            saturation_threshold=saturation_threshold)
+        masks = frame_masks(samples, clip_margin=options.clip_margin,
+                            saturation_threshold=options.saturation_threshold)
     clipped, saturated = masks["clipped"], masks["saturated"]
     valid = ~(clipped | saturated)
     exposures = _exposure_setup(np.asarray(log_times, dtype=float), refine_exposures,
@@ -242,31 +266,32 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     # frames by exposure; shots of one exposure by brightness, not by their place in the
     # input (the pairs, and so the model, must not depend on the order of the frames)
     order = np.lexsort((values.mean(axis=(1, 2)), exposures.initial))
-    rows = build_pair_rows(values, valid, order, exposures.initial, basis, N, max_rank_gap)
-    rejections = rejection_counts(clipped, saturated, order, max_rank_gap, rows.stuck)
-    thresholds = (_white_thresholds(values, valid, order, max_rank_gap, samples.max_code,
-                                    clip_margin / 255.0) if white_threshold else [])
+    rows = build_pair_rows(values, valid, order, exposures.initial, basis, N,
+                           options.max_rank_gap)
+    rejections = rejection_counts(clipped, saturated, order, options.max_rank_gap, rows.stuck)
+    thresholds = (_white_thresholds(values, valid, order, options.max_rank_gap,
+                                    samples.max_code, options.clip_margin / 255.0)
+                  if options.white_threshold else [])
     threshold_rows = (ThresholdRows(thresholds, F, samples.max_code, basis, N)
                       if thresholds else None)
     # the threshold rows (if any) are set at the start of every IRLS iteration
     normal = _NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
 
     priors = PriorTerms(
-        coefficient_precision=pca_variance_precision(basis, N, prior_weight),
-        ridge=ridge,
+        coefficient_precision=pca_variance_precision(basis, N, options.prior_weight),
+        ridge=options.ridge,
         white_continuation=white_continuation_terms(values, valid, basis, N),
-        white_continuation_sigma=white_continuation_sigma,
+        white_continuation_sigma=options.white_continuation_sigma,
         exposure=ExposurePrior(mean=exposures.log_times, frames=exposures.known,
-                               sigma=exposure_prior_sigma))
+                               sigma=options.exposure_prior_sigma))
     settings = SolveSettings(N=N, priors=priors,
-                             monotone=MonotoneConstraint.on_grid(basis, N, monotone))
+                             monotone=MonotoneConstraint.on_grid(basis, N, options.monotone))
+    max_iterations, tolerance = options.max_iterations, 1e-5
     if max_iterations is None:
         max_iterations, tolerance = ((8, 1e-5) if exposures.fixed.all() else
                                      (MAX_ITERATIONS_ESTIMATED, 1e-8))
-    else:
-        tolerance = 1e-5
     fit = _robust_fit(normal, threshold_rows, rows, basis, settings, exposures,
-                      huber_k, max_iterations, tolerance)
+                      options.huber_k, max_iterations, tolerance)
     coeffs, K = fit.coefficients, fit.log_exposures
     if refine_exposures and exposures.known.sum() >= 2:
         rescaled = _theil_sen_rescale(K, exposures.log_times, exposures.known)

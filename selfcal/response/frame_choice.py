@@ -1,0 +1,75 @@
+"""Which frames of a stack the response solve can use (:func:`selfcal.calibrate_response`).
+
+Frames clipped almost everywhere and duplicates are dropped before the solve, each with
+a warning (ours; [Lin2011] §5 rejects clipped *samples*, not frames).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from ..errors import InputError
+
+
+def without_clipped_frames(samples, masks, sources, warnings, clip_margin) -> list[int]:
+    """Indices of the frames not clipped almost everywhere (< 1 % of samples unclipped).
+
+    The warning of a dropped frame says whether it is white (or black) everywhere, or
+    mostly white or black.
+    """
+    margin = clip_margin / 255.0
+    keep = []
+    for k in range(samples.n_frames):
+        clipped = float(masks["clipped"][k].mean())
+        if 1.0 - clipped >= 0.01:
+            keep.append(k)
+            continue
+        white = float(np.mean(samples.block_max[k] >= 1.0 - margin))
+        black = float(np.mean(samples.block_min[k] <= margin))
+        if white >= 0.999 or black >= 0.999:
+            what = "white" if white >= black else "black"
+            share = 100 * max(white, black)
+            warnings.append(f"{sources[k]}: all {what} ({share:.1f}% of samples clipped "
+                            f"{what}); ignored")
+        else:
+            warnings.append(f"{sources[k]}: clipped almost everywhere ({100 * clipped:.1f}% "
+                            f"of samples: {100 * white:.1f}% white, {100 * black:.1f}% "
+                            "black); ignored")
+    return keep
+
+
+def without_duplicates(digests, times, sources, warnings, indices=None) -> list[int]:
+    """The frames that are not a copy of an earlier one (``indices`` of the ones kept).
+
+    ``digests`` are :func:`selfcal.stack.samples.content_digest` of every pixel.  Identical
+    pixels at different given times contradict each other: an InputError.
+    """
+    indices = list(range(len(digests))) if indices is None else list(indices)
+    keep = list(indices)
+    seen: dict[str, int] = {}
+    for k, dig in enumerate(digests):
+        if dig in seen:
+            j = seen[dig]
+            if times[j] is not None and times[k] is not None and not math.isclose(
+                    times[j], times[k], rel_tol=1e-3):
+                raise InputError(
+                    f"identical pixels to {sources[j]} but a different exposure time "
+                    f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
+            warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
+            keep.remove(indices[k])
+        else:
+            seen[dig] = k
+    return keep
+
+
+def subset(samples, keep):
+    """The SampleSet of the frames ``keep`` only."""
+    return replace(samples, values=samples.values[keep], block_max=samples.block_max[keep],
+                   block_min=samples.block_min[keep],
+                   sources=[samples.sources[k] for k in keep],
+                   digests=[samples.digests[k] for k in keep],
+                   thumbnails=[samples.thumbnails[k] for k in keep
+                               if k < len(samples.thumbnails)])
