@@ -1,5 +1,5 @@
 """Raw-only brackets: linear frames merged directly, their exposures measured from the pixels
-(issue 18; Lin et al. 2011 §5).  Truth: the simulator's jittered exposures and radiance."""
+([Lin2011] §5).  Truth: the simulator's jittered exposures and radiance."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Several RAW+JPEG pairs at once (issue 16): ``calibrate_pipeline`` and ``calibrate`` give
+"""Several RAW+JPEG pairs at once: ``calibrate_pipeline`` and ``calibrate`` give
 ``fit_pipeline`` one group per pair, so its regulariser weights are chosen by
 leave-one-scene-out (the weight that predicts a scene the fit did not see)."""
 
@@ -35,7 +35,7 @@ def two_pairs():
 def _scene_fold_lut(model, raw, rendered, groups):
     """The forward LUT refitted on the model's own ``f(M ρ)`` of its samples with
     ``groups`` as folds (None: leave-one-sample-out): what fit_pipeline's last forward step
-    does (Gong et al. §3.4 lattice regression; the weight by held-out error is ours)."""
+    does ([Gong2018] §3.4 lattice regression; the weight by held-out error is ours)."""
     y = np.clip(model.tone_curves(raw @ model.matrix.T), 0.0, 1.0)
     return lattice_regression_lut(y, rendered, smoothness="auto", groups=groups)
 

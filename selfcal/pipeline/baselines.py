@@ -3,14 +3,14 @@
 * :func:`independent_polynomial_model` -- "IndPoly": a 3×3 least-squares matrix and three
   independent per-channel polynomial tone curves, no gamut mapping (Chakrabarti,
   Scharstein & Zickler, *An empirical camera model for internet color vision*, BMVC 2009;
-  the IndPoly baseline of Gong et al., rank-based radiometric calibration, §4).
-* :func:`least_squares_rbf_model` -- Lin, Kim, Süsstrunk & Brown, ICCV 2011 §6 as
+  the IndPoly baseline of [Gong2018] §4).
+* :func:`least_squares_rbf_model` -- [Lin2011] §6 as
   published: per-channel response ``f⁻¹`` and a least-squares ``T`` from desaturated
   samples (HSV saturation <= β, none clipped; their §5 outlier rule), then RBF colour
   mappings ``h⁻¹`` (Eq. 10-11) and, for the forward direction, ``h``.
 
 Both alternate least squares between the 3×3 matrix ``B = T⁻¹`` (``ρ ≈ B g(P)``) and the
-per-channel curves ``g = f⁻¹`` (7th-order monotone polynomials, the QP of Gong et al.
+per-channel curves ``g = f⁻¹`` (7th-order monotone polynomials, the QP of [Gong2018]
 Eq. 9), starting from ``g(P) = P^2.2``, with ``g_k(1) = 1``.
 """
 
@@ -88,7 +88,7 @@ def independent_polynomial_model(raw_samples, rendered_samples, *, iterations: i
                                  smoothness: float = SMOOTHNESS) -> BaselineModel:
     """IndPoly: ``P = f(T ρ)`` with a 3×3 ``T`` and per-channel polynomials (no gamut map).
 
-    Chakrabarti, Scharstein & Zickler, BMVC 2009 (the "IndPoly" of Gong et al. §4): the
+    Chakrabarti, Scharstein & Zickler, BMVC 2009 (the "IndPoly" of [Gong2018] §4): the
     backward form ``ρ ≈ T⁻¹ f⁻¹(P)`` by alternating least squares on the unclipped
     samples; the forward curves ``f`` are then fitted to ``(T ρ, P)`` on all samples.
 
@@ -98,7 +98,7 @@ def independent_polynomial_model(raw_samples, rendered_samples, *, iterations: i
         ``(n, 3)`` in ``[0, 1]``.
     iterations : int
     smoothness : float
-        λ of the polynomial QP (Gong et al. Eq. 9).
+        λ of the polynomial QP ([Gong2018] Eq. 9).
 
     Returns
     -------
@@ -115,7 +115,7 @@ def independent_polynomial_model(raw_samples, rendered_samples, *, iterations: i
 def least_squares_rbf_model(raw_samples, rendered_samples, *, beta: float = 0.4,
                             iterations: int = 8, smoothness: float = SMOOTHNESS,
                             n_centres: int = N_CONTROL_POINTS, seed: int = 0) -> BaselineModel:
-    """Lin et al. ICCV 2011 §6 as published: least-squares ``T``, ``f⁻¹`` and RBF ``h⁻¹``.
+    """[Lin2011] §6 as published: least-squares ``T``, ``f⁻¹`` and RBF ``h⁻¹``.
 
     ``f⁻¹`` and ``T`` come from the desaturated samples (HSV saturation of the rendered
     colour <= ``beta`` and no channel clipped -- the outlier rule of their §5, β = 0.4 for

@@ -1,12 +1,11 @@
 """Backward estimates for clipped rendered pixels: a conditional expectation from samples.
 
 A rendered value at 0 or 255 does not determine the raw: every raw beyond the clipping
-threshold renders to the same code.  Lin et al. (ICCV 2011, paper 002, §5) therefore
-reject clipped pixels as outliers of the fit, and Gong et al. (paper 000, §3.5) fit the
-backward model ``f⁻¹`` and ``LUT_b`` (or Lin et al.'s ``h⁻¹``, Eq. 10-11) on samples that
-the code determines.  Applied to a clipped pixel, that model returns its value at the
-clipping threshold, ``ρ(P)`` on the face of the code cube -- the smallest raw the code
-allows, not the expected one.
+threshold renders to the same code.  [Lin2011] (§5) therefore reject clipped pixels as
+outliers of the fit, and [Gong2018] §3.5 fit the backward model ``f⁻¹`` and ``LUT_b`` (or
+[Lin2011]'s ``h⁻¹``, Eq. 10-11) on samples that the code determines.  Applied to a clipped
+pixel, that model returns its value at the clipping threshold, ``ρ(P)`` on the face of the
+code cube -- the smallest raw the code allows, not the expected one.
 
 Under squared error the best estimate of a clipped pixel's raw is the conditional
 expectation ``E[ρ | P]``.  Clipped *training* samples (their raw is known) sample it
@@ -31,7 +30,7 @@ import numpy as np
 from ..errors import InputError
 
 #: Rendered values within half a code of 0 or 255 are clipped (they do not determine the
-#: raw; Lin et al. ICCV 2011 §5 reject them as outliers).
+#: raw; [Lin2011] §5 reject them as outliers).
 CLIP_LO, CLIP_HI = 0.5 / 255, 254.5 / 255
 #: Kernel bandwidths (rendered RGB in [0, 1]) tried by the leave-one-out choice; ``inf``
 #: is a constant correction (the mean residual, shrunk).
@@ -61,7 +60,7 @@ class ClippedCorrection:
 
     ``δ(P) = Σ_i K(P, P_i) r_i / (κ + Σ_i K(P, P_i))`` (see the module docstring): the
     conditional expectation of the raw given a clipped code, learned from clipped
-    training samples, relative to the backward model of Gong et al. §3.5 / Lin et al.
+    training samples, relative to the backward model of [Gong2018] §3.5 / [Lin2011]
     Eq. 11 fitted on the unclipped ones.
 
     Attributes
@@ -148,7 +147,7 @@ def clipped_pixel_correction(rendered, residuals, *, bandwidths=BANDWIDTHS,
                              prior_weights=PRIOR_WEIGHTS):
     """Learn ``E[ρ | P]`` at clipped codes from clipped training samples (leave-one-out).
 
-    For the backward model (Gong et al. §3.5; Lin et al. ICCV 2011 Eq. 10-11), fitted on
+    For the backward model ([Gong2018] §3.5; [Lin2011] Eq. 10-11), fitted on
     the samples whose code determines the raw, this fits the Nadaraya-Watson correction
     of :class:`ClippedCorrection` to the residuals of the clipped samples and picks the
     bandwidth ``h`` and prior weight ``κ`` with the lowest leave-one-out RMSE (each

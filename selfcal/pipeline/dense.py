@@ -1,6 +1,6 @@
 """Dense 3-D tables for full-image application: baking and fast trilinear interpolation.
 
-A fitted backward model (JPEG -> raw, Gong et al. §3.5 or Lin et al. Eq. 11) costs an RBF
+A fitted backward model (JPEG -> raw, [Gong2018] §3.5 or [Lin2011] Eq. 11) costs an RBF
 evaluation with 1,500 centres per pixel when applied directly (about 10 s per million
 pixels).  selfcal evaluates it once on a ``size³`` grid of the linearised colour cube and
 interpolates trilinearly per pixel (a standard "shaper + 3-D LUT"; the shaper is the

@@ -1,18 +1,17 @@
 """Rank-based colour matrix: rows of M from half-space (rank order) constraints.
 
-Gong et al., *Rank-based radiometric calibration* (paper 000), §3.2, Eq. 4-8.  For an
-output channel ``k`` and two samples ``a, b`` with rendered values ``P_k^a > P_k^b`` the
-rank order is assumed to survive colour correction, ``M_k ρ^a > M_k ρ^b``, i.e.
-``M_k · d > 0`` for the difference vector ``d = ρ^a - ρ^b`` (Eq. 4-5): a half-space
-constraint on the row ``M_k``.  The row is the unit direction that satisfies the most
-constraints (Eq. 6 with noise); its length is not determined by rank and is fixed later
-(see :func:`row_scales`).
+[Gong2018] §3.2, Eq. 4-8.  For an output channel ``k`` and two samples ``a, b`` with
+rendered values ``P_k^a > P_k^b`` the rank order is assumed to survive colour correction,
+``M_k ρ^a > M_k ρ^b``, i.e. ``M_k · d > 0`` for the difference vector ``d = ρ^a - ρ^b`` (Eq.
+4-5): a half-space constraint on the row ``M_k``.  The row is the unit direction that
+satisfies the most constraints (Eq. 6 with noise); its length is not determined by rank and
+is fixed later (see :func:`row_scales`).
 
 Two searches are implemented:
 
 ``method="literal"``
     As published: 100,000 quasi-uniform directions on the unit sphere (a Fibonacci
-    lattice: every direction lies within about 0.45° of one, finer than the paper's
+    lattice: every direction lies within about 0.45° of one, finer than [Gong2018]'s
     1.15°), the satisfied
     constraints counted for all of them by one (chunked) matrix product, the best count
     kept, the median of tied directions taken.
@@ -41,7 +40,7 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 
-#: Number of directions of the published search (Gong et al. §3.2).
+#: Number of directions of the published search ([Gong2018] §3.2).
 LITERAL_DIRECTIONS = 100_000
 #: Cells of the fast search are split down to this angular radius (degrees).
 FAST_MIN_RADIUS_DEG = 0.02
@@ -51,9 +50,8 @@ _CHUNK = 1 << 22  # elements per block of the (directions x constraints) product
 def fibonacci_sphere(n: int) -> np.ndarray:
     """``n`` quasi-uniform unit vectors on the sphere (Fibonacci / golden-angle lattice).
 
-    The directions probed by the literal search of Gong et al., rank-based radiometric
-    calibration, §3.2 ("100,000 unit length vectors uniformly distributed on the surface
-    of the unit sphere").
+    The directions probed by the literal search of [Gong2018] §3.2 ("100,000 unit length
+    vectors uniformly distributed on the surface of the unit sphere").
 
     Parameters
     ----------
@@ -78,10 +76,10 @@ def fibonacci_sphere(n: int) -> np.ndarray:
 def rank_constraints(raw: np.ndarray, rendered: np.ndarray, channel: int) -> np.ndarray:
     """Unit difference vectors ``d̂`` of all sample pairs, oriented by rendered rank.
 
-    Gong et al., rank-based radiometric calibration, Eq. 4-5: for every pair ``(a, b)``
-    with ``P_k^a != P_k^b`` the vector ``d = sign(P_k^a - P_k^b) (ρ^a - ρ^b)`` must satisfy
-    ``M_k · d > 0``.  Pairs with equal rendered values (ties, e.g. both clipped at 255) or
-    (nearly) equal raws carry no order and are dropped.
+    [Gong2018] Eq. 4-5: for every pair ``(a, b)`` with ``P_k^a != P_k^b`` the vector ``d =
+    sign(P_k^a - P_k^b) (ρ^a - ρ^b)`` must satisfy ``M_k · d > 0``.  Pairs with equal
+    rendered values (ties, e.g. both clipped at 255) or (nearly) equal raws carry no order
+    and are dropped.
 
     Parameters
     ----------
@@ -110,7 +108,7 @@ def rank_constraints(raw: np.ndarray, rendered: np.ndarray, channel: int) -> np.
 def count_satisfied(directions: np.ndarray, constraints: np.ndarray) -> np.ndarray:
     """Number of half-space constraints ``u · d̂ > 0`` satisfied by each direction ``u``.
 
-    The counting step of Gong et al. §3.2, as one matrix product (in blocks).
+    The counting step of [Gong2018] §3.2, as one matrix product (in blocks).
 
     Parameters
     ----------
@@ -162,7 +160,7 @@ def _median_direction(points: np.ndarray, weights: np.ndarray | None = None) -> 
 
 
 def _resolve_ties(ties: np.ndarray, weights, constraints: np.ndarray, best: int) -> np.ndarray:
-    """Median of the tied directions (Gong et al. §3.2); if the median falls outside the
+    """Median of the tied directions ([Gong2018] §3.2); if the median falls outside the
     tie set (ties in separate regions), the tied direction nearest to it."""
     u = _median_direction(ties, weights)
     if count_satisfied(u[None], constraints)[0] >= best:
@@ -275,13 +273,12 @@ def rank_based_row(raw: np.ndarray, rendered: np.ndarray, channel: int, *,
                    method: str = "fast", n_directions: int = LITERAL_DIRECTIONS) -> dict:
     """One unit row ``M_k`` of the colour matrix from rank-order constraints.
 
-    Gong et al., rank-based radiometric calibration, §3.2, Eq. 4-8 (see the module
-    docstring for the two searches).
+    [Gong2018] §3.2, Eq. 4-8 (see the module docstring for the two searches).
 
     Parameters
     ----------
     raw, rendered : numpy.ndarray
-        ``(n, 3)`` samples (typically 200, Gong et al. §3.2).
+        ``(n, 3)`` samples (typically 200, [Gong2018] §3.2).
     channel : int
     method : {"fast", "literal"}
     n_directions : int
@@ -314,15 +311,15 @@ def rank_based_matrix(raw, rendered, *, method: str = "fast",
                       n_directions: int = LITERAL_DIRECTIONS, return_info: bool = False):
     """The colour correction matrix ``M`` up to row scales, from rank order.
 
-    Gong et al., *Rank-based radiometric calibration*, §3.2, Eq. 4-8: each row ``M_k`` is
-    the unit direction satisfying the most half-space constraints ``M_k · (ρ^a - ρ^b) > 0``
-    over the sample pairs with ``P_k^a > P_k^b``; the median of tied directions is taken.
-    Rows are returned with unit length; :func:`row_scales` fixes their lengths.
+    [Gong2018] §3.2, Eq. 4-8: each row ``M_k`` is the unit direction satisfying the most
+    half-space constraints ``M_k · (ρ^a - ρ^b) > 0`` over the sample pairs with ``P_k^a >
+    P_k^b``; the median of tied directions is taken. Rows are returned with unit length;
+    :func:`row_scales` fixes their lengths.
 
     Parameters
     ----------
     raw : array_like
-        ``(n, 3)`` linear camera RGB ρ (the paper uses ``n = 200`` random samples).
+        ``(n, 3)`` linear camera RGB ρ ([Gong2018] uses ``n = 200`` random samples).
     rendered : array_like
         ``(n, 3)`` rendered RGB P in ``[0, 1]``.
     method : {"fast", "literal"}
@@ -370,7 +367,7 @@ def rank_based_matrix(raw, rendered, *, method: str = "fast",
 def row_scales(unit_matrix: np.ndarray, raw: np.ndarray) -> np.ndarray:
     """Row lengths of ``M``: the brightest training sample maps to 1 in every channel.
 
-    Rank order determines each row of ``M`` only up to a positive factor (Gong et al.
+    Rank order determines each row of ``M`` only up to a positive factor ([Gong2018]
     §3.2, Eq. 6: ``α M_k`` satisfies the same constraints).  selfcal fixes it so that
     ``max_i M_k ρ_i = 1`` over the training raws: the colour-corrected values then span
     about ``[0, 1]`` like the rendered values, and the tone curve of Eq. 9 maps the

@@ -1,6 +1,6 @@
-"""RBF inverse colour mapping h⁻¹ (Lin, Kim, Süsstrunk & Brown, ICCV 2011, §6).
+"""RBF inverse colour mapping h⁻¹ ([Lin2011] §6).
 
-Lin et al. (paper 002) model the camera as ``i_c = f_c(h(T E))`` (Eq. 9) and undo the
+[Lin2011] model the camera as ``i_c = f_c(h(T E))`` (Eq. 9) and undo the
 colour (gamut) mapping ``h`` by scattered-data interpolation with radial basis functions
 (Eq. 10)::
 
@@ -22,14 +22,14 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 
-#: Number of control points (Lin et al. §6: "typically 1500 samples are used").
+#: Number of control points ([Lin2011] §6: "typically 1500 samples are used").
 N_CONTROL_POINTS = 1500
 #: Smoothing values tried by the held-out selection.
 SMOOTHING_GRID = (1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0)
 
 
 class RBFColourMapping:
-    """A fitted RBF colour mapping ``e -> Σ w_i ||e - c_i|| + affine(e)`` (Lin et al. Eq. 10).
+    """A fitted RBF colour mapping ``e -> Σ w_i ||e - c_i|| + affine(e)`` ([Lin2011] Eq. 10).
 
     Attributes
     ----------
@@ -95,7 +95,7 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     ``X = L⁻¹ Qᵀ``: ``a = Xᵀ X y`` and ``(A⁻¹)_ii = ||X_:i||²``.
 
     With ``groups`` the error is leave-one-group-out, the block form of the same identity
-    (Dubrule, *Cross validation of kriging in a unique neighborhood*, Math. Geol. 1983):
+    ([Dubrule1983]):
     the errors at the centres of group ``G`` with the interpolant fitted without them are
     ``((A⁻¹)_GG)⁻¹ a_G``, ``(A⁻¹)_GG = X_:Gᵀ X_:G``.
 
@@ -175,7 +175,7 @@ def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
                                smoothing="auto", smoothing_grid=SMOOTHING_GRID,
                                error_transform=None, seed: int = 0,
                                groups=None) -> RBFColourMapping:
-    """Fit the inverse colour mapping ``h⁻¹: e -> T E`` of Lin et al. ICCV 2011, Eq. 10-11.
+    """Fit the inverse colour mapping ``h⁻¹: e -> T E`` of [Lin2011], Eq. 10-11.
 
     ``h⁻¹(e) = Σ_i w_i ||e - e_i|| + affine(e)`` through the control pairs
     ``e_i -> T E_i`` (scipy's RBFInterpolator, ``kernel="linear"``, ``degree=1``).

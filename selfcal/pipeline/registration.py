@@ -1,12 +1,11 @@
 """RAW↔rendered registration: where a camera's JPEG lies on its raw (scale and shift).
 
 Cameras' JPEGs are often a little cropped or scaled against what LibRaw decodes from the
-raw; the correspondences of the RAW calibration path (Gong et al., *Rank-based radiometric
-calibration*, paper 000, §3; Lin, Kim, Süsstrunk & Brown, ICCV 2011, paper 002, §6) need
+raw; the correspondences of the RAW calibration path ([Gong2018] §3; [Lin2011] §6) need
 the two aligned.  :func:`register_raw_jpeg` finds an isotropic scale and a shift by a
 scale search with phase correlation, then Gauss-Newton (ECC-style, gain and offset free)
 at two resolutions, and judges the match by the normalised cross-correlation of
-band-passed images.  The method is ours: Lin et al. §3 extract colour-chart patches "with
+band-passed images.  The method is ours: [Lin2011] §3 extract colour-chart patches "with
 simple registration", while selfcal takes any scene.  Sampling the registered pair is
 :mod:`selfcal.pipeline.pairs`.
 
@@ -334,12 +333,11 @@ def register_raw_jpeg(raw_rgb, rendered, *, scale_range=(0.85, 1.04), coarse_siz
     """Register a rendered (camera JPEG) image on its linear raw: scale and shift.
 
     Camera JPEGs are often slightly cropped and rescaled against the raw as LibRaw decodes
-    it; the correspondences of the RAW path (Gong et al., rank-based radiometric
-    calibration, §3; Lin et al. ICCV 2011 §6) need them aligned.  Both images are turned
-    into grey images (the raw grey-world balanced and gamma-encoded), reduced to about
-    ``coarse_size`` pixels, and a scale search around the size ratio (phase correlation
-    at each candidate scale; ``scale_range`` relative to the width and height ratios, the
-    low end allowing the JPEG to cover a ~15 % smaller field) gives a start that
+    it; the correspondences of the RAW path ([Gong2018] §3; [Lin2011] §6) need them aligned.
+    Both images are turned into grey images (the raw grey-world balanced and gamma-encoded),
+    reduced to about ``coarse_size`` pixels, and a scale search around the size ratio (phase
+    correlation at each candidate scale; ``scale_range`` relative to the width and height
+    ratios, the low end allowing the JPEG to cover a ~15 % smaller field) gives a start that
     Gauss-Newton refines, ECC-style (gain and offset free; scale and translation only), at
     the coarse level and again at about ``fine_size`` pixels.  The match is judged by the
     normalised cross-correlation of band-passed images (see :class:`Registration`).

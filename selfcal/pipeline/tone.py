@@ -1,6 +1,6 @@
 """Monotone smooth 7th-order tone curves by quadratic programming.
 
-Gong et al., *Rank-based radiometric calibration* (paper 000), §3.3, Eq. 9::
+[Gong2018] §3.3, Eq. 9::
 
     min_f  Σ_i (f(x_i) - y_i)²  +  λ ∫ f''(x)² dx    s.t.  f'(x) >= 0
 
@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import CalibrationError, InputError
 
 DEGREE = 7
-#: Smoothness weight λ of Eq. 9 (Gong et al. §3.3: "a small weight (e.g. 10⁻⁵)").
+#: Smoothness weight λ of Eq. 9 ([Gong2018] §3.3: "a small weight (e.g. 10⁻⁵)").
 SMOOTHNESS = 1e-5
 _GRID = np.linspace(0.0, 1.0, 101)
 
@@ -72,9 +72,9 @@ TOP_SPAN = 0.5 / 255
 class MonotonePolynomial:
     """Per-channel monotone polynomials ``f_k(x) = Σ_i c_ki B_i((x - lo_k) / (hi_k - lo_k))``.
 
-    The tone curves of Gong et al., rank-based radiometric calibration, Eq. 9 (and their
-    inverses, §3.5).  Inputs are clamped to the domain ``[lo_k, hi_k]`` before evaluation,
-    so the curves are constant (and monotone) outside the fitted range.
+    The tone curves of [Gong2018] Eq. 9 (and their inverses, §3.5).  Inputs are clamped to
+    the domain ``[lo_k, hi_k]`` before evaluation, so the curves are constant (and monotone)
+    outside the fitted range.
 
     Attributes
     ----------
@@ -289,10 +289,9 @@ def _qp(degree: int) -> _ToneQP:
 
 def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = DEGREE,
                          domain=None, weights=None, folds=None) -> MonotonePolynomial:
-    """Fit per-channel monotone smooth polynomials ``y_k ≈ f_k(x_k)`` (Gong et al. Eq. 9).
+    """Fit per-channel monotone smooth polynomials ``y_k ≈ f_k(x_k)`` ([Gong2018] Eq. 9).
 
-    For each channel ``k`` solves the quadratic programme of Gong et al., *Rank-based
-    radiometric calibration*, §3.3, Eq. 9::
+    For each channel ``k`` solves the quadratic programme of [Gong2018] §3.3, Eq. 9::
 
         min Σ_i w_i (f_k(x_ik) - y_ik)² + λ ∫ f_k''(x)² dx   s.t.   f_k'(x) >= 0
 
@@ -307,11 +306,11 @@ def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = 
         ``(n, 3)`` inputs and targets.  NaN entries (of either) are left out of their
         channel's fit.
     smoothness : float or "auto"
-        λ of Eq. 9 (default 1e-5, as in the paper), for ``x`` and ``y`` on a unit scale;
+        λ of Eq. 9 (default 1e-5, as in [Gong2018]), for ``x`` and ``y`` on a unit scale;
         ``"auto"``: per channel the value of ``SMOOTHNESS_GRID`` with the lowest 5-fold
         cross-validated error (seeded folds), kept in ``.smoothness``/``.validation``.
     degree : int
-        Polynomial degree (7 in the paper).
+        Polynomial degree (7 in [Gong2018]).
     domain : array_like, optional
         ``(3, 2)`` input ranges; default ``[min(0, min x_k), max x_k]``.
     weights : array_like, optional

@@ -1,14 +1,14 @@
 """How far a fitted pipeline can be trusted: the neighbourhood of its training colours.
 
-A camera's gamut map is only known where the calibration saw colours (Gong et al.,
-*Rank-based radiometric calibration*, §3.4, fit the 5×5×5 LUT to the training samples;
-what it does between and beyond them is the regulariser's guess).  Measured across
-scenes (``bench/bench_pipeline_crossscene.py``), the forward error of pixels whose raw lies
-inside the convex hull of the training colours but far from every one of them is several
-times that of pixels near one: the hull is too generous a test.  selfcal therefore keeps,
-in the model, a subsample of the training colours (raw and rendered, the samples on the
-convex hull of each always included) and calls a pixel *outside the training colours*
-when its distance to the nearest training colour exceeds a radius:
+A camera's gamut map is only known where the calibration saw colours ([Gong2018] §3.4 fits
+the 5×5×5 LUT to the training samples; what it does between and beyond them is the
+regulariser's guess).  Measured across scenes (``bench/bench_pipeline_crossscene.py``), the
+forward error of pixels whose raw lies inside the convex hull of the training colours but
+far from every one of them is several times that of pixels near one: the hull is too
+generous a test.  selfcal therefore keeps, in the model, a subsample of the training colours
+(raw and rendered, the samples on the convex hull of each always included) and calls a pixel
+*outside the training colours* when its distance to the nearest training colour exceeds a
+radius:
 
 * raw input (:meth:`PipelineModel.render`): distance in ``u = (ρ / s)^(1/2.2)``, ``s`` the
   largest raw value among the training samples (a gamma-like encoding, so that dark and

@@ -111,11 +111,12 @@ def raw_exposure_ratios(raws, *, low: float = 0.02, high: float = 0.9,
 
     [Lin2011] §5: "with RAW images, the exposure ratio can be directly computed by dividing
     the raw values between two images" -- which also fixes the exponential ambiguity of a
-    response solved with unknown exposures and the inaccuracy of shutter speeds.  For every pair of frames, the log ratio is the median
-    of ``log(raw_j / raw_i)`` over the thumbnail pixels and channels unclipped and
-    well exposed (``low ≤ value ≤ high``) in both; the log exposures then follow by
-    weighted least squares over all pairs with at least ``min_count`` such values (weight
-    = count), frame by frame within each connected set of frames.
+    response solved with unknown exposures and the inaccuracy of shutter speeds.  For every
+    pair of frames, the log ratio is the median of ``log(raw_j / raw_i)`` over the thumbnail
+    pixels and channels unclipped and well exposed (``low ≤ value ≤ high``) in both; the log
+    exposures then follow by weighted least squares over all pairs with at least
+    ``min_count`` such values (weight = count), frame by frame within each connected set of
+    frames.
 
     Parameters
     ----------
