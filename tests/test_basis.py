@@ -509,7 +509,7 @@ def test_real_invemor_in_log_domain():
 
 
 # --------------------------------------------------------------------------------------
-# the coefficient prior of a basis file without PCA variances (issue 18)
+# the coefficient prior of a basis file without PCA variances (estimated from the family)
 # --------------------------------------------------------------------------------------
 
 def test_estimated_variances_match_the_builtin_basis_own():
@@ -532,8 +532,8 @@ def test_estimated_variances_match_the_builtin_basis_own():
 def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatch):
     """An invemor-format basis (a linear-domain PCA of curve-family curves, written in
     Grossberg & Nayar's text layout) recovers, from a simulated stack, curves it represents
-    exactly with 5 components; with the coefficient prior off (the ridge of before issue
-    18) the same calibrations miss the tolerance."""
+    exactly with 5 components; with the coefficient prior off (only the ridge, as before
+    such bases got estimated variances) the same calibrations miss the tolerance."""
     import selfcal
     from selfcal import sim
     from selfcal.response import priors

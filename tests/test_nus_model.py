@@ -1,7 +1,7 @@
 """NUS model folders as models: ``selfcal.load_model(folder)`` and ``--model FOLDER``.
 
 The reference is the direct RBF evaluation of :class:`selfcal.pipeline.nus.NUSCameraModel`
-(Kim et al. PAMI 2012); the model ``load_model`` returns is baked into dense tables.
+([Kim2012]); the model ``load_model`` returns is baked into dense tables.
 Metric: differences in ``[0, 1]`` (raw for ``to_raw``, rendered for ``render``), RMS over
 the pixels of the fixture frames (every pixel: the tables cover the whole input cube),
 the reference ``to_raw`` clipped to ``[0, 1]`` as every pipeline model's output is.
@@ -119,7 +119,7 @@ def test_render_over_the_whole_cube_and_in_any_order(nus):
 def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper(cells, refine):
     """Trilinear interpolation in ``u = ρ^γ`` reproduces a function linear in ``u``
     exactly: any error is in the blocks, the packed indices or the lazy filling."""
-    from selfcal.pipeline.nus import _LazyRenderTable
+    from selfcal.pipeline.nus_render import LazyRenderTable
 
     gamma = 0.45
     a = np.array([[0.3, -0.2, 0.1], [0.05, 0.6, -0.1], [0.2, 0.1, 0.4]])
@@ -127,7 +127,7 @@ def test_lazy_render_table_is_exact_for_a_function_linear_in_the_shaper(cells, r
     def linear_in_u(rho):
         return 0.01 + (rho ** gamma) @ a
 
-    table = _LazyRenderTable(linear_in_u, cells, refine, gamma, scale=1000.0,
+    table = LazyRenderTable(linear_in_u, cells, refine, gamma, scale=1000.0,
                              shift=[1, 2, 3, 4])
     rng = np.random.default_rng(0)
     q = np.concatenate([rng.integers(0, 65536, (5000, 3)), [[0, 0, 0], [65535] * 3],

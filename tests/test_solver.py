@@ -1,6 +1,6 @@
 """The named parts of the Eq. 8 solver, each on data with a known answer.
 
-Pair rows (paper 002 §5, Eq. 8 with Eq. 7 put in) on a noiseless stack rendered from a
+Pair rows ([Lin2011] §5, Eq. 8 with Eq. 7 put in) on a noiseless stack rendered from a
 known curve; selfcal's censored threshold rows, priors, noise weights, Huber weights, block
 alternation, initial exposures and Theil–Sen rescale against independent formulations.
 """

@@ -1,14 +1,14 @@
-"""Issue 14, points 4, 7 and 8 of the library: what a calibration says about its input.
+"""What a calibration says about its input: clipped frames, the verdict, where times came from.
 
-* point 4: frames white or black (almost) everywhere are said to be so and dropped before
+* frames white or black (almost) everywhere are said to be so and dropped before
   the duplicate check, which compares every pixel;
-* point 7: the verdict (``diagnostics["verdict"]``, :mod:`selfcal.response.verdict`) is not
+* the verdict (``diagnostics["verdict"]``, :mod:`selfcal.response.verdict`) is not
   "ok" on wrong data -- times in reversed order, a handheld stack, two scenes, one stop,
   a flat scene -- and stays "ok" on a good stack; each reason is a SelfcalWarning;
-* point 8: ``exposure_source`` says where the times came from, the ambiguity warning is a
+* ``exposure_source`` says where the times came from, the ambiguity warning is a
   SelfcalWarning, and refined exposures keep the times of the frames that agree.
 
-Each test here failed on the code before issue 14 (run against ``git archive 83b5507``).
+Each test here failed on the code before these checks were added (``git archive 83b5507``).
 """
 
 from __future__ import annotations

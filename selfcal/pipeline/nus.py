@@ -1,7 +1,6 @@
 """Reader for the NUS in-camera imaging model files (a real camera pipeline).
 
-Kim, Lin, Lu, Süsstrunk, Lin & Brown, *A New In-Camera Imaging Model for Color Computer
-Vision and its Application* (PAMI 2012), the model of Lin et al. ICCV 2011 §6 (Eq. 9-11)::
+[Kim2012], the model of [Lin2011] §6 (Eq. 9-11)::
 
     forward  (raw2jpg):  P = f(h(T ρ))          T = T_s · diag(gains of a WB setting)
     backward (jpg2raw):  ρ = T⁻¹ h⁻¹(f⁻¹(P))
@@ -38,6 +37,8 @@ from scipy.spatial.distance import cdist
 
 from ..errors import InputError
 from .model import BAKE_SIZE, PipelineModel, _as_rgb_float
+from .nus_render import (NUS_RENDER_GAMMA, NUS_RENDER_REFINE, NUS_RENDER_SIZE, RAW_CODES,
+                         LazyRenderTable)
 
 #: White-balance setting codes of the NUS models (README of the model zoo).
 WB_NAMES = {3: "tungsten", 4: "flash", 9: "sunny", 10: "cloudy", 11: "shade",
@@ -94,7 +95,7 @@ def _read_response(path: Path) -> np.ndarray:
 
 
 class RBFMap:
-    """``e -> Σ_i w_i ||e - c_i|| + [1, e] A`` (Lin et al. ICCV 2011 Eq. 10; NUS file form)."""
+    """``e -> Σ_i w_i ||e - c_i|| + [1, e] A`` ([Lin2011] Eq. 10; NUS file form)."""
 
     def __init__(self, centres, weights, affine):
         self.centres = np.asarray(centres, dtype=np.float64)
@@ -115,7 +116,7 @@ class RBFMap:
 
 
 class NUSCameraModel:
-    """A camera pipeline read from NUS model files (Kim et al. PAMI 2012; Lin et al. §6).
+    """A camera pipeline read from NUS model files ([Kim2012]; [Lin2011] §6).
 
     ``render(raw)`` is the forward model ``f(h(T ρ))``, ``to_raw(rendered)`` the backward
     model ``T⁻¹ h⁻¹(f⁻¹(P))``; calling the object runs the direction it was read for.
@@ -252,9 +253,9 @@ class NUSCameraModel:
 def read_nus_model(folder, direction: str = "raw2jpg", wb_code: int | None = 14):
     """Read an NUS in-camera model folder as a callable camera pipeline.
 
-    The model of Kim et al. (PAMI 2012) / Lin et al. ICCV 2011 §6, Eq. 9-11: a 3×3
-    transform per white-balance setting, an RBF gamut map (Eq. 10 form, both directions)
-    and per-channel tone curves (see the module docstring for the file format).
+    The model of [Kim2012] / [Lin2011] §6, Eq. 9-11: a 3×3 transform per white-balance
+    setting, an RBF gamut map (Eq. 10 form, both directions) and per-channel tone curves
+    (see the module docstring for the file format).
 
     Parameters
     ----------
@@ -285,188 +286,7 @@ def read_nus_model(folder, direction: str = "raw2jpg", wb_code: int | None = 14)
 
 # ---- an NUS model folder as a selfcal pipeline model ------------------------------------
 
-#: Nodes per axis of the coarse forward (render) grid of an NUS model: its cells are the
-#: blocks of the lazily evaluated render table.
-NUS_RENDER_SIZE = 49
-#: Each coarse cell is split into ``NUS_RENDER_REFINE³`` cells (a 241-node grid per axis
-#: at the defaults); only the cells an image reaches are evaluated.
-NUS_RENDER_REFINE = 5
-#: The render grid's nodes sit at raw ``ρ = u^(1/γ)`` (``u`` uniform): cells grow with
-#: ``ρ^(1-γ)`` as the tone curve's slope falls (for a ``1/2.2`` tone curve the output error
-#: of first-order interpolation is then even over the cube; ours, measured by
-#: ``bench/bench_nus_model.py``).
-NUS_RENDER_GAMMA = 0.45
-_RAW_CODES = 65536
 _CHUNK = 1 << 15
-_BITS = 10          # the low bits of a packed index: the cell's offset in its block
-_W = np.float32(65536.0)
-
-
-class _LazyRenderTable:
-    """``h(T ρ)`` on a fine grid over the raw cube, evaluated only where images reach (ours).
-
-    The raw2jpg RBF ``Σ wᵢ ||e - cᵢ|| + [1, e] A`` (Kim et al. PAMI 2012) is a sum of
-    cones: it has a kink at each of its thousands of centres, so trilinear interpolation
-    converges only to first order in the cell size and a table within 1e-3 of it needs
-    about 241 nodes per axis (14 M nodes; 5 minutes of RBF evaluation).  A natural image
-    reaches a small part of that cube (a 24 MP frame: 50,000-200,000 nodes), so the grid
-    is kept in blocks, one per coarse cell (``coarse_cells³`` of them, ``refine + 1`` nodes
-    per axis each, faces shared by duplication), allocated when a pixel first falls in
-    the coarse cell, and a node is evaluated when a pixel first falls in one of the
-    cells it is a corner of.
-
-    Per pixel: the raw read at 16-bit precision, the grid coordinate from per-code tables
-    (one packed integer per channel: coarse cell and offset in the block), one gather of
-    the block's first node, then tetrahedral interpolation in the shaper's coordinate
-    ``u = ρ^γ``: four 16-byte gathers of corner rows (``h`` padded to four float32) and
-    three OpenCV ``blendLinear`` passes (1.2x faster than trilinear here, and as close
-    to the RBF: max 7.2e-4 against 8.2e-4 on the bench frame).  A cell's eight corners
-    are evaluated together.
-
-    Parameters
-    ----------
-    evaluate : callable
-        ``(n, 3)`` raw -> ``(n, 3)`` ``h(T ρ)`` (float64).
-    coarse_cells, refine : int
-        Cells per axis of the coarse grid, and the split of each.
-    gamma : float
-        The shaper: nodes at ``ρ = u^(1/γ)``.
-    scale : float
-    shift : float or array_like of 4
-        The table holds ``scale · h + shift`` per column (the render's tone-table index,
-        saving passes per pixel; interpolation commutes with it).
-    """
-
-    def __init__(self, evaluate, coarse_cells: int, refine: int, gamma: float,
-                 scale: float = 1.0, shift=0.0):
-        self._evaluate = evaluate
-        self.scale = float(scale)
-        self.shift = np.broadcast_to(np.asarray(shift, dtype=np.float64), (4,))
-        self.c = c = int(coarse_cells)
-        self.r = r = int(refine)
-        self.b = b = r + 1                       # nodes per axis of a block
-        self.nb = b ** 3
-        if b * b * (r - 1) + b * (r - 1) + (r - 1) >= 1 << _BITS or c ** 3 << _BITS >= 2 ** 31:
-            raise InputError(f"render grid of {c} coarse cells split {r} ways per axis: too "
-                             "fine for the table's packed indices (at most 127 cells split "
-                             "9 ways; 48 split 5 by default)")
-        self.gamma = float(gamma)
-        self.block_of = np.full(c ** 3, -1, dtype=np.intp)   # first node of its block
-        self.coarse_of = np.empty(0, dtype=np.int64)
-        self.values = np.zeros((0, 4), dtype=np.float32)
-        self.known = np.zeros(0, dtype=bool)    # node evaluated
-        self.ready = np.zeros(0, dtype=bool)    # cell (at its first corner) has all 8
-        self.n_blocks = 0
-        self.evaluated = 0
-        self.offsets = [0, 1, b, b + 1, b * b, b * b + 1, b * b + b, b * b + b + 1]
-        u = np.arange(_RAW_CODES, dtype=np.float64) / (_RAW_CODES - 1)
-        u = u ** self.gamma * (c * r)
-        i = np.minimum(np.floor(u).astype(np.int64), c * r - 1)
-        self.t = (u - i).astype(np.float32)
-        # per tetrahedron case (bits: t_r >= t_g, t_g >= t_b, t_r >= t_b), the node offsets
-        # of the axes with the largest and the second-largest t (cases 1 and 6 cannot occur)
-        r_, g_, b_ = b * b, b, 1
-        self.first = np.array([b_, b_, g_, g_, b_, r_, r_, r_], dtype=np.intp)
-        self.second = np.array([g_, r_, b_, r_, r_, b_, g_, g_], dtype=np.intp)
-        coarse, sub = np.divmod(i, r)
-        # per channel: (coarse-cell contribution << _BITS) + offset in the block
-        self.packed = [(((coarse * c * c) << _BITS) + sub * b * b).astype(np.int32),
-                       (((coarse * c) << _BITS) + sub * b).astype(np.int32),
-                       ((coarse << _BITS) + sub).astype(np.int32)]
-
-    def _grow(self, blocks: int):
-        cap = self.values.shape[0] // self.nb
-        if blocks <= cap:
-            return
-        cap = max(blocks, 2 * cap, 64)
-        for name in ("values", "known", "ready"):
-            old = getattr(self, name)
-            new = np.zeros((cap * self.nb,) + old.shape[1:], dtype=old.dtype)
-            new[:old.shape[0]] = old
-            setattr(self, name, new)
-        coarse_of = np.empty(cap, dtype=np.int64)
-        coarse_of[:self.n_blocks] = self.coarse_of[:self.n_blocks]
-        self.coarse_of = coarse_of
-
-    def _add_blocks(self, coarse: np.ndarray):
-        coarse = np.unique(coarse)
-        n0, n = self.n_blocks, coarse.size
-        self._grow(n0 + n)
-        self.coarse_of[n0:n0 + n] = coarse
-        self.block_of[coarse] = np.arange(n0, n0 + n, dtype=np.intp) * self.nb
-        self.n_blocks = n0 + n
-
-    def _fill(self, cells: np.ndarray):
-        """Evaluate the missing corners of ``cells`` (first-corner node indices)."""
-        cells = np.unique(cells)
-        nodes = np.unique((cells[:, None] + np.array(self.offsets)).ravel())
-        nodes = nodes[~self.known[nodes]]
-        if nodes.size:
-            b, c, r = self.b, self.c, self.r
-            blk, loc = np.divmod(nodes, self.nb)
-            co = self.coarse_of[blk]
-            fine = np.stack([co // (c * c) * r + loc // (b * b),
-                             (co // c) % c * r + (loc // b) % b,
-                             co % c * r + loc % b], axis=1)
-            rho = (fine / (c * r)) ** (1.0 / self.gamma)
-            self.values[nodes] = self.shift
-            self.values[nodes, :3] += self._evaluate(rho) * self.scale
-            self.known[nodes] = True
-            self.evaluated += nodes.size
-        self.ready[cells] = True
-
-    def __call__(self, q: np.ndarray) -> np.ndarray:
-        """``scale · h + shift`` at ``(n, 3)`` 16-bit raw codes ``q`` (intp); ``(n, 4)``
-        float32, the fourth column unused."""
-        key = self.packed[0].take(q[:, 0])
-        key += self.packed[1].take(q[:, 1])
-        key += self.packed[2].take(q[:, 2])
-        coarse = key >> _BITS
-        base = self.block_of.take(coarse)
-        if (base < 0).any():
-            self._add_blocks(coarse[base < 0])
-            base = self.block_of.take(coarse)
-        base += key & ((1 << _BITS) - 1)
-        ready = self.ready.take(base)
-        if not ready.all():
-            self._fill(base[~ready])
-        rows = self.values.view(np.complex128).ravel()   # one 16-byte row per node
-        n = q.shape[0]
-        # OpenCV images of four channels: 256 pixels a row when n allows, else one row
-        shape = (n // 256, 256, 4) if n % 256 == 0 else (1, n, 4)
-        bufs = [np.empty((n, 4), dtype=np.float32) for _ in range(4)]
-
-        def take(index, k):     # rows[index] into buffer k, as an OpenCV image
-            rows.take(index, out=bufs[k].view(np.complex128).reshape(n))
-            return bufs[k].reshape(shape)
-
-        # tetrahedral interpolation (Kasson, Nin & Plouffe 1995): the cell's tetrahedron
-        # from the order of (t_r, t_g, t_b); corners base, +first axis, +second axis, +all
-        t = [self.t.take(q[:, k]) for k in range(3)]
-        rg, gb, rb = t[0] >= t[1], t[1] >= t[2], t[0] >= t[2]
-        case = rg.view(np.int8) * np.int8(4)
-        case += gb.view(np.int8) * np.int8(2)
-        case += rb.view(np.int8)
-        hi = np.maximum(np.maximum(t[0], t[1]), t[2])
-        lo = np.minimum(np.minimum(t[0], t[1]), t[2])
-        mid = t[0] + t[1] + t[2] - hi - lo
-        c0 = take(base, 0)
-        index = base + self.first.take(case)
-        c1 = take(index, 1)
-        index += self.second.take(case)
-        c2 = take(index, 2)
-        c3 = take(base + self.offsets[7], 3)
-        # cv2.blendLinear: (w0 a + w1 b) / (w0 + w1 + 1e-5) in one pass (3x numpy's three);
-        # weights scaled by 2^16 so that the 1e-5 costs < 1e-9; accumulated weights chain
-        # the four corners: ((w0 c0 + w1 c1) / (w0 + w1)), then c2, then c3
-        two = shape[:2]
-        w = [(1.0 - hi) * _W, (hi - mid) * _W, (mid - lo) * _W, lo * _W]
-        acc = w[0] + w[1]
-        cv2.blendLinear(c0, c1, w[0].reshape(two), w[1].reshape(two), dst=c0)
-        cv2.blendLinear(c0, c2, acc.reshape(two), w[2].reshape(two), dst=c0)
-        acc += w[2]
-        cv2.blendLinear(c0, c3, acc.reshape(two), w[3].reshape(two), dst=c0)
-        return bufs[0]
 
 
 class _NUSInverseTone:
@@ -486,8 +306,8 @@ class _NUSInverseTone:
 class NUSPipelineModel(PipelineModel):
     """An NUS model folder used as a :class:`~selfcal.pipeline.PipelineModel`.
 
-    The reference model is :class:`NUSCameraModel` (Kim et al. PAMI 2012; Lin et al. ICCV
-    2011 §6, Eq. 9-11): an RBF with thousands of centres per pixel (tens of µs each).  Here
+    The reference model is :class:`NUSCameraModel` ([Kim2012]; [Lin2011]
+    §6, Eq. 9-11): an RBF with thousands of centres per pixel (tens of µs each).  Here
     it is baked, once per loaded model and direction, into dense tables evaluated as a
     fitted pipeline model's (:mod:`selfcal.pipeline.dense`):
 
@@ -499,7 +319,7 @@ class NUSPipelineModel(PipelineModel):
     - ``render``: ``h(T ρ)`` (the raw2jpg RBF) on a fine grid over the raw cube
       ``[0, 1]³`` (``(render_size - 1) · render_refine + 1`` nodes per axis at
       ``ρ = u^(1/0.45)``: 241 by default; ours), evaluated lazily where images reach
-      (:class:`_LazyRenderTable`: the first image pays for the nodes it needs),
+      (:class:`LazyRenderTable`: the first image pays for the nodes it needs),
       tetrahedral interpolation, then the clip and the tone curve ``f`` per channel
       (tabulated at every 1/65535).
       The raw is read at 16-bit precision (float input is rounded to ``1/65535``, below
@@ -561,7 +381,7 @@ class NUSPipelineModel(PipelineModel):
         return self.camera._maps["jpg2raw"](np.asarray(e, dtype=np.float64)) \
             @ self.camera.transform_inverse.T
 
-    def _forward_table(self) -> _LazyRenderTable:
+    def _forward_table(self) -> LazyRenderTable:
         if self._forward is None:
             cam = self.camera
             raw2jpg, transform = cam._maps["raw2jpg"], cam.transform
@@ -571,15 +391,15 @@ class NUSPipelineModel(PipelineModel):
 
             # the table holds h in 16-bit steps plus half a step plus 65536 c: after a clip
             # and a truncation, channel c's index into the tone table (passes saved)
-            self._forward = _LazyRenderTable(evaluate, self.render_size - 1,
+            self._forward = LazyRenderTable(evaluate, self.render_size - 1,
                                              self.render_refine, NUS_RENDER_GAMMA,
-                                             scale=_RAW_CODES - 1,
-                                             shift=0.5 + _RAW_CODES * np.arange(4))
-            codes = np.arange(_RAW_CODES, dtype=np.float64) / (_RAW_CODES - 1)
+                                             scale=RAW_CODES - 1,
+                                             shift=0.5 + RAW_CODES * np.arange(4))
+            codes = np.arange(RAW_CODES, dtype=np.float64) / (RAW_CODES - 1)
             # f at every 1/65535 of the gamut-mapped value, channel after channel (and a
             # fourth, unused: the table's rows have four columns, contiguous passes are
             # 1.5-2x faster than over three of four)
-            tone = np.zeros((4, _RAW_CODES), dtype=np.float32)
+            tone = np.zeros((4, RAW_CODES), dtype=np.float32)
             tone[:3] = cam.tone(np.repeat(codes[:, None], 3, axis=1)).T
             self._tone_table = tone.ravel()
         return self._forward
@@ -618,9 +438,9 @@ class NUSPipelineModel(PipelineModel):
         shape = x.shape
         flat = x.reshape(-1, 3)
         out = np.empty(flat.shape, dtype=np.float32)
-        top = np.float32(_RAW_CODES - 1)
-        lo = tuple(0.5 + _RAW_CODES * c for c in range(4))
-        hi = tuple(v + _RAW_CODES - 1 for v in lo)
+        top = np.float32(RAW_CODES - 1)
+        lo = tuple(0.5 + RAW_CODES * c for c in range(4))
+        hi = tuple(v + RAW_CODES - 1 for v in lo)
         for s in range(0, flat.shape[0], _CHUNK):
             chunk = flat[s:s + _CHUNK]
             n = chunk.shape[0]
@@ -629,7 +449,7 @@ class NUSPipelineModel(PipelineModel):
             else:   # OpenCV (one channel): rounded to int32, then clipped to the codes
                 q = cv2.multiply(chunk.reshape(1, 3 * n), float(top), dtype=cv2.CV_32S)
                 cv2.max(q, 0, dst=q)
-                cv2.min(q, _RAW_CODES - 1, dst=q)
+                cv2.min(q, RAW_CODES - 1, dst=q)
                 q = q.reshape(n, 3).astype(np.intp)
             mapped = table(q)                      # (n, 4): 65535 h + 0.5 + 65536 c
             # clipped per column with OpenCV (10x numpy's clip with array bounds)
@@ -660,7 +480,7 @@ def load_nus_pipeline(folder, wb_code: int | None = 14, *, bake_size: int = BAKE
 
     What :func:`selfcal.load_model` returns for such a folder: ``to_raw`` and ``render``
     as a fitted :class:`~selfcal.pipeline.PipelineModel`'s, through dense tables baked
-    from the folder's RBF maps (Kim et al. PAMI 2012).
+    from the folder's RBF maps ([Kim2012]).
 
     Parameters
     ----------

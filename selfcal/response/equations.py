@@ -1,4 +1,4 @@
-"""The rows of the Eq. 8 system: pair rows of paper 002 and selfcal's censored threshold rows.
+"""The rows of the Eq. 8 system: pair rows of [Lin2011] and selfcal's censored threshold rows.
 
 Lin, Kim, Süsstrunk & Brown, *Revisiting Radiometric Calibration for Color Computer Vision*,
 ICCV 2011, §5: with the log-domain PCA model of Eq. 7, ``g(I) = g₀(I) + H(I) c``, every pair
@@ -83,7 +83,7 @@ def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
 
 @dataclass(frozen=True, eq=False)
 class PairRows:
-    """The pair rows of Eq. 8 (paper 002 §5), one per sample, frame pair and channel.
+    """The pair rows of Eq. 8 ([Lin2011] §5), one per sample, frame pair and channel.
 
     Row i of channel c reads ``dH[c][i] · c_c − K[pb[i]] + K[pa[i]] = rhs[c][i]``.
     """
@@ -162,7 +162,7 @@ def _white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
                       min_each=5):
     """Where each channel starts to clip at the top code, as Eq.-8 rows (censored data).
 
-    selfcal's, not paper 002's.  The normalisation f⁻¹(max code) = 1 is an extrapolation
+    selfcal's, not [Lin2011]'s.  The normalisation f⁻¹(max code) = 1 is an extrapolation
     over the last codes, which are never observed unclipped.  What the stack does show is
     *where* a channel reaches the top code: in a pair (a, b), b brighter, a sample is at
     the top code in b exactly when g(I_a) + K_b − K_a ≥ g(τ), τ the top code less half a

@@ -1,6 +1,6 @@
 """The priors added to the Eq. 8 normal equations, each a named term with its weight.
 
-None of them is paper 002's (Lin et al., ICCV 2011, §5 solves Eq. 8 by plain least
+None of them is [Lin2011]'s (§5 solves Eq. 8 by plain least
 squares and fixes the exponential ambiguity with the camera's exposure values); each
 exists for one reason:
 
@@ -82,7 +82,8 @@ FAMILY_SEED = 20110102
 #: Multiplier of ``prior_weight`` for a basis whose variances are estimated
 #: (:func:`estimated_coefficient_variance`); chosen on the tuning split of
 #: ``bench/bench_basis.py`` (even DoRF curves, seeds < 1000) among 1, 3 and 10.  0 switches
-#: the estimate off: the ridge acts instead, as it did before issue 18.
+#: the estimate off: the ridge acts instead, as it did before bases without variances got
+#: estimated ones.
 ESTIMATED_PRIOR_SCALE = 3.0
 #: κ of the projection weights ``(rms f⁻¹ + κ)²``, as the built-in basis' PCA
 #: (:func:`selfcal.response.basis.log_pca_basis`).
