@@ -145,7 +145,7 @@ def calibrate_response(images, exposure_times=None, *, refine_exposures="auto", 
         ``diagnostics["exposure_source"]`` (e.g. ``"raw"`` when the caller took them from
         raw files); default ``"given"``.  Times all None are ``"unknown"``.
     options : ResponseOptions, optional
-        The finer settings of the sampling and the solve (number of components β, clip
+        The finer settings of the sampling and the solve (number of components, β, clip
         margin, samples, Huber threshold, priors); default ``ResponseOptions()``.
     legacy
         The fields of :class:`ResponseOptions` as keyword arguments (``n_components=``,
