@@ -626,7 +626,8 @@ def test_calibrate_response_aligns_handheld_frames_first():
 
     assert err(aligned) < 0.008 < err(unaligned)
     # the calibration options reach the solve on the aligned frames
-    margin4 = selfcal.calibrate_response(frames, times, align="mtb", clip_margin=4)
+    margin4 = selfcal.calibrate_response(frames, times, align="mtb",
+                                         options=selfcal.ResponseOptions(clip_margin=4))
     assert margin4.diagnostics["clip_margin"] == 4
     with pytest.raises(selfcal.InputError, match="unknown alignment"):
         selfcal.calibrate_response(frames, times, align="sift")

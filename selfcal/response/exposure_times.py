@@ -2,7 +2,7 @@
 whether they are refined, and what the pixels say about them.
 
 [Lin2011] §5 solves Eq. 8 with the exposure ratios known, or unknown and solved jointly
-(after Kim & Pollefeys, PAMI 2008); the rest is ours: times from EXIF scaled to one aperture and ISO, a
+(after [Kim2008]); the rest is ours: times from EXIF scaled to one aperture and ISO, a
 time the pixels contradict reported (or, for EXIF times, refined), and refined exposures
 put back on the given times' absolute scale.
 """

@@ -17,7 +17,7 @@ problem is a weighted linear least-squares fit, iterated for robust weights.
 
 - Eq. 7, the log-domain PCA model: the basis is read at the sample codes (:mod:`.basis`).
 - Eq. 8, one row per sample pair and channel (:func:`.equations.build_pair_rows`).
-- Unknown exposure ratios K′ solved jointly with g (as in Kim & Pollefeys, PAMI 2008); the
+- Unknown exposure ratios K′ solved jointly with g (as in [Kim2008]); the
   solution is then known only up to an exponential γ (f⁻¹ → (f⁻¹)^γ), which the paper
   fixes with exposure values from the camera — here any two known times fix it.
 - Outlier rejection: a sample is dropped from a pair when any channel is clipped in either
