@@ -1,7 +1,7 @@
 """``calibrate_response``: the JPEG-only path, from frames to a ResponseModel.
 
 [Lin2011] §5 (Eq. 7-8, outlier rejection) and §7 (δ, Eq. 12); unknown exposures solved
-jointly after Kim & Pollefeys, PAMI 2008.  The stages, in the order they run: the
+jointly after [Kim2008].  The stages, in the order they run: the
 exposure times (:mod:`.exposure_times`), the samples and the frames the solve can use
 (:mod:`.frame_choice`), the solve of Eq. 8 (:mod:`.solver`), δ (:mod:`.delta`) and the
 verdict (:mod:`.verdict`).  Their finer settings travel together in
