@@ -27,7 +27,7 @@ from .errors import (
 from .choose.loading import load_model
 from .response.calibrate import ResponseOptions, calibrate_response
 from .response.model import ResponseModel
-from .pipeline import PipelineModel, fit_pipeline
+from .pipeline import PipelineModel, PipelineOptions, fit_pipeline
 from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
 from .io.raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
 from .hdr import MergeOptions, merge_hdr  # HDR radiance maps (selfcal.hdr)
@@ -45,6 +45,7 @@ __all__ = [
     "load_model",
     "ResponseModel",
     "fit_pipeline",
+    "PipelineOptions",
     "PipelineModel",
     "merge_hdr",
     "MergeOptions",

@@ -3,6 +3,7 @@ response curve against the simulator's truth."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import numpy as np
@@ -13,7 +14,9 @@ import pytest
 def fit_calls(monkeypatch):
     """Record what calibrate / calibrate_pipeline give the real fit_pipeline, which runs.
 
-    A list of ``(raw_samples, rendered_samples, options)``, one per fit.
+    A list of ``(raw_samples, rendered_samples, options)``, one per fit; ``options`` holds
+    the keyword arguments and, spread in, the fields of the ``PipelineOptions`` given that
+    differ from their defaults (the knobs a caller set).
     """
     import selfcal.choose.paths
 
@@ -21,9 +24,12 @@ def fit_calls(monkeypatch):
     fit = selfcal.choose.paths.fit_pipeline
 
     @functools.wraps(fit)   # calibrate routes its options by this signature: keep it
-    def recording_fit(raw_samples, rendered_samples, **options):
-        calls.append((raw_samples, rendered_samples, options))
-        return fit(raw_samples, rendered_samples, **options)
+    def recording_fit(raw_samples, rendered_samples, options=None, **keywords):
+        knobs = {} if options is None else {
+            f.name: getattr(options, f.name) for f in dataclasses.fields(options)
+            if getattr(options, f.name) != f.default}
+        calls.append((raw_samples, rendered_samples, {**knobs, **keywords}))
+        return fit(raw_samples, rendered_samples, options, **keywords)
 
     monkeypatch.setattr(selfcal.choose.paths, "fit_pipeline", recording_fit)
     return calls

@@ -18,7 +18,7 @@ import selfcal
 from selfcal.export import (apply_cube_ffmpeg, cube_table, ffmpeg_binaries, read_cube_header,
                             write_cube)
 from selfcal.io import read_image
-from selfcal.pipeline import fit_pipeline
+from selfcal.pipeline import PipelineOptions, fit_pipeline
 from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT
 from selfcal_cli.main import main
 
@@ -44,8 +44,8 @@ def pipeline_model():
     raw = read_image(FIXTURES / "pair" / "pair.tiff").reshape(-1, 3) / 65535.0
     jpg = read_image(FIXTURES / "pair" / "pair.jpg").reshape(-1, 3)
     idx = np.random.default_rng(0).choice(raw.shape[0], 600, replace=False)
-    return fit_pipeline(raw[idx], jpg[idx] / 255.0, n_train=600, n_sets=2, seed=0,
-                        backward="lut")
+    return fit_pipeline(raw[idx], jpg[idx] / 255.0, PipelineOptions(n_sets=2, backward="lut"),
+                        n_train=600, seed=0)
 
 
 def test_1d_cube_read_by_colour_linearises_every_code(response_model, tmp_path):

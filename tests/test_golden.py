@@ -52,7 +52,7 @@ def _public_outputs() -> dict[str, np.ndarray]:
         raw = _read_raw16(pair[0])
         rendered = _read_rgb(pair[1])
         pm = selfcal.fit_pipeline(raw.reshape(-1, 3), rendered.reshape(-1, 3) / 255.0,
-                                  n_train=800, n_sets=3, seed=0)
+                                  selfcal.PipelineOptions(n_sets=3), n_train=800, seed=0)
         out["pipeline.render"] = np.asarray(pm.render(raw), dtype=np.float64)
         out["pipeline.to_raw"] = np.asarray(pm.to_raw(rendered), dtype=np.float64)
     return out

@@ -12,7 +12,11 @@ import selfcal
 from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, ModelFileError, OutputExistsError
 from selfcal.pipeline import (
+    BackwardStages,
+    ForwardStages,
+    LatticeOptions,
     PipelineModel,
+    PipelineOptions,
     fit_pipeline,
     lattice_regression_lut,
     monotone_tone_curves,
@@ -48,7 +52,7 @@ def pair():
 @pytest.fixture(scope="module")
 def model(pair):
     return fit_pipeline(pair["raw"][pair["train"]], pair["jpg"][pair["train"]] / 255.0,
-                        seed=0, n_sets=10)
+                        PipelineOptions(n_sets=10), seed=0)
 
 
 # ---- end to end on the simulator -------------------------------------------------------
@@ -148,7 +152,7 @@ def test_fibonacci_sphere_is_unit_and_covers_the_sphere():
     u = fibonacci_sphere(100_000)
     assert np.allclose(np.linalg.norm(u, axis=1), 1.0)
     assert np.allclose(u.mean(axis=0), 0.0, atol=1e-4)
-    # every direction has a lattice point within 0.6° (the paper's sampling: 1.15°)
+    # every direction has a lattice point within 0.6° ([Gong2018]'s sampling: 1.15°)
     rng = np.random.default_rng(0)
     v = rng.standard_normal((300, 3))
     v /= np.linalg.norm(v, axis=1, keepdims=True)
@@ -189,7 +193,7 @@ def test_lattice_lut_reproduces_a_known_smooth_map():
 
 
 def test_lattice_lut_linear_term_is_outside_the_smoothness_penalty():
-    """Ours, not Gong et al.'s (selfcal.pipeline.lattice): beside the 125 × 3 node values a
+    """Ours, not [Gong2018]'s (selfcal.pipeline.lattice): beside the 125 × 3 node values a
     3×3 linear term, unpenalised, so the Laplacian does not shrink a linear correction."""
     rng = np.random.default_rng(0)
     x = rng.uniform(0, 1, (2000, 3))
@@ -199,8 +203,8 @@ def test_lattice_lut_linear_term_is_outside_the_smoothness_penalty():
     assert lut.nodes.size + lut.linear.size == 125 * 3 + 9
     np.testing.assert_allclose(lut.linear, a, atol=1e-8)   # measured: 2e-11
     assert _rmse(x + lut.residual(x), y) < 1e-8
-    # the paper's LUT alone (affine=False) pays for it: measured 0.0052 RMSE (1.3 codes)
-    plain = lattice_regression_lut(x, y, smoothness=1.0, affine=False)
+    # [Gong2018]'s LUT alone (affine=False) pays for it: measured 0.0052 RMSE (1.3 codes)
+    plain = lattice_regression_lut(x, y, LatticeOptions(affine=False), smoothness=1.0)
     assert not plain.linear.any()
     assert _rmse(x + plain.residual(x), y) > 0.003
 
@@ -278,9 +282,10 @@ def test_a_damaged_model_file_is_rejected(tmp_path, model):
 
 def test_same_seed_same_model_other_seed_other_sets(pair):
     raw, jpg = pair["raw"], pair["jpg"] / 255.0
-    a = fit_pipeline(raw, jpg, n_train=400, seed=7, n_sets=3)
-    b = fit_pipeline(raw, jpg, n_train=400, seed=7, n_sets=3)
-    c = fit_pipeline(raw, jpg, n_train=400, seed=8, n_sets=3)
+    three = PipelineOptions(n_sets=3)
+    a = fit_pipeline(raw, jpg, three, n_train=400, seed=7)
+    b = fit_pipeline(raw, jpg, three, n_train=400, seed=7)
+    c = fit_pipeline(raw, jpg, three, n_train=400, seed=8)
     assert np.array_equal(a.matrix, b.matrix)
     q = pair["jpg"][::131]
     assert np.array_equal(a.to_raw(q), b.to_raw(q))
@@ -306,7 +311,44 @@ def test_bad_input_is_refused_with_clear_messages(pair):
     with pytest.raises(CalibrationError, match="colour variety"):
         fit_pipeline(grey, grey ** 0.45)
     with pytest.raises(InputError, match="backward"):
-        fit_pipeline(raw, jpg, backward="spline")
+        fit_pipeline(raw, jpg, PipelineOptions(backward="spline"))
+    with pytest.raises(TypeError, match="n_set"):
+        fit_pipeline(raw, jpg, n_set=3)                 # a misspelt knob is no option
+
+
+def test_old_keyword_arguments_still_work_and_say_what_replaces_them(pair, model):
+    raw, jpg = pair["raw"], pair["jpg"] / 255.0
+    new = fit_pipeline(raw, jpg, PipelineOptions(n_sets=2, backward="lut"), n_train=300)
+    with pytest.warns(DeprecationWarning) as caught:
+        old = fit_pipeline(raw, jpg, n_train=300, n_sets=2, backward="lut")
+    assert {str(w.message) for w in caught} == {
+        "fit_pipeline(n_sets=...) is deprecated: pass options=PipelineOptions(n_sets=...)",
+        "fit_pipeline(backward=...) is deprecated: pass options=PipelineOptions(backward=...)"}
+    assert np.array_equal(old.matrix, new.matrix)
+    assert np.array_equal(old.to_raw(pair["jpg"][::97]), new.to_raw(pair["jpg"][::97]))
+    # PipelineModel's old arguments, positional and by keyword
+    with pytest.warns(DeprecationWarning) as caught:
+        flat = PipelineModel(model.matrix, model.tone_curves, model.forward_lut,
+                             model.inverse_tone_curves, model.backward_lut, rbf=model.rbf,
+                             backward=model.backward, diagnostics=model.diagnostics,
+                             clipped_corrections=model.clipped_corrections,
+                             training_colours=model.training_colours)
+    assert len(caught) == 7 and ("PipelineModel(forward_lut=...) is deprecated: pass "
+                                 "forward_stages=ForwardStages(lut=...)"
+                                 in {str(w.message) for w in caught})
+    grouped = PipelineModel(
+        ForwardStages(model.matrix, model.tone_curves, model.forward_lut),
+        BackwardStages(model.inverse_tone_curves, model.backward_lut, model.rbf,
+                       model.clipped_corrections),
+        backward=model.backward, diagnostics=model.diagnostics,
+        training_colours=model.training_colours)
+    assert flat.to_dict() == grouped.to_dict() == model.to_dict()
+    # lattice_regression_lut's
+    x = np.random.default_rng(0).uniform(0, 1, (300, 3))
+    with pytest.warns(DeprecationWarning, match=r"options=LatticeOptions\(affine=\.\.\.\)"):
+        a = lattice_regression_lut(x, x ** 1.1, smoothness=1.0, affine=False)
+    b = lattice_regression_lut(x, x ** 1.1, LatticeOptions(affine=False), smoothness=1.0)
+    assert np.array_equal(a.nodes, b.nodes)
 
 
 def test_model_methods_refuse_bad_arrays(model):
@@ -321,15 +363,16 @@ def test_model_methods_refuse_bad_arrays(model):
 
 
 def test_backward_lut_only_skips_the_rbf(pair):
-    m = fit_pipeline(pair["raw"], pair["jpg"] / 255.0, n_train=300, n_sets=2,
-                     backward="lut")
+    m = fit_pipeline(pair["raw"], pair["jpg"] / 255.0,
+                     PipelineOptions(n_sets=2, backward="lut"), n_train=300)
     assert m.backward == "lut" and m.rbf is None
     with pytest.raises(InputError, match="RBF"):
         m.to_raw(pair["jpg"][:5], variant="rbf")
 
 
 def test_one_shot_140_samples(pair):
-    m = fit_pipeline(pair["raw"], pair["jpg"] / 255.0, n_train=140, n_sets=5, seed=1)
+    m = fit_pipeline(pair["raw"], pair["jpg"] / 255.0, PipelineOptions(n_sets=5),
+                     n_train=140, seed=1)
     test = pair["test"]
     assert _rmse(m.render(pair["raw"][test]), pair["truth"][test]) * 255 < 6.0
 
@@ -432,7 +475,8 @@ def test_closed_form_leave_one_out_matches_refitting():
     # the lattice regression's hat-matrix shortcut (fixed regulariser weight)
     x = rng.uniform(0, 1, (80, 3))
     t = x + 0.05 * np.sin(4 * x) + 0.01 * rng.standard_normal((80, 3))
-    lut = lattice_regression_lut(x, t, smoothness="auto", smoothness_grid=(0.05,))
+    lut = lattice_regression_lut(x, t, LatticeOptions(smoothness_grid=(0.05,)),
+                                 smoothness="auto")
     assert set(lut.validation) == {0.05}
     assert lut.validation[0.05] > _rmse(x + lut.residual(x), t)   # held out > in sample
 
@@ -455,7 +499,8 @@ def test_clipped_pixels_get_the_conditional_expectation(model, pair):
     p = sim.simulate_raw_jpeg_pair(seed=0, exposure=1.5, jpeg_quality=None)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
     codes = p["rendered"].reshape(-1, 3)
-    m = fit_pipeline(raw, codes / 255.0, n_train=800, seed=0, n_sets=3, backward="lut")
+    m = fit_pipeline(raw, codes / 255.0, PipelineOptions(n_sets=3, backward="lut"),
+                     n_train=800, seed=0)
     info = m.diagnostics["clipped_correction"]["lut"]
     assert info["samples"] >= 20 and info["kept"]
     clipped = ((codes == 0) | (codes == 255)).any(axis=1)
@@ -527,7 +572,8 @@ def test_top_code_without_clipped_training_samples_stands_for_sensor_white(tmp_p
     top = (codes == 255).any(axis=1)
     rng = np.random.default_rng(0)
     idx = rng.choice(np.flatnonzero(~top & (raw.max(axis=1) < 0.7)), 800, replace=False)
-    m = fit_pipeline(raw[idx], codes[idx] / 255.0, seed=0, n_sets=3, backward="lut")
+    m = fit_pipeline(raw[idx], codes[idx] / 255.0, PipelineOptions(n_sets=3, backward="lut"),
+                     seed=0)
     inv = m.inverse_tone_curves
     assert inv.top is not None
     white = np.linalg.solve(m.matrix, np.ones(3))
@@ -557,5 +603,6 @@ def test_top_code_without_clipped_training_samples_stands_for_sensor_white(tmp_p
     # training samples at 255 in every channel: they decide, no prior
     idx2 = rng.choice(codes.shape[0], 1500, replace=False)
     assert (codes[idx2] == 255).any(axis=0).all()
-    m2 = fit_pipeline(raw[idx2], codes[idx2] / 255.0, seed=0, n_sets=3, backward="lut")
+    m2 = fit_pipeline(raw[idx2], codes[idx2] / 255.0,
+                      PipelineOptions(n_sets=3, backward="lut"), seed=0)
     assert m2.inverse_tone_curves.top is None

@@ -1,4 +1,4 @@
-"""The RAW-path model across scenes (issue 16): training colours kept in the model and the
+"""The RAW-path model across scenes: training colours kept in the model and the
 mask of pixels outside them, several pairs with leave-one-scene-out regulariser weights."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ import selfcal
 from selfcal import sim
 from selfcal.errors import InputError
 from selfcal.pipeline.pairs import PairSamples, collect_pair_samples
-from selfcal.pipeline import fit_pipeline, lattice_regression_lut, monotone_tone_curves
+from selfcal.pipeline import (LatticeOptions, PipelineOptions, fit_pipeline,
+                              lattice_regression_lut, monotone_tone_curves)
 from selfcal.pipeline.rbf import rbf_inverse_colour_mapping, rbf_leave_one_out
 from selfcal.pipeline.trust import TRUST_RADIUS, TrainingColours
 
@@ -31,7 +32,8 @@ def scene_pair():
     sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
     pick = np.flatnonzero((raw.max(1) < 0.35) & (raw.max(1) > 0.01) & (sat < 0.6))
     pick = np.random.default_rng(0).choice(pick, 1200, replace=False)
-    model = fit_pipeline(raw[pick], jpg[pick] / 255.0, seed=0, n_sets=3, backward="lut")
+    model = fit_pipeline(raw[pick], jpg[pick] / 255.0, PipelineOptions(n_sets=3, backward="lut"),
+                         seed=0)
     return {"raw": raw, "jpg": jpg, "pick": pick, "model": model}
 
 
@@ -108,8 +110,8 @@ def test_lattice_leave_one_group_out_matches_refitting():
     x = rng.uniform(0, 1, (240, 3))
     y = x + 0.05 * np.sin(4 * x) + 0.01 * rng.standard_normal((240, 3))
     groups = np.repeat([5, 7, 9], 80)            # any labels
-    lut = lattice_regression_lut(x, y, smoothness="auto", smoothness_grid=(0.01, 0.1),
-                                 groups=groups)
+    lut = lattice_regression_lut(x, y, LatticeOptions(smoothness_grid=(0.01, 0.1)),
+                                 smoothness="auto", groups=groups)
     assert set(lut.validation) == {0.01, 0.1}
 
     def data_weight(xs):   # trace(WᵀW): the regulariser weight is relative to it
@@ -175,8 +177,8 @@ def test_pairs_carry_their_group_and_the_fit_uses_it():
     assert np.array_equal(one.groups, np.zeros(len(one)))
     joined = PairSamples.concatenate([one, one, one])
     assert np.array_equal(joined.groups, np.repeat([0, 1, 2], len(one)))
-    m = fit_pipeline(samples.raw, samples.rendered, groups=samples.groups, n_sets=2,
-                     backward="lut")
+    m = fit_pipeline(samples.raw, samples.rendered, PipelineOptions(n_sets=2, backward="lut"),
+                     groups=samples.groups)
     d = m.diagnostics
     assert "leave-one-scene-out over 2" in d["validation"]
     assert d["groups"] == np.bincount(samples.groups).tolist()
@@ -190,9 +192,9 @@ def test_pairs_carry_their_group_and_the_fit_uses_it():
 def test_neutral_weighting_is_checked_and_recorded(scene_pair):
     raw, jpg, pick = scene_pair["raw"], scene_pair["jpg"], scene_pair["pick"]
     with pytest.raises(InputError, match="neutral_weighting"):
-        fit_pipeline(raw[pick], jpg[pick] / 255.0, neutral_weighting=0.0)
-    m = fit_pipeline(raw[pick], jpg[pick] / 255.0, n_sets=2, backward="lut",
-                     neutral_weighting=0.3)
+        fit_pipeline(raw[pick], jpg[pick] / 255.0, PipelineOptions(neutral_weighting=0.0))
+    m = fit_pipeline(raw[pick], jpg[pick] / 255.0,
+                     PipelineOptions(n_sets=2, backward="lut", neutral_weighting=0.3))
     assert m.diagnostics["neutral_weighting"] == 0.3
 
 
@@ -202,4 +204,4 @@ def test_highlight_stretch_zero_is_the_identity():
     x = np.linspace(0, 1, 11)
     assert np.array_equal(highlight_stretch(x, 0.0), x)
     assert np.array_equal(highlight_stretch_inverse(x, 0.0), x)
-    assert highlight_stretch(0.5, 1.5) < 0.5        # the paper's g lifts highlights
+    assert highlight_stretch(0.5, 1.5) < 0.5        # [Gong2018]'s g lifts highlights

@@ -1,5 +1,5 @@
 """``selfcal to-raw`` and ``selfcal render`` warn, naming the file, when a share of its pixels
-lies outside the colours the model was trained on (issue 16); the mask is the model's own
+lies outside the colours the model was trained on; the mask is the model's own
 (:meth:`selfcal.pipeline.PipelineModel.outside_training`)."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from selfcal import sim
 from selfcal.io import read_image, write_image
-from selfcal.pipeline import fit_pipeline
+from selfcal.pipeline import PipelineOptions, fit_pipeline
 from selfcal.io.raw import read_raw_linear
 from selfcal_cli.main import main
 from selfcal_cli.pipeline_commands import WARN_OUTSIDE
@@ -32,8 +32,8 @@ def trained(tmp_path_factory):
     sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
     pick = np.flatnonzero((raw.max(1) < 0.35) & (raw.max(1) > 0.01) & (sat < 0.6))
     pick = np.random.default_rng(0).choice(pick, 1200, replace=False)
-    model = fit_pipeline(raw[pick], jpg[pick] / 255.0, seed=0, n_sets=2, backward="lut",
-                         bake_size=17)
+    model = fit_pipeline(raw[pick], jpg[pick] / 255.0,
+                         PipelineOptions(n_sets=2, backward="lut", bake_size=17), seed=0)
     path = model.save(folder / "camera.json")
     far_raw = np.random.default_rng(1).uniform([0.7, 0.0, 0.0], [0.95, 0.05, 0.05],
                                                (400, 3))
@@ -109,7 +109,7 @@ def test_a_model_without_training_colours_gives_no_warning(trained, tmp_path, ca
 
 
 def _without(doc, key):
-    """``doc`` with ``key`` removed wherever it is (a model saved before issue 16)."""
+    """``doc`` with ``key`` removed wherever it is (a model saved before the training colours were kept)."""
     if isinstance(doc, dict):
         return {k: _without(v, key) for k, v in doc.items() if k != key}
     if isinstance(doc, list):

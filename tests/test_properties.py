@@ -31,7 +31,8 @@ from hypothesis import strategies as st
 import selfcal
 from selfcal import sim
 from selfcal.errors import ModelFileError, SelfcalError
-from selfcal.pipeline import PipelineModel, fit_pipeline
+from selfcal.pipeline import (BackwardStages, ForwardStages, PipelineModel, PipelineOptions,
+                              fit_pipeline)
 from selfcal.response import ResponseOptions
 from selfcal.response.model import ResponseModel
 
@@ -311,15 +312,17 @@ def model_files() -> dict:
     raw = pair["raw"].reshape(-1, 3).astype(np.float64)
     jpg = pair["rendered"].reshape(-1, 3)
     idx = np.random.default_rng(7).choice(raw.shape[0], 400, replace=False)
-    rbf = fit_pipeline(raw[idx], jpg[idx] / 255.0, seed=0, n_sets=2, backward="rbf",
-                       lut_smoothness=3e-3, inverse_smoothness=1e-5, n_centres=150)
+    rbf = fit_pipeline(raw[idx], jpg[idx] / 255.0,
+                       PipelineOptions(n_sets=2, backward="rbf", lut_smoothness=3e-3,
+                                       inverse_smoothness=1e-5, n_centres=150), seed=0)
     assert rbf.clipped_corrections.get("rbf") is not None
     models["pipeline_rbf"] = rbf
     # what fit_pipeline(..., backward="lut") writes: no RBF, the LUT's correction only
     models["pipeline_lut"] = PipelineModel(
-        rbf.matrix, rbf.tone_curves, rbf.forward_lut, rbf.inverse_tone_curves,
-        rbf.backward_lut, rbf=None, backward="lut", diagnostics=rbf.diagnostics,
-        clipped_corrections={"lut": rbf.clipped_corrections["lut"]})
+        ForwardStages(rbf.matrix, rbf.tone_curves, rbf.forward_lut),
+        BackwardStages(rbf.inverse_tone_curves, rbf.backward_lut, rbf=None,
+                       clipped_corrections={"lut": rbf.clipped_corrections["lut"]}),
+        backward="lut", diagnostics=rbf.diagnostics)
     with tempfile.TemporaryDirectory() as folder:
         return {name: m.save(Path(folder) / f"{name}.json").read_bytes()
                 for name, m in models.items()}

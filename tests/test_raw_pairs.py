@@ -11,7 +11,7 @@ import pytest
 from selfcal import sim
 from selfcal.errors import InputError
 from selfcal.io import read_image, write_bytes_atomic, write_image
-from selfcal.pipeline.pairs import pair_samples, sample_raw_jpeg_pair
+from selfcal.pipeline.pairs import BlockRejection, pair_samples, sample_raw_jpeg_pair
 from selfcal.stack.exposure_ratios import raw_exposure_ratios, raw_thumbnail
 from selfcal.pipeline.registration import Registration, register_raw_jpeg
 from selfcal.io.raw import (RAW_SUFFIXES, is_linear_tiff, read_raw_exposure_info,
@@ -282,7 +282,11 @@ def test_blocks_clipped_throughout_are_kept_on_request(sim_pair):
     ren[20:60, 20:60] = 255
     ren[100:140, 100:140, 2] = 0                 # a rendered channel at 0 throughout
     default = pair_samples(raw, ren, None, block=8, seed=0)
-    kept = pair_samples(raw, ren, None, block=8, seed=0, keep_clipped=True)
+    kept = pair_samples(raw, ren, None, block=8, seed=0,
+                        rejection=BlockRejection(keep_clipped=True))
+    with pytest.warns(DeprecationWarning, match=r"rejection=BlockRejection\(keep_clipped="):
+        old = pair_samples(raw, ren, None, block=8, seed=0, keep_clipped=True)
+    assert np.array_equal(old.raw, kept.raw) and np.array_equal(old.positions, kept.positions)
     inside = lambda ps, y0, x0: np.any(                               # noqa: E731
         (ps.positions[:, 0] > x0) & (ps.positions[:, 0] < x0 + 40)
         & (ps.positions[:, 1] > y0) & (ps.positions[:, 1] < y0 + 40))

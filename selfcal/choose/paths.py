@@ -37,7 +37,7 @@ from ..io.images import (ExposureInfo, effective_exposure_times, format_exposure
                          read_exposure_info, read_image, read_image_size)
 from ..pipeline.pairs import collect_pair_samples
 from ..stack.exposure_ratios import raw_exposure_ratios
-from ..pipeline import fit_pipeline
+from ..pipeline import PipelineOptions, fit_pipeline
 from ..io.raw import read_raw_exposure_info
 from ..response.calibrate import ResponseOptions, calibrate_response
 
@@ -205,8 +205,10 @@ def _split_options(options: dict, response_options, pipeline_options):
     resp_names = (set(inspect.signature(calibrate_response).parameters) - {
         "images", "exposure_times", "progress", "legacy"}) | set(
             ResponseOptions.__dataclass_fields__)
-    pipe_names = set(inspect.signature(fit_pipeline).parameters) - {
-        "raw_samples", "rendered_samples", "progress"}
+    # PipelineOptions' fields: fit_pipeline's knobs, made into its options where it is called
+    pipe_names = (set(inspect.signature(fit_pipeline).parameters) - {
+        "raw_samples", "rendered_samples", "progress", "legacy"}) | set(
+            PipelineOptions.__dataclass_fields__)
     unknown = []
     for key, value in options.items():
         if key in resp_names:
@@ -657,8 +659,8 @@ def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, p
     # call is unchanged, leave-one-sample-out)
     n_groups = len(np.unique(samples.groups))
     scenes = {"groups": samples.groups} if n_groups > 1 else {}
-    model = fit_pipeline(samples.raw, samples.rendered, progress=progress,
-                         **{"seed": seed, **pipe_opts, **scenes})
+    options, rest = PipelineOptions.split({"seed": seed, **pipe_opts, **scenes})
+    model = fit_pipeline(samples.raw, samples.rendered, options, progress=progress, **rest)
     report.reasons.append(
         f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
         f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples"
@@ -810,7 +812,8 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
     block : int, optional
         Block side for the samples (rendered pixels); default adaptive.
     **fit_options
-        Passed to :func:`selfcal.pipeline.fit_pipeline` (not ``groups``: each pair is one
+        Passed to :func:`selfcal.pipeline.fit_pipeline`: ``options``, or the fields of
+        :class:`~selfcal.pipeline.PipelineOptions` by name (not ``groups``: each pair is one
         group, so with two or more pairs the regulariser weights are chosen by
         leave-one-scene-out -- the weights that predict a scene the fit did not see;
         ``model.diagnostics["groups"]`` holds the samples per pair).
@@ -844,5 +847,6 @@ def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
     # one group per pair: leave-one-scene-out weights with two or more pairs
     if len(np.unique(samples.groups)) > 1:
         fit_options = {**fit_options, "groups": samples.groups}
-    return fit_pipeline(samples.raw, samples.rendered, seed=seed, progress=progress,
-                        **fit_options)
+    options, rest = PipelineOptions.split(fit_options)
+    return fit_pipeline(samples.raw, samples.rendered, options, seed=seed, progress=progress,
+                        **rest)

@@ -1,30 +1,29 @@
 """The RAW path: a camera pipeline fitted from corresponding raw and rendered samples.
 
-Gong et al., *Rank-based radiometric calibration* (paper 000): rank-based colour matrix
-(§3.2, Eq. 4-8), monotone tone curves by QP (§3.3, Eq. 9), lattice-regression gamut LUT
-(§3.4), backward model (§3.5); with the RBF inverse colour mapping of Lin, Kim, Süsstrunk
-& Brown, ICCV 2011 (paper 002, §6, Eq. 9-11); clipped pixels get ``E[raw | code]`` learned
+[Gong2018]: rank-based colour matrix (§3.2, Eq. 4-8), monotone tone curves by QP (§3.3,
+Eq. 9), lattice-regression gamut LUT (§3.4), backward model (§3.5); with the RBF inverse
+colour mapping of [Lin2011] (§6, Eq. 9-11); clipped pixels get ``E[raw | code]`` learned
 from clipped training samples (:mod:`selfcal.pipeline.clipped`).
-:mod:`selfcal.pipeline.nus` reads the NUS in-camera model files (Kim et al. PAMI 2012) as
-a real camera pipeline.
+:mod:`selfcal.pipeline.nus` reads the NUS in-camera model files ([Kim2012]) as a real
+camera pipeline.  Citation keys are those of ``docs/references.md``.
 
 Examples
 --------
 >>> from selfcal import sim
->>> from selfcal.pipeline import fit_pipeline
+>>> from selfcal.pipeline import PipelineOptions, fit_pipeline
 >>> pair = sim.simulate_raw_jpeg_pair(seed=0)
 >>> model = fit_pipeline(pair["raw"].reshape(-1, 3), pair["rendered"].reshape(-1, 3) / 255,
-...                      n_train=1500, n_sets=5)
+...                      PipelineOptions(n_sets=5), n_train=1500)
 >>> rendered = model.render(pair["raw"])          # float32 HxWx3 in [0, 1]
 >>> raw = model.to_raw(pair["rendered"])          # float32 linear raw
 >>> raw, outside = model.to_raw(pair["rendered"], return_mask=True)  # far from training
 """
 
 from .clipped import ClippedCorrection, clipped_pixel_correction
-from .fit import fit_pipeline
-from .lattice import LatticeLUT, highlight_stretch, lattice_regression_lut
+from .fit import PipelineOptions, fit_pipeline
+from .lattice import LatticeLUT, LatticeOptions, highlight_stretch, lattice_regression_lut
 from .matrix import fibonacci_sphere, rank_based_matrix, row_scales
-from .model import PipelineModel
+from .model import BackwardStages, ForwardStages, PipelineModel
 from .nus import read_nus_model
 from .rbf import RBFColourMapping, rbf_inverse_colour_mapping
 from .tone import MonotonePolynomial, monotone_tone_curves
@@ -32,13 +31,17 @@ from .trust import TrainingColours
 
 __all__ = [
     "fit_pipeline",
+    "PipelineOptions",
     "PipelineModel",
+    "ForwardStages",
+    "BackwardStages",
     "rank_based_matrix",
     "row_scales",
     "fibonacci_sphere",
     "monotone_tone_curves",
     "MonotonePolynomial",
     "lattice_regression_lut",
+    "LatticeOptions",
     "LatticeLUT",
     "highlight_stretch",
     "rbf_inverse_colour_mapping",

@@ -1,13 +1,12 @@
 """``fit_pipeline``: a camera pipeline from corresponding raw and rendered samples.
 
-Gong et al., *Rank-based radiometric calibration* (paper 000), §3.2-3.5, with the RBF
-inverse colour mapping of Lin, Kim, Süsstrunk & Brown, ICCV 2011 (paper 002), §6.
+[Gong2018] §3.2-3.5, with the RBF inverse colour mapping of [Lin2011] §6.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
@@ -16,13 +15,14 @@ from ..stack.samples import hsv_saturation
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
-from .model import BAKE_SIZE, BACKWARD_VARIANTS, PipelineModel
+from .model import BAKE_SIZE, BACKWARD_VARIANTS, BackwardStages, ForwardStages, PipelineModel
+from .options import with_legacy_keywords
 from .rbf import N_CONTROL_POINTS, rbf_inverse_colour_mapping
 from .tone import SMOOTHNESS, monotone_tone_curves
 from .trust import TrainingColours
 
 #: Default β of the neutral weighting of the forward tone-curve samples (None: equal
-#: weights, the paper's Eq. 9; see fit_pipeline).
+#: weights, [Gong2018]'s Eq. 9; see fit_pipeline).
 NEUTRAL_WEIGHTING = None
 #: Fewest samples fit_pipeline accepts.
 MIN_SAMPLES = 30
@@ -88,15 +88,15 @@ def _forward_fit(unit, raw, rendered, smoothness, lut_smoothness, tone_weights=N
 
 def _backward_fit(raw, rendered, m, m_inv, smoothness, lut_smoothness, n_centres, seed,
                   want_rbf, groups=None):
-    """f⁻¹ (§3.5, Eq. 9 reversed), the backward LUT (§3.5) and h⁻¹ (Lin et al. Eq. 10).
+    """f⁻¹ (§3.5, Eq. 9 reversed), the backward LUT (§3.5) and h⁻¹ ([Lin2011] Eq. 10).
 
     Rendered samples clipped in a channel are left out of that channel's ``f⁻¹`` and, if
     clipped in any channel, out of the LUT and the RBF.  Returns the parts and the
     leave-one-out (held-out) raw RMSE of both variants.
     """
     target = raw @ m.T
-    # rendered values within half a code of 0 or 255 do not determine the raw (Lin et al.
-    # ICCV 2011 §5): out of the backward fits, they train the clipped-pixel correction
+    # rendered values within half a code of 0 or 255 do not determine the raw ([Lin2011]
+    # §5): out of the backward fits, they train the clipped-pixel correction
     clipped = (rendered <= CLIP_LO) | (rendered >= CLIP_HI)
     inv = monotone_tone_curves(np.where(clipped, np.nan, rendered), target,
                                smoothness=smoothness, domain=np.array([[0.0, 1.0]] * 3),
@@ -141,7 +141,7 @@ def _clipped_corrections(raw, rendered, inv, m_inv, blut, rbf, held_out):
     """The clipped-pixel correction per backward variant (:mod:`selfcal.pipeline.clipped`).
 
     The residuals ``ρ_i - ρ_b(P_i)`` of the clipped training samples under each variant
-    (``ρ_b`` the backward model of Gong et al. §3.5 / Lin et al. Eq. 11, clipped to
+    (``ρ_b`` the backward model of [Gong2018] §3.5 / [Lin2011] Eq. 11, clipped to
     ``[0, 1]`` as :meth:`PipelineModel.to_raw` does) train a kernel-regression estimate of
     ``E[ρ | P]`` at clipped codes.  Returns the corrections, their leave-one-out scores,
     and each variant's held-out RMSE over *all* training samples (the unclipped ones'
@@ -174,13 +174,87 @@ def _clipped_corrections(raw, rendered, inv, m_inv, blut, rbf, held_out):
     return corrections, scores, pooled
 
 
-def _check_options(backward, n_sets, set_size, matrix_method):
-    if backward not in ("auto",) + BACKWARD_VARIANTS:
-        raise InputError(f"backward must be 'auto', 'lut' or 'rbf', got {backward!r}")
-    if int(n_sets) < 1 or int(set_size) < 3:
-        raise InputError("n_sets must be >= 1 and set_size >= 3")
-    if matrix_method not in ("fast", "literal"):
-        raise InputError(f"matrix_method must be 'fast' or 'literal', got {matrix_method!r}")
+@dataclass(frozen=True)
+class PipelineOptions:
+    """The knobs of :func:`fit_pipeline`: the matrix search, the regulariser weights, the
+    backward variant and its table.
+
+    Attributes
+    ----------
+    n_sets, set_size : int
+        Random sets for the matrix search and their size (25 and 200 in [Gong2018]).  With
+        ``n <= set_size`` the sets are random subsets of 80 % of the samples.
+    matrix_method : {"fast", "literal"}
+        The half-space search (see :func:`~selfcal.pipeline.matrix.rank_based_matrix`).
+    smoothness : float
+        λ of Eq. 9 for the forward tone curves ``f`` (1e-5 as in [Gong2018]).
+    lut_smoothness : float or "auto"
+        Relative graph-Laplacian weight of the lattice regressions; ``"auto"`` uses 3e-3
+        during the matrix-set search, then the leave-one-out choice for each LUT.
+    inverse_smoothness : float or "auto"
+        λ for the inverse curves ``f⁻¹`` (§3.5); ``"auto"`` picks it per channel by 5-fold
+        cross-validation from 1e-6 ... 0.1 (the backward error is dominated by the sparse,
+        steep highlight end of ``f⁻¹``, where a fixed small λ overfits small sample sets).
+    backward : {"auto", "lut", "rbf"}
+        The backward variant (``"lut"`` skips the RBF fit).
+    n_centres : int
+        RBF control points.
+    bake_size : int
+        Nodes per axis of the dense backward table used by :meth:`PipelineModel.to_raw`.
+    neutral_weighting : float or None
+        β of the weights ``exp(-(s / β)²)`` of the forward tone-curve samples, ``s`` the
+        HSV saturation of the rendered colour (ours; [Lin2011] §5 recover the response
+        from desaturated pixels, which the gamut map leaves alone, so the curves describe
+        the camera's tone rather than a scene's mix of gamut-mapped colours and the LUT
+        takes the gamut map); None (the default): equal weights, Eq. 9 of [Gong2018].
+        ``bench/bench_pipeline_crossscene.py`` (β = 0.15, 0.3): no cross-scene gain that held
+        on held-out pairs, same-scene backward up to 16 % worse with 140 samples: off.
+
+    Raises
+    ------
+    InputError
+        An unknown ``backward`` or ``matrix_method``, ``n_sets < 1`` or ``set_size < 3``.
+
+    Examples
+    --------
+    >>> PipelineOptions(n_sets=5, backward="lut").n_sets
+    5
+    """
+
+    n_sets: int = 25
+    set_size: int = 200
+    matrix_method: str = "fast"
+    smoothness: float = SMOOTHNESS
+    lut_smoothness: object = "auto"
+    inverse_smoothness: object = "auto"
+    backward: str = "auto"
+    n_centres: int = N_CONTROL_POINTS
+    bake_size: int = BAKE_SIZE
+    neutral_weighting: object = NEUTRAL_WEIGHTING
+
+    def __post_init__(self):
+        if self.backward not in ("auto",) + BACKWARD_VARIANTS:
+            raise InputError(f"backward must be 'auto', 'lut' or 'rbf', got {self.backward!r}")
+        if int(self.n_sets) < 1 or int(self.set_size) < 3:
+            raise InputError("n_sets must be >= 1 and set_size >= 3")
+        if self.matrix_method not in ("fast", "literal"):
+            raise InputError("matrix_method must be 'fast' or 'literal', got "
+                             f"{self.matrix_method!r}")
+
+    @classmethod
+    def split(cls, keywords: dict):
+        """``(options, rest)``: the fields of this class among ``keywords`` as options (on
+        top of ``keywords["options"]`` when given), and the other keywords -- for callers
+        that take :func:`fit_pipeline`'s knobs by name, such as :func:`selfcal.calibrate`.
+
+        >>> PipelineOptions.split({"n_sets": 3, "seed": 1})  # doctest: +ELLIPSIS
+        (PipelineOptions(n_sets=3, ...), {'seed': 1})
+        """
+        rest = dict(keywords)
+        base = rest.pop("options", None) or cls()
+        names = {f.name for f in fields(cls)}
+        chosen = {k: rest.pop(k) for k in list(rest) if k in names}
+        return replace(base, **chosen), rest
 
 
 def _check_groups(groups, n):
@@ -199,7 +273,7 @@ def _training_samples(raw_samples, rendered_samples, n_train, subset_seed, group
     """The checked samples the fit uses: all, or a seeded subset of ``n_train`` of them.
 
     Refuses samples that cannot determine the pipeline: fewer than :data:`MIN_SAMPLES`, raw
-    samples without colour variety (the matrix of Gong et al. §3.2 is not determined), a
+    samples without colour variety (the matrix of [Gong2018] §3.2 is not determined), a
     rendered channel that barely varies (its tone curve, §3.3, is not).  Returns ``(raw,
     rendered, n_given, groups)``: float64 in ``[0, 1]``, the number of samples given, and
     the group labels of the samples kept (None: one group).
@@ -312,7 +386,7 @@ class _BackwardFit:
 
     inverse_curves: object   # MonotonePolynomial, f⁻¹
     lut: object              # LatticeLUT, the backward LUT (§3.5)
-    rbf: object              # RBFColourMapping h⁻¹ (Lin et al. Eq. 10), or None
+    rbf: object              # RBFColourMapping h⁻¹ ([Lin2011] Eq. 10), or None
     held_out_unclipped: dict
     corrections: dict
     correction_scores: dict
@@ -320,8 +394,8 @@ class _BackwardFit:
     variant: str
 
 
-def _fit_backward(raw, rendered, m, m_inv, *, backward, inverse_smoothness,
-                  lut_smoothness, n_centres, rbf_seed, progress, groups=None) -> _BackwardFit:
+def _fit_backward(raw, rendered, m, m_inv, options: PipelineOptions, *, rbf_seed, progress,
+                  groups=None) -> _BackwardFit:
     """Steps 4-5: ``f⁻¹``, backward LUT, RBF ``h⁻¹``, clipped-pixel corrections; the variant.
 
     With ``backward="auto"`` the variant with the lower held-out error over all training
@@ -329,9 +403,11 @@ def _fit_backward(raw, rendered, m, m_inv, *, backward, inverse_smoothness,
     """
     if progress is not None:
         progress("backward", 0, 1, "inverse tone curves, LUT, RBF")
-    inv, blut, rbf, held_out = _backward_fit(raw, rendered, m, m_inv, inverse_smoothness,
-                                             lut_smoothness, n_centres, rbf_seed,
-                                             backward != "lut", groups)
+    backward = options.backward
+    inv, blut, rbf, held_out = _backward_fit(raw, rendered, m, m_inv,
+                                             options.inverse_smoothness,
+                                             options.lut_smoothness, options.n_centres,
+                                             rbf_seed, backward != "lut", groups)
     corrections, correction_scores, pooled = _clipped_corrections(
         raw, rendered, inv, m_inv, blut, rbf, held_out)
     if backward == "auto":
@@ -356,9 +432,8 @@ def _backward_training_rmse(raw, rendered, m_inv, bwd: _BackwardFit) -> dict:
     return train_err
 
 
-def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n_given,
-                 seed, backward, matrix_method, n_sets, inverse_smoothness,
-                 seconds, groups=None, neutral_weighting=None) -> dict:
+def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit,
+                 options: PipelineOptions, *, n_given, seed, seconds, groups=None) -> dict:
     """:attr:`PipelineModel.diagnostics`: sample counts, training and held-out errors, the
     regulariser weights chosen, the matrix search, timings."""
     clipped = clipped_mask(rendered)
@@ -379,7 +454,7 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n
         "forward_train_rmse": fwd.rmse * 255,
         "forward_train_rmse_without_lut": fwd.rmse_without_lut * 255,
         "backward": bwd.variant,
-        "backward_selection": backward,
+        "backward_selection": options.backward,
         "backward_validation_rmse": bwd.held_out,
         "backward_validation_rmse_unclipped": bwd.held_out_unclipped,
         "clipped_correction": clipped_info,
@@ -389,17 +464,18 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n
                        f"leave-one-scene-out over {int(groups.max()) + 1} groups (lattice, "
                        "inverse tone curves, RBF: Dubrule 1983 block form)"),
         "groups": None if groups is None else np.bincount(groups).tolist(),
-        "neutral_weighting": neutral_weighting,
+        "neutral_weighting": options.neutral_weighting,
         "forward_lut_smoothness": flut.smoothness,
         "forward_lut_validation_rmse": {k: v * 255 for k, v in flut.validation.items()},
         "inverse_tone_smoothness": getattr(bwd.inverse_curves, "smoothness",
-                                           inverse_smoothness),
+                                           options.inverse_smoothness),
         "backward_lut_smoothness": blut.smoothness,
         "backward_lut_validation_rmse": blut.validation,
         "rbf_smoothing": None if rbf is None else rbf.smoothing,
         "rbf_smoothing_validation": {} if rbf is None else rbf.validation,
         "matrix_search": {
-            "method": matrix_method, "n_sets": int(n_sets), "set_size": fwd.set_size,
+            "method": options.matrix_method, "n_sets": int(options.n_sets),
+            "set_size": fwd.set_size,
             "chosen_set": int(fwd.chosen_set), "set_train_rmse": fwd.set_errors,
             "satisfied": [i["satisfied"] for i in fwd.info],
             "constraints": [i["constraints"] for i in fwd.info],
@@ -409,17 +485,13 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit, *, n
     }
 
 
-def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
-                 n_sets: int = 25, set_size: int = 200, smoothness: float = SMOOTHNESS,
-                 backward: str = "auto", progress=None, matrix_method: str = "fast",
-                 lut_smoothness="auto", inverse_smoothness="auto",
-                 n_centres: int = N_CONTROL_POINTS,
-                 bake_size: int = BAKE_SIZE, neutral_weighting=NEUTRAL_WEIGHTING,
-                 groups=None) -> PipelineModel:
+def fit_pipeline(raw_samples, rendered_samples, options: PipelineOptions | None = None, *,
+                 n_train=None, seed: int = 0, groups=None, progress=None,
+                 **legacy) -> PipelineModel:
     """Fit a camera pipeline, raw -> rendered and back, from corresponding samples.
 
-    The rank-based radiometric calibration of Gong et al. (paper 000) with the RBF inverse
-    colour mapping of Lin et al. ICCV 2011 (paper 002):
+    The rank-based radiometric calibration of [Gong2018] with the RBF inverse
+    colour mapping of [Lin2011]:
 
     1. Colour matrix ``M`` (§3.2, Eq. 4-8): for each of ``n_sets`` random sets of
        ``set_size`` samples, rows from rank-order half-space constraints
@@ -465,40 +537,13 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
         level; white-balanced or not -- the matrix absorbs the white balance).
     rendered_samples : array_like
         ``(n, 3)`` rendered RGB in ``[0, 1]`` (JPEG codes / 255; uint8 is accepted too).
+    options : PipelineOptions, optional
+        The matrix search, the regulariser weights, the backward variant and its table
+        (default ``PipelineOptions()``).
     n_train : int, optional
         Use a seeded random subset of this many samples (default: all).
     seed : int
         Seeds every random choice (subset, matrix sets, RBF control points).
-    n_sets, set_size : int
-        Random sets for the matrix search and their size (25 and 200 in the paper).  With
-        ``n <= set_size`` the sets are random subsets of 80 % of the samples.
-    smoothness : float
-        λ of Eq. 9 for the forward tone curves ``f`` (1e-5 as in the paper).
-    inverse_smoothness : float or "auto"
-        λ for the inverse curves ``f⁻¹`` (§3.5); ``"auto"`` picks it per channel by 5-fold
-        cross-validation from 1e-6 ... 0.1 (the backward error is dominated by the sparse,
-        steep highlight end of ``f⁻¹``, where a fixed small λ overfits small sample sets).
-    backward : {"auto", "lut", "rbf"}
-        The backward variant (``"lut"`` skips the RBF fit).
-    progress : callable, optional
-        ``progress(stage, done, total, detail)``; stages ``"matrix"`` and ``"backward"``.
-    matrix_method : {"fast", "literal"}
-        The half-space search (see :func:`~selfcal.pipeline.matrix.rank_based_matrix`).
-    lut_smoothness : float or "auto"
-        Relative graph-Laplacian weight of the lattice regressions; ``"auto"`` uses 3e-3
-        during the matrix-set search, then the leave-one-out choice for each LUT.
-    n_centres : int
-        RBF control points.
-    bake_size : int
-        Nodes per axis of the dense backward table used by :meth:`PipelineModel.to_raw`.
-    neutral_weighting : float or None
-        β of the weights ``exp(-(s / β)²)`` of the forward tone-curve samples, ``s`` the
-        HSV saturation of the rendered colour (ours; Lin et al. §5 recover the response
-        from desaturated pixels, which the gamut map leaves alone, so the curves describe
-        the camera's tone rather than a scene's mix of gamut-mapped colours and the LUT
-        takes the gamut map); None (the default): equal weights, the paper's Eq. 9.
-        ``bench/bench_pipeline_crossscene.py`` (β = 0.15, 0.3): no cross-scene gain that held
-        on held-out pairs, same-scene backward up to 16 % worse with 140 samples: off.
     groups : array_like, optional
         ``(n,)`` labels of the pair (scene) each sample comes from.  With two or more
         groups every ``"auto"`` regulariser weight (forward and backward LUT, inverse
@@ -506,6 +551,12 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
         leave-one-sample-out: the weight that predicts a scene the fit did not see, which
         is what a model calibrated on some pictures is used for.  The backward variant
         is then chosen by the same held-out errors.
+    progress : callable, optional
+        ``progress(stage, done, total, detail)``; stages ``"matrix"`` and ``"backward"``.
+    **legacy
+        The knobs as keyword arguments (``n_sets=5``, ...), as before
+        :class:`PipelineOptions`: still applied, each with a :class:`DeprecationWarning`
+        naming the field to set instead.
 
     Returns
     -------
@@ -514,7 +565,9 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     Raises
     ------
     InputError
-        Wrong shapes, NaN or infinite values, values far outside ``[0, 1]``.
+        Wrong shapes, NaN or infinite values, values far outside ``[0, 1]``, bad options.
+    TypeError
+        An unknown keyword argument, or ``options`` that is not a :class:`PipelineOptions`.
     CalibrationError
         Fewer than 30 samples, samples without colour variety (the matrix is not
         determined), or a fit that cannot be solved.
@@ -522,55 +575,55 @@ def fit_pipeline(raw_samples, rendered_samples, *, n_train=None, seed: int = 0,
     Examples
     --------
     >>> from selfcal import sim
-    >>> from selfcal.pipeline import fit_pipeline
+    >>> from selfcal.pipeline import PipelineOptions, fit_pipeline
     >>> pair = sim.simulate_raw_jpeg_pair(seed=0)
     >>> raw = pair["raw"].reshape(-1, 3); jpg = pair["rendered"].reshape(-1, 3) / 255
-    >>> model = fit_pipeline(raw, jpg, n_train=1500, n_sets=5)
+    >>> model = fit_pipeline(raw, jpg, PipelineOptions(n_sets=5), n_train=1500)
     >>> model.diagnostics["forward_train_rmse"] < 4       # 0-255 scale
     True
     """
     t_start = time.perf_counter()
-    _check_options(backward, n_sets, set_size, matrix_method)
+    options = PipelineOptions() if options is None else options
+    if not isinstance(options, PipelineOptions):
+        raise TypeError(f"options must be a PipelineOptions, got {type(options).__name__}")
+    options = with_legacy_keywords(options, legacy, "fit_pipeline")
     seeds = np.random.SeedSequence(seed).spawn(3)   # subset, matrix sets, RBF centres
     raw, rendered, n_given, groups = _training_samples(raw_samples, rendered_samples,
                                                        n_train, seeds[0], groups)
 
     t0 = time.perf_counter()
-    fwd = _fit_forward(raw, rendered, groups, n_sets=n_sets, set_size=set_size,
-                       matrix_method=matrix_method, smoothness=smoothness,
-                       lut_smoothness=lut_smoothness, rng=np.random.default_rng(seeds[1]),
-                       progress=progress, neutral_weighting=neutral_weighting)
+    fwd = _fit_forward(raw, rendered, groups, options, rng=np.random.default_rng(seeds[1]),
+                       progress=progress)
     m, m_inv = fwd.matrix, np.linalg.inv(fwd.matrix)
     t_forward = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    bwd = _fit_backward(raw, rendered, m, m_inv, backward=backward,
-                        inverse_smoothness=inverse_smoothness, lut_smoothness=lut_smoothness,
-                        n_centres=n_centres, rbf_seed=int(seeds[2].generate_state(1)[0]),
-                        progress=progress, groups=groups)
+    bwd = _fit_backward(raw, rendered, m, m_inv, options,
+                        rbf_seed=int(seeds[2].generate_state(1)[0]), progress=progress,
+                        groups=groups)
     t_backward = time.perf_counter() - t0
 
-    diagnostics = _diagnostics(raw, rendered, m_inv, fwd, bwd, n_given=n_given, seed=seed,
-                               backward=backward, matrix_method=matrix_method,
-                               n_sets=n_sets, inverse_smoothness=inverse_smoothness,
-                               seconds={"forward": t_forward, "backward": t_backward},
-                               groups=groups, neutral_weighting=neutral_weighting)
-    model = _baked_model(fwd, bwd, diagnostics, bake_size, TrainingColours.from_samples(
+    diagnostics = _diagnostics(raw, rendered, m_inv, fwd, bwd, options, n_given=n_given,
+                               seed=seed, seconds={"forward": t_forward, "backward": t_backward},
+                               groups=groups)
+    model = _baked_model(fwd, bwd, diagnostics, options.bake_size, TrainingColours.from_samples(
         raw, rendered, seed=int(seeds[0].generate_state(1)[0])))
     diagnostics["seconds"]["total"] = time.perf_counter() - t_start
     return model
 
 
-def _fit_forward(raw, rendered, groups, *, n_sets, set_size, matrix_method, smoothness,
-                 lut_smoothness, rng, progress, neutral_weighting):
+def _fit_forward(raw, rendered, groups, options: PipelineOptions, *, rng, progress):
     """Steps 1-3 of :func:`fit_pipeline`: the colour matrix of the best random set, its
     tone curves and forward lattice LUT (the LUT's weight then chosen by held-out error
     when ``lut_smoothness="auto"``)."""
+    lut_smoothness = options.lut_smoothness
     search_lut = LUT_SMOOTHNESS if lut_smoothness == "auto" else float(lut_smoothness)
-    fwd = _search_matrix_sets(raw, rendered, n_sets=n_sets, set_size=set_size,
-                              matrix_method=matrix_method, smoothness=smoothness,
-                              search_lut=search_lut, rng=rng, progress=progress,
-                              tone_weights=_neutral_weights(rendered, neutral_weighting))
+    fwd = _search_matrix_sets(raw, rendered, n_sets=options.n_sets, set_size=options.set_size,
+                              matrix_method=options.matrix_method,
+                              smoothness=options.smoothness, search_lut=search_lut, rng=rng,
+                              progress=progress,
+                              tone_weights=_neutral_weights(rendered,
+                                                            options.neutral_weighting))
     if lut_smoothness == "auto":
         _refit_forward_lut(raw, rendered, fwd, groups)
     return fwd
@@ -579,11 +632,12 @@ def _fit_forward(raw, rendered, groups, *, n_sets, set_size, matrix_method, smoo
 def _baked_model(fwd, bwd, diagnostics, bake_size, training_colours) -> PipelineModel:
     """The :class:`PipelineModel` of the fitted pieces, its backward table baked now (so
     that ``to_raw`` is fast from the first call)."""
-    model = PipelineModel(matrix=fwd.matrix, tone_curves=fwd.curves, forward_lut=fwd.lut,
-                          inverse_tone_curves=bwd.inverse_curves, backward_lut=bwd.lut,
-                          rbf=bwd.rbf, backward=bwd.variant, diagnostics=diagnostics,
-                          bake_size=bake_size, clipped_corrections=bwd.corrections,
-                          training_colours=training_colours)
+    model = PipelineModel(ForwardStages(matrix=fwd.matrix, tone_curves=fwd.curves,
+                                        lut=fwd.lut),
+                          BackwardStages(inverse_tone_curves=bwd.inverse_curves, lut=bwd.lut,
+                                         rbf=bwd.rbf, clipped_corrections=bwd.corrections),
+                          backward=bwd.variant, diagnostics=diagnostics,
+                          bake_size=bake_size, training_colours=training_colours)
     t0 = time.perf_counter()
     model._table(bwd.variant)
     diagnostics["seconds"]["bake"] = time.perf_counter() - t0

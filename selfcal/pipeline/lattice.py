@@ -1,15 +1,14 @@
 """Lattice-regression look-up tables and the highlight-stretching function g.
 
-Gong et al., *Rank-based radiometric calibration* (paper 000), §3.4-3.5: a 5×5×5 LUT with
-trilinear interpolation, fitted by lattice regression (Garcia & Gupta, *Building accurate
-and smooth ICC profiles by lattice regression*, CIC 2009): the node values ``b`` minimise
+[Gong2018] §3.4-3.5: a 5×5×5 LUT with trilinear interpolation, fitted by lattice
+regression ([GarciaGupta2009]; keys of ``docs/references.md``): the node values ``b`` minimise
 
     || W b - y ||²  +  α bᵀ L b
 
 where ``W`` holds the trilinear interpolation weights of every sample (8 non-zeros per
 row, a sparse matrix) and ``L`` is the graph Laplacian of the lattice (6-neighbour grid),
 ``bᵀ L b = Σ_edges (b_i - b_j)²``.  The LUT is applied to ``g(x)``, a fixed function that
-stretches highlights (Gong et al. Fig. 3) so that more of the uniform lattice lies where
+stretches highlights ([Gong2018] Fig. 3) so that more of the uniform lattice lies where
 gamut mapping acts.
 
 selfcal fits the lattice to the *residual* ``y - base(x)`` of a known base map (the
@@ -18,7 +17,7 @@ has to hold the correction; the graph Laplacian then pulls empty lattice regions
 constant correction (no correction when there is no data) instead of toward a constant
 colour, and the curvature of the base map costs no lattice resolution.
 
-Also ours, not the paper's: beside the 5×5×5 nodes, :func:`lattice_regression_lut` fits an
+Also ours, not [Gong2018]'s: beside the 5×5×5 nodes, :func:`lattice_regression_lut` fits an
 unpenalised linear term ``(t - 1/2) A`` with ``t = (x - lo) / (hi - lo)`` and a 3×3 matrix
 ``A`` (option ``affine``, on by default and used by :func:`selfcal.pipeline.fit_pipeline`
 for both the forward and the backward LUT).  The reason, as the code states it: the graph
@@ -27,7 +26,7 @@ purely linear correction towards a constant; with ``A`` outside the penalty the 
 only shapes the non-linear rest (and empty lattice regions continue the linear
 correction rather than a constant one).  (The history records no measurement behind it; the term
 came with the first version of the RAW path.)  Each LUT therefore has
-125 × 3 + 3 × 3 = 384 parameters, not the 125 × 3 of Gong et al. §3.6 (whose count, 408 in
+125 × 3 + 3 × 3 = 384 parameters, not the 125 × 3 of [Gong2018] §3.6 (whose count, 408 in
 all, is 9 for ``M``, 8 × 3 for ``f`` and 125 × 3 for the LUT); the fitted pipeline has two
 LUTs (forward and backward) and, unless ``backward="lut"``, the RBF ``h⁻¹`` besides.
 """
@@ -41,8 +40,9 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
 from ..errors import CalibrationError, InputError
+from .options import with_legacy_keywords
 
-#: Lattice size per axis (Gong et al. §3.4: 5×5×5).
+#: Lattice size per axis ([Gong2018] §3.4: 5×5×5).
 LATTICE_SIZE = 5
 #: Steepness γ of the highlight stretch g (see :func:`highlight_stretch`).
 STRETCH_GAMMA = 1.5
@@ -51,7 +51,7 @@ LUT_SMOOTHNESS = 3e-3
 
 
 def highlight_stretch(x, gamma: float = STRETCH_GAMMA) -> np.ndarray:
-    """The highlight-stretching function ``g`` of Gong et al. §3.4 (their Fig. 3).
+    """The highlight-stretching function ``g`` of [Gong2018] §3.4 (their Fig. 3).
 
     ``g(x) = (exp(γ x) - 1) / (exp(γ) - 1)`` on ``[0, 1]`` (inputs are clipped): increasing,
     convex, ``g(0) = 0``, ``g(1) = 1``; its slope is ``γ / (e^γ - 1) ≈ 0.43`` at 0 and
@@ -132,7 +132,7 @@ class LatticeLUT:
     """A lattice-regression LUT applied after normalisation and the highlight stretch.
 
     ``LUT(x) = base(x) + R(g(t)) + (t - 1/2) A`` with ``t = (x - lo) / (hi - lo)``, where
-    ``R`` interpolates the residual node values trilinearly (Gong et al. §3.4-3.5; the base
+    ``R`` interpolates the residual node values trilinearly ([Gong2018] §3.4-3.5; the base
     is supplied by the caller) and ``A`` is the unpenalised linear term, ours (zero when
     fitted with ``affine=False``).
 
@@ -149,7 +149,7 @@ class LatticeLUT:
     validation : dict
         Leave-one-out RMSE per weight tried (``smoothness="auto"``).
     linear : numpy.ndarray
-        ``(3, 3)`` matrix ``A`` of the linear term (not in the paper; see the module
+        ``(3, 3)`` matrix ``A`` of the linear term (not in [Gong2018]; see the module
         docstring).
     """
 
@@ -237,13 +237,36 @@ def _leave_group_out(z, res, labels, a, rhs) -> float:
 SMOOTHNESS_GRID = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2, 3e-2, 1e-1)
 
 
-def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LATTICE_SIZE,
-                           smoothness=LUT_SMOOTHNESS, smoothness_grid=SMOOTHNESS_GRID,
-                           gamma: float = STRETCH_GAMMA, affine: bool = True,
-                           groups=None) -> LatticeLUT:
-    """Fit a ``size³`` lattice-regression LUT ``y ≈ base + R(g(x))`` (Gong et al. §3.4-3.5).
+@dataclass(frozen=True)
+class LatticeOptions:
+    """The form of a lattice-regression LUT and the weights its ``"auto"`` choice tries.
 
-    Lattice regression (Garcia & Gupta, CIC 2009): the node values minimise
+    Attributes
+    ----------
+    size : int
+        Lattice nodes per axis (5 in [Gong2018]).
+    gamma : float
+        γ of the highlight stretch :func:`highlight_stretch`.
+    affine : bool
+        Also fit the unpenalised linear term ``(t - 1/2) A`` (3×3 ``A``, ours, not
+        [Gong2018]'s: see the module docstring), kept in ``LatticeLUT.linear``; False fits
+        the 125 × 3 node values of [Gong2018] alone.
+    smoothness_grid : sequence of float
+        Candidates for ``smoothness="auto"``.
+    """
+
+    size: int = LATTICE_SIZE
+    gamma: float = STRETCH_GAMMA
+    affine: bool = True
+    smoothness_grid: tuple = SMOOTHNESS_GRID
+
+
+def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=None,
+                           lo=None, hi=None, smoothness=LUT_SMOOTHNESS, groups=None,
+                           **legacy) -> LatticeLUT:
+    """Fit a ``size³`` lattice-regression LUT ``y ≈ base + R(g(x))`` ([Gong2018] §3.4-3.5).
+
+    Lattice regression ([GarciaGupta2009]): the node values minimise
     ``||W r - (y - base)||² + α rᵀ L r`` with trilinear weights ``W`` (sparse) and the
     lattice graph Laplacian ``L``; the 125×125 normal equations are assembled sparse and
     solved by a sparse direct solver (SuperLU).  ``α = smoothness · trace(WᵀW) / size³``
@@ -267,23 +290,20 @@ def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LAT
         ``(n, 3)`` targets (``P`` forward, ``ρ`` backward).
     base : array_like, optional
         ``(n, 3)`` base map at the samples (default ``x``: the LUT corrects the identity).
+    options : LatticeOptions, optional
+        Lattice size, highlight stretch γ, the affine term, the candidates of ``"auto"``
+        (default ``LatticeOptions()``).
     lo, hi : array_like, optional
         ``(3,)`` input range normalised to ``[0, 1]`` before ``g`` (default ``[0, 1]``).
-    size : int
-        Lattice nodes per axis (5 in the paper).
     smoothness : float or "auto"
         Relative weight of the graph-Laplacian regulariser.
-    smoothness_grid : sequence of float
-        Candidates for ``"auto"``.
-    gamma : float
-        γ of the highlight stretch :func:`highlight_stretch`.
-    affine : bool
-        Also fit the unpenalised linear term ``(t - 1/2) A`` (3×3 ``A``, ours, not the
-        paper's: see the module docstring), kept in ``LatticeLUT.linear``; False fits the
-        paper's 125 × 3 node values alone.
     groups : array_like, optional
         ``(n,)`` labels; with ``smoothness="auto"`` and two or more distinct labels the
         weight is chosen by leave-one-group-out.
+    **legacy
+        ``size``, ``smoothness_grid``, ``gamma``, ``affine`` as keyword arguments, as
+        before :class:`LatticeOptions`: still applied, each with a
+        :class:`DeprecationWarning` naming the field to set instead.
 
     Returns
     -------
@@ -299,6 +319,10 @@ def lattice_regression_lut(x, y, *, base=None, lo=None, hi=None, size: int = LAT
     >>> float(np.sqrt(np.mean((x + lut.residual(x) - y) ** 2))) < 0.003
     True
     """
+    options = with_legacy_keywords(LatticeOptions() if options is None else options, legacy,
+                                   "lattice_regression_lut")
+    size, gamma, affine = options.size, options.gamma, options.affine
+    smoothness_grid = options.smoothness_grid
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 3 or y.shape != x.shape:

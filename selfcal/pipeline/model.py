@@ -1,10 +1,10 @@
 """PipelineModel: a fitted camera pipeline, forward (raw -> rendered) and backward.
 
-Forward (Gong et al., *Rank-based radiometric calibration*, Eq. 1b, §3.2-3.4)::
+Forward ([Gong2018] Eq. 1b, §3.2-3.4)::
 
     P = LUT_f(g(f(M ρ)))        implemented as  y = f(M ρ),  P = y + R_f(g(y))
 
-Backward, two variants (§3.5 of Gong et al.; Lin et al. ICCV 2011 Eq. 10-11)::
+Backward, two variants (§3.5 of [Gong2018]; [Lin2011] Eq. 10-11)::
 
     "lut":  ρ = LUT_b(g(M⁻¹ f⁻¹(P)))   implemented as  ρ̂ = M⁻¹ f⁻¹(P),  ρ = ρ̂ + R_b(g(ρ̂))
     "rbf":  ρ = M⁻¹ h⁻¹(f⁻¹(P))
@@ -28,6 +28,9 @@ load without it (the mask is then None).
 
 from __future__ import annotations
 
+import warnings
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..errors import InputError, ModelFileError, SelfcalError
@@ -46,6 +49,90 @@ BAKE_SIZE = 49
 #: The dense table's nodes sit at ``t = u^(1/γ)`` of the normalised linearised range
 #: (``u`` uniform): finer near black, where the inverse colour mapping bends most.
 SHAPER_GAMMA = 0.6
+
+
+@dataclass(frozen=True)
+class ForwardStages:
+    """The fitted forward stages ``P = y + R_f(g(y))``, ``y = f(M ρ)`` ([Gong2018] §3.2-3.4).
+
+    Attributes
+    ----------
+    matrix : array_like
+        ``(3, 3)`` colour matrix ``M``.
+    tone_curves : MonotonePolynomial
+        Tone curves ``f`` (Eq. 9).
+    lut : LatticeLUT
+        Forward gamut correction ``R_f`` (§3.4).
+    """
+
+    matrix: object
+    tone_curves: object
+    lut: object
+
+
+@dataclass(frozen=True)
+class BackwardStages:
+    """The fitted backward stages ([Gong2018] §3.5; [Lin2011] Eq. 10-11).
+
+    Attributes
+    ----------
+    inverse_tone_curves : MonotonePolynomial
+        ``f⁻¹`` from rendered values to ``M ρ``.
+    lut : LatticeLUT
+        Backward correction ``R_b`` on ``g(M⁻¹ f⁻¹(P))`` (variant ``"lut"``).
+    rbf : RBFColourMapping or None
+        Inverse colour mapping ``h⁻¹`` (variant ``"rbf"``).
+    clipped_corrections : dict or None
+        Per variant, the :class:`~selfcal.pipeline.clipped.ClippedCorrection` of pixels
+        with a clipped channel, or None.
+    """
+
+    inverse_tone_curves: object
+    lut: object
+    rbf: object = None
+    clipped_corrections: object = None
+
+
+#: The keyword arguments of ``PipelineModel`` before the stages were grouped, in their old
+#: positional order, and where each one went.
+_LEGACY_ARGUMENTS = {
+    "matrix": ("forward_stages", "matrix"), "tone_curves": ("forward_stages", "tone_curves"),
+    "forward_lut": ("forward_stages", "lut"),
+    "inverse_tone_curves": ("backward_stages", "inverse_tone_curves"),
+    "backward_lut": ("backward_stages", "lut"), "rbf": ("backward_stages", "rbf"),
+    "backward": None, "diagnostics": None, "bake_size": None,
+    "clipped_corrections": ("backward_stages", "clipped_corrections"),
+    "training_colours": None,
+}
+
+
+def _legacy_stages(positional, keywords: dict, given: dict):
+    """The stages from ``PipelineModel``'s old arguments (positional in the old order, and
+    keywords), each with a DeprecationWarning naming the stage field that replaces it;
+    ``given`` (the new keyword-only arguments) is updated with old positional values."""
+    old = dict(zip(_LEGACY_ARGUMENTS, positional))
+    if len(positional) > len(_LEGACY_ARGUMENTS):
+        raise TypeError(f"PipelineModel() takes at most {len(_LEGACY_ARGUMENTS)} positional "
+                        f"arguments ({len(positional)} given)")
+    for key in keywords:
+        if key not in _LEGACY_ARGUMENTS or _LEGACY_ARGUMENTS[key] is None or key in old:
+            raise TypeError(f"PipelineModel() got an unexpected keyword argument {key!r}")
+    old.update(keywords)
+    parts = {"forward_stages": {}, "backward_stages": {}}
+    for key, value in old.items():
+        target = _LEGACY_ARGUMENTS[key]
+        if target is None:
+            given[key] = value
+            continue
+        stage, name = target
+        cls = "ForwardStages" if stage == "forward_stages" else "BackwardStages"
+        warnings.warn(f"PipelineModel({key}=...) is deprecated: pass "
+                      f"{stage}={cls}({name}=...)", DeprecationWarning, stacklevel=3)
+        parts[stage][name] = value
+    try:
+        return ForwardStages(**parts["forward_stages"]), BackwardStages(**parts["backward_stages"])
+    except TypeError as exc:
+        raise TypeError(f"PipelineModel() is missing a stage: {exc}") from None
 
 
 def _as_rgb_float(x, what: str) -> np.ndarray:
@@ -76,7 +163,7 @@ class PipelineModel:
     Attributes
     ----------
     matrix : numpy.ndarray
-        ``(3, 3)`` colour matrix ``M`` (rank-based rows, Gong et al. §3.2, scaled so the
+        ``(3, 3)`` colour matrix ``M`` (rank-based rows, [Gong2018] §3.2, scaled so the
         brightest training sample maps to 1 per channel).
     tone_curves : MonotonePolynomial
         Forward tone curves ``f`` (Eq. 9) from ``M ρ`` to rendered values.
@@ -87,7 +174,7 @@ class PipelineModel:
     backward_lut : LatticeLUT
         Backward correction (§3.5) on ``g(M⁻¹ f⁻¹(P))``.
     rbf : RBFColourMapping or None
-        Inverse colour mapping ``h⁻¹`` (Lin et al. Eq. 10) from ``f⁻¹(P)`` to ``M ρ``.
+        Inverse colour mapping ``h⁻¹`` ([Lin2011] Eq. 10) from ``f⁻¹(P)`` to ``M ρ``.
     backward : str
         The backward variant used by :meth:`to_raw`: ``"lut"`` or ``"rbf"``.
     diagnostics : dict
@@ -102,13 +189,37 @@ class PipelineModel:
     training_colours : TrainingColours or None
         A subsample of the training colours (raw and rendered), for
         :meth:`outside_training`; None in models saved before it was kept.
+
+    Parameters
+    ----------
+    forward_stages : ForwardStages
+        ``M``, ``f`` and the forward LUT.
+    backward_stages : BackwardStages
+        ``f⁻¹``, the backward LUT, the RBF and the clipped-pixel corrections.
+    backward, diagnostics, bake_size, training_colours
+        As the attributes (keyword only).
+    *legacy_args, **legacy
+        The arguments before the stages were grouped (``matrix``, ``tone_curves``,
+        ``forward_lut``, ``inverse_tone_curves``, ``backward_lut``, ``rbf``,
+        ``clipped_corrections``; positional in that old order, or by keyword): still
+        accepted, each with a :class:`DeprecationWarning` naming the stage field to set.
     """
 
-    def __init__(self, matrix, tone_curves: MonotonePolynomial, forward_lut: LatticeLUT,
-                 inverse_tone_curves: MonotonePolynomial, backward_lut: LatticeLUT,
-                 rbf: RBFColourMapping | None, backward: str = "lut", diagnostics=None,
-                 bake_size: int = BAKE_SIZE, clipped_corrections=None,
-                 training_colours: TrainingColours | None = None):
+    def __init__(self, forward_stages: ForwardStages | None = None,
+                 backward_stages: BackwardStages | None = None, *legacy_args,
+                 backward: str = "lut", diagnostics=None, bake_size: int = BAKE_SIZE,
+                 training_colours: TrainingColours | None = None, **legacy):
+        if legacy_args or legacy or not isinstance(forward_stages, ForwardStages):
+            given = {"backward": backward, "diagnostics": diagnostics, "bake_size": bake_size,
+                     "training_colours": training_colours}
+            positional = () if forward_stages is None else (forward_stages, backward_stages,
+                                                            *legacy_args)
+            forward_stages, backward_stages = _legacy_stages(positional, legacy, given)
+            backward, diagnostics, bake_size, training_colours = given.values()
+        if not isinstance(backward_stages, BackwardStages):
+            raise TypeError("backward_stages must be a BackwardStages")
+        fwd, bwd = forward_stages, backward_stages
+        matrix, rbf, clipped_corrections = fwd.matrix, bwd.rbf, bwd.clipped_corrections
         m = np.asarray(matrix, dtype=np.float64)
         if m.shape != (3, 3) or not np.all(np.isfinite(m)):
             raise InputError(f"the colour matrix must be a finite 3x3 array, got {m.shape}")
@@ -120,10 +231,10 @@ class PipelineModel:
             raise InputError("backward='rbf' needs an RBF colour mapping")
         self.matrix = m
         self.matrix_inverse = np.linalg.inv(m)
-        self.tone_curves = tone_curves
-        self.forward_lut = forward_lut
-        self.inverse_tone_curves = inverse_tone_curves
-        self.backward_lut = backward_lut
+        self.tone_curves = fwd.tone_curves
+        self.forward_lut = fwd.lut
+        self.inverse_tone_curves = bwd.inverse_tone_curves
+        self.backward_lut = bwd.lut
         self.rbf = rbf
         self.backward = backward
         self.diagnostics = dict(diagnostics or {})
@@ -167,7 +278,7 @@ class PipelineModel:
     def render(self, raw, *, return_mask: bool = False):
         """Forward model: linear raw -> rendered, ``y = f(M ρ)``, ``P = y + R_f(g(y))``.
 
-        Gong et al., rank-based radiometric calibration, Eq. 1b with §3.2-3.4.
+        [Gong2018] Eq. 1b with §3.2-3.4.
 
         Parameters
         ----------
@@ -208,8 +319,8 @@ class PipelineModel:
     def backward_exact(self, e, variant: str | None = None) -> np.ndarray:
         """The backward model at linearised colours ``e = f⁻¹(P)``, evaluated directly.
 
-        ``"lut"``: ``ρ̂ = M⁻¹ e``, ``ρ = ρ̂ + R_b(g(ρ̂))`` (Gong et al. §3.5);
-        ``"rbf"``: ``ρ = M⁻¹ h⁻¹(e)`` (Lin et al. Eq. 11).  Not clipped.
+        ``"lut"``: ``ρ̂ = M⁻¹ e``, ``ρ = ρ̂ + R_b(g(ρ̂))`` ([Gong2018] §3.5);
+        ``"rbf"``: ``ρ = M⁻¹ h⁻¹(e)`` ([Lin2011] Eq. 11).  Not clipped.
         """
         variant = self._check_variant(variant)
         e = np.asarray(e, dtype=np.float64)
@@ -244,7 +355,7 @@ class PipelineModel:
                return_mask: bool = False):
         """Backward model: rendered (JPEG) -> linear raw.
 
-        ``e = f⁻¹(P)`` per channel (Gong et al. §3.5), then the chosen variant (see
+        ``e = f⁻¹(P)`` per channel ([Gong2018] §3.5), then the chosen variant (see
         :meth:`backward_exact`) through the dense table baked over the linearised cube
         (trilinear), or directly when ``exact``.  Pixels with a channel within half a code
         of 0 or 255 then get the variant's clipped-pixel correction, if the fit kept one
@@ -397,20 +508,20 @@ class PipelineModel:
             raise ModelFileError(f"not a pipeline model (kind {d.get('kind')!r})", path)
         check_pipeline_content(d, path)   # every field, before any is used
         try:
-            return cls(matrix=np.asarray(d["matrix"], dtype=np.float64),
-                       tone_curves=MonotonePolynomial.from_dict(d["tone_curves"]),
-                       forward_lut=LatticeLUT.from_dict(d["forward_lut"]),
-                       inverse_tone_curves=MonotonePolynomial.from_dict(
-                           d["inverse_tone_curves"]),
-                       backward_lut=LatticeLUT.from_dict(d["backward_lut"]),
-                       rbf=None if d.get("rbf") is None else RBFColourMapping.from_dict(
-                           d["rbf"]),
-                       backward=str(d["backward"]),
+            forward = ForwardStages(
+                matrix=np.asarray(d["matrix"], dtype=np.float64),
+                tone_curves=MonotonePolynomial.from_dict(d["tone_curves"]),
+                lut=LatticeLUT.from_dict(d["forward_lut"]))
+            backward = BackwardStages(
+                inverse_tone_curves=MonotonePolynomial.from_dict(d["inverse_tone_curves"]),
+                lut=LatticeLUT.from_dict(d["backward_lut"]),
+                rbf=None if d.get("rbf") is None else RBFColourMapping.from_dict(d["rbf"]),
+                clipped_corrections={
+                    v: None if c is None else ClippedCorrection.from_dict(c)
+                    for v, c in (d.get("clipped_corrections") or {}).items()})
+            return cls(forward, backward, backward=str(d["backward"]),
                        diagnostics=dict(d.get("diagnostics") or {}),
                        bake_size=int(d.get("bake_size", BAKE_SIZE)),
-                       clipped_corrections={
-                           v: None if c is None else ClippedCorrection.from_dict(c)
-                           for v, c in (d.get("clipped_corrections") or {}).items()},
                        training_colours=None if d.get("training_colours") is None
                        else TrainingColours.from_dict(d["training_colours"]))
         except KeyError as exc:

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from ..errors import InputError
-from .model import BAKE_SIZE, PipelineModel, _as_rgb_float
+from .model import BAKE_SIZE, BackwardStages, ForwardStages, PipelineModel, _as_rgb_float
 from .nus_render import (NUS_RENDER_GAMMA, NUS_RENDER_REFINE, NUS_RENDER_SIZE, RAW_CODES,
                          LazyRenderTable)
 
@@ -363,9 +363,10 @@ class NUSPipelineModel(PipelineModel):
         self._tone_table = None
         wb = "base" if camera.wb_code is None else f"{camera.wb_code} " \
             f"({WB_NAMES.get(camera.wb_code, '?')})"
-        super().__init__(matrix=camera.transform, tone_curves=None, forward_lut=None,
-                         inverse_tone_curves=_NUSInverseTone(camera), backward_lut=None,
-                         rbf=camera._maps["jpg2raw"], backward="rbf",
+        super().__init__(ForwardStages(matrix=camera.transform, tone_curves=None, lut=None),
+                         BackwardStages(inverse_tone_curves=_NUSInverseTone(camera), lut=None,
+                                        rbf=camera._maps["jpg2raw"]),
+                         backward="rbf",
                          diagnostics={"source": "NUS model folder", "folder": str(camera.folder),
                                       "white_balance": wb, "valid_range": camera.valid_range},
                          bake_size=bake_size)

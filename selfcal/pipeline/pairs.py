@@ -28,10 +28,11 @@ from ..errors import InputError
 from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image, read_image_size
 from ..io.raw import read_raw_linear
 from ..stack.exposure_ratios import check_linear_raw, split_thumbnails
+from .options import with_legacy_keywords
 from .registration import (Registration, _as_float_rendered, _inside_mask, _warp,
                            register_raw_jpeg)
 
-__all__ = ["PairSamples", "PairData", "pair_samples", "sample_raw_jpeg_pair",
+__all__ = ["PairSamples", "PairData", "BlockRejection", "pair_samples", "sample_raw_jpeg_pair",
            "collect_pair_samples", "REJECTION_REASONS"]
 
 #: Rejection reasons of :func:`pair_samples`, in the order they are tested.
@@ -134,23 +135,57 @@ def _raw_on_rendered_grid(raw, reg: Registration, shape):
     return out, inside
 
 
+@dataclass(frozen=True)
+class BlockRejection:
+    """Which blocks :func:`pair_samples` rejects (see there for the tests, in order).
+
+    Attributes
+    ----------
+    raw_clip : float
+        A raw channel at or above this is clipped.
+    rendered_low, rendered_high : float
+        A rendered channel at or below ``rendered_low``, or at or above
+        ``rendered_high``, is clipped.
+    gradient_threshold : float
+        Blocks whose mean gradient magnitude exceeds ``max(gradient_threshold, q)`` are
+        rejected, ``q`` the ``min_keep_fraction`` quantile of the remaining blocks ...
+    min_keep_fraction : float
+        ... so a textured scene keeps its flattest blocks.
+    keep_clipped : bool
+        Keep blocks clipped *throughout*: every pixel clipped in the raw, or a rendered
+        channel at code 0 (or 255) in every pixel.  Their means are exact (a camera
+        renders the clipped raw it recorded, and its rendering is bounded by 0 and 255),
+        and they are the only samples of the colours a camera renders out of gamut
+        (saturated colours with a channel at 0); :func:`selfcal.pipeline.fit_pipeline`
+        leaves rendered-clipped samples out of its backward fits and learns ``E[ρ | P]``
+        from them.  Blocks clipped in part are rejected either way (their means mix the
+        two sides of the clip).
+    """
+
+    raw_clip: float = 0.98
+    rendered_low: float = 1 / 255
+    rendered_high: float = 254 / 255
+    gradient_threshold: float = 0.01
+    min_keep_fraction: float = 0.25
+    keep_clipped: bool = False
+
+
 def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
                  block: int | None = None, n_max: int | None = None, seed: int = 0,
-                 raw_clip: float = 0.98, rendered_low: float = 1 / 255,
-                 rendered_high: float = 254 / 255, gradient_threshold: float = 0.01,
-                 min_keep_fraction: float = 0.25, keep_clipped: bool = False) -> PairSamples:
+                 rejection: BlockRejection | None = None, **legacy) -> PairSamples:
     """Block-mean raw↔rendered correspondences of a registered pair, clipped and
     high-gradient blocks skipped.
 
-    The data of the RAW path (Gong et al., rank-based radiometric calibration, §3: raw–sRGB
-    correspondences; Lin et al. ICCV 2011 §6: sRGB–RAW control points).  The raw is
-    resampled onto the rendered grid (area-averaged when finer); the rendered image is cut
-    into ``block × block`` blocks; a block is rejected when (first failing test named):
+    The data of the RAW path ([Gong2018] §3: raw–sRGB correspondences; [Lin2011] §6:
+    sRGB–RAW control points).  The raw is resampled onto the rendered grid (area-averaged
+    when finer); the rendered image is cut into ``block × block`` blocks; a block is
+    rejected when (first failing test named):
 
     * ``outside`` -- part of it falls outside the raw;
-    * ``clipped_raw`` -- a raw pixel contributing to it has a channel ``≥ raw_clip``;
+    * ``clipped_raw`` -- a raw pixel contributing to it has a channel ``≥ raw_clip``
+      (the fields named here are those of :class:`BlockRejection`);
     * ``clipped_rendered`` -- a rendered pixel has a channel ``≥ rendered_high`` or
-      ``≤ rendered_low`` (clipped codes say nothing about the curve: Lin et al. §5);
+      ``≤ rendered_low`` (clipped codes say nothing about the curve: [Lin2011] §5);
     * ``high_gradient`` -- the mean gradient magnitude of the rendered grey image
       (Gaussian σ = 1 px, per pixel, on the ``[0, 1]`` scale) exceeds the threshold:
       demosaicing, sharpening, JPEG and any misregistration differ there.  The threshold
@@ -172,22 +207,21 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     n_max : int, optional
         Keep at most this many valid blocks, drawn at random (seeded).
     seed : int
-    raw_clip, rendered_low, rendered_high, gradient_threshold, min_keep_fraction : float
-        The rejection thresholds above.
-    keep_clipped : bool
-        Keep blocks clipped *throughout*: every pixel clipped in the raw, or a rendered
-        channel at code 0 (or 255) in every pixel.  Their means are exact (a camera
-        renders the clipped raw it recorded, and its rendering is bounded by 0 and 255),
-        and they are the only samples of the colours a camera renders out of gamut
-        (saturated colours with a channel at 0); :func:`selfcal.pipeline.fit_pipeline`
-        leaves rendered-clipped samples out of its backward fits and learns ``E[ρ | P]``
-        from them.  Blocks clipped in part are rejected either way (their means mix the
-        two sides of the clip).
+    rejection : BlockRejection, optional
+        The rejection thresholds above, and whether blocks clipped throughout are kept
+        (default ``BlockRejection()``).
+    **legacy
+        The fields of :class:`BlockRejection` as keyword arguments, as before it: still
+        applied, each with a :class:`DeprecationWarning` naming the field to set instead.
 
     Returns
     -------
     PairSamples
     """
+    rejection = with_legacy_keywords(BlockRejection() if rejection is None else rejection,
+                                     legacy, "pair_samples", "rejection")
+    raw_clip, keep_clipped = rejection.raw_clip, rejection.keep_clipped
+    rendered_low, rendered_high = rejection.rendered_low, rejection.rendered_high
     cv2 = import_cv2()
     raw = check_linear_raw(raw_rgb)
     ren_f = _as_float_rendered(rendered)
@@ -245,9 +279,9 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     for code, mask in ((1, outside), (2, clip_raw), (3, clip_ren)):
         reason[(reason == 0) & mask] = code
     remaining = reason == 0
-    thr = float(gradient_threshold)
+    thr = float(rejection.gradient_threshold)
     if remaining.any():
-        thr = max(thr, float(np.quantile(g[remaining], min_keep_fraction)))
+        thr = max(thr, float(np.quantile(g[remaining], rejection.min_keep_fraction)))
     reason[remaining & (g > thr)] = 4
     for code, name in enumerate(REJECTION_REASONS, start=1):
         counts[name] = int(np.sum(reason == code))
