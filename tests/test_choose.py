@@ -16,7 +16,7 @@ import pytest
 import selfcal
 import selfcal.choose.paths
 from selfcal import sim
-from selfcal.choose import calibrate, calibrate_pipeline, group_inputs
+from selfcal.choose import PairOptions, calibrate, calibrate_pipeline, group_inputs
 from selfcal.errors import CalibrationError, InputError, SelfcalWarning
 from selfcal.io import read_image, write_bytes_atomic, write_image
 from selfcal.pipeline import PipelineModel
@@ -277,7 +277,7 @@ def test_too_few_pair_samples_skip_the_pipeline_path_after_the_response(tmp_path
     make_session(tmp_path / "s", [1 / 125, 1 / 60, 1 / 30])
     # 150 samples in all: fewer than the pipeline path needs (MIN_PIPELINE_SAMPLES, 200)
     with pytest.warns(SelfcalWarning, match="pipeline path skipped: only 150 usable"):
-        result = calibrate([tmp_path / "s"], max_pair_samples=150)
+        result = calibrate([tmp_path / "s"], pairs=PairOptions(max_pair_samples=150))
     assert result.taken == ("response",) and result.exposure_source == "raw"
     assert result.pipeline is None and not fit_calls
     assert any(r.startswith("pipeline path skipped: only 150 usable raw/JPEG samples from "

@@ -11,7 +11,7 @@ class for a model file.
 from __future__ import annotations
 
 from .groups import InputGroups, group_inputs
-from .paths import CalibrationResult, calibrate, calibrate_pipeline
+from .paths import CalibrationResult, PairOptions, calibrate, calibrate_pipeline
 
-__all__ = ["InputGroups", "CalibrationResult", "group_inputs", "calibrate",
+__all__ = ["InputGroups", "CalibrationResult", "PairOptions", "group_inputs", "calibrate",
            "calibrate_pipeline"]

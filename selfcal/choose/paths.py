@@ -20,31 +20,27 @@ exactly what is missing.
 from __future__ import annotations
 
 import inspect
-import math
 import os
-import sys
-import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..stack.linear_evidence import linear_evidence
-from .groups import InputGroups, group_inputs
-from ..io.images import (ExposureInfo, effective_exposure_times, format_exposure_time,
-                         read_exposure_info, read_image, read_image_size)
-from ..pipeline.pairs import collect_pair_samples
-from ..stack.exposure_ratios import raw_exposure_ratios
-from ..pipeline import PipelineOptions, fit_pipeline
+from ..errors import CalibrationError, InputError, options_from_keywords
+from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info,
+                         read_image, read_image_size)
 from ..io.raw import read_raw_exposure_info
+from ..pipeline import PipelineOptions, fit_pipeline
+from ..pipeline.pairs import collect_pair_samples
 from ..response.calibrate import ResponseOptions, calibrate_response
+from ..stack.linear_evidence import linear_evidence
+from .exposure_plan import (ResponsePlan, SessionReport, distinct_exposures, file_names,
+                            noun, plan_response, seconds_text, times_by_frame)
+from .groups import InputGroups, group_inputs
 
-__all__ = ["CalibrationResult", "calibrate", "calibrate_pipeline"]
+__all__ = ["CalibrationResult", "PairOptions", "calibrate", "calibrate_pipeline"]
 
-#: Two exposures count as distinct when they differ by more than this factor.
-DISTINCT_EXPOSURE_FACTOR = 1.05
 #: Median code change (of 255) that counts as a visible exposure change between frames
 #: without exposure times.
 BRIGHTNESS_CHANGE_CODES = 2.0
@@ -122,30 +118,6 @@ class CalibrationResult:
 
 # ---- helpers -------------------------------------------------------------------------
 
-def _fmt_time(t) -> str:
-    text = format_exposure_time(t, unknown="unknown")
-    return text if text == "unknown" else text + " s"
-
-
-def _noun(paths) -> str:
-    kinds = {p.suffix.lower() for p in paths}
-    if kinds <= {".jpg", ".jpeg"}:
-        name = "JPEG"
-    elif kinds <= {".png"}:
-        name = "PNG"
-    elif kinds <= {".tif", ".tiff"}:
-        name = "TIFF"
-    else:
-        name = "image"
-    return f"{len(paths)} {name}" + ("s" if len(paths) != 1 else "")
-
-
-def _names(paths, limit=4) -> str:
-    names = [Path(p).name for p in paths]
-    if len(names) > limit:
-        return ", ".join(names[:limit]) + f", … ({len(names)} in all)"
-    return ", ".join(names)
-
 
 def _frame_info(path: Path, raw_path: Path | None) -> ExposureInfo:
     info = read_exposure_info(path)
@@ -158,19 +130,6 @@ def _frame_info(path: Path, raw_path: Path | None) -> ExposureInfo:
             f_number=info.f_number if info.f_number is not None else rinfo.f_number,
             iso=info.iso if info.iso is not None else rinfo.iso)
     return info
-
-
-def _distinct(values) -> int:
-    """Number of distinct exposures among known values (factor DISTINCT_EXPOSURE_FACTOR)."""
-    vals = sorted(v for v in values if v is not None)
-    if not vals:
-        return 0
-    count, last = 1, vals[0]
-    for v in vals[1:]:
-        if v > last * DISTINCT_EXPOSURE_FACTOR:
-            count += 1
-            last = v
-    return count
 
 
 def _brightness_changes(paths) -> bool:
@@ -211,7 +170,9 @@ def _split_options(options: dict, response_options, pipeline_options):
             PipelineOptions.__dataclass_fields__)
     unknown = []
     for key, value in options.items():
-        if key in resp_names:
+        if key == "options" and isinstance(value, PipelineOptions):
+            pipe[key] = value
+        elif key in resp_names:
             resp[key] = value
         elif key in pipe_names:
             pipe[key] = value
@@ -223,28 +184,30 @@ def _split_options(options: dict, response_options, pipeline_options):
     return resp, pipe
 
 
-class _Report:
-    """Why each path was (or was not) taken, and the warnings (each also emitted)."""
-
-    def __init__(self):
-        self.reasons: list[str] = []
-        self.warnings: list[str] = []
-
-    def warn(self, msg: str):
-        self.warnings.append(msg)
-        # attribute the warning to the caller's line, whichever piece of this module warns
-        level, frame = 1, sys._getframe(0)
-        while frame is not None and frame.f_code.co_filename == __file__:
-            frame, level = frame.f_back, level + 1
-        _warnings.warn(msg, SelfcalWarning, stacklevel=level)
-
-
 # ---- calibrate -----------------------------------------------------------------------
 
-def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
-              exposure_source: str = "auto", raw_half_size: bool = True,
-              max_pair_samples: int = 20_000, block: int | None = None,
-              response_options: dict | None = None, pipeline_options: dict | None = None,
+@dataclass(frozen=True)
+class PairOptions:
+    """How :func:`calibrate` samples RAW+JPEG pairs for the RAW path.
+
+    Attributes
+    ----------
+    raw_half_size : bool
+        Read raws at half size (2×2 binned): faster, and plenty for block means.
+    max_pair_samples : int
+        Samples for the pipeline fit, shared among the pairs.
+    block : int, optional
+        Block side (rendered pixels) of the pair samples; default adaptive.
+    """
+
+    raw_half_size: bool = True
+    max_pair_samples: int = 20_000
+    block: int | None = None
+
+
+def calibrate(paths, *, exposure_times=None, exposure_source: str = "auto", seed: int = 0,
+              pairs: PairOptions | None = None, response_options: dict | None = None,
+              pipeline_options: dict | None = None, progress=None,
               **options) -> CalibrationResult:
     """Calibrate a camera from whatever files are given, taking the path(s) they support.
 
@@ -283,18 +246,18 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
         ``"auto"``: raw ratios when ≥ 2 response frames have raws, else EXIF.  ``"raw"``
         insists on raw ratios (error without them), ``"exif"`` ignores the raws for
         exposures, ``"unknown"`` solves all exposures jointly.
-    raw_half_size : bool
-        Read raws at half size (2×2 binned): faster, and plenty for block means.
-    max_pair_samples : int
-        Samples for the pipeline fit, shared among the pairs.
-    block : int, optional
-        Block side (rendered pixels) of the pair samples; default adaptive.
+    pairs : PairOptions, optional
+        How the RAW+JPEG pairs are sampled (half-size raws, samples, block side); the
+        old keywords ``raw_half_size=``, ``max_pair_samples=``, ``block=`` still work,
+        with a ``DeprecationWarning``.
     response_options, pipeline_options : dict, optional
         Keyword arguments for :func:`selfcal.calibrate_response` and
         :func:`selfcal.pipeline.fit_pipeline`.
     **options
         Routed by name: those :func:`selfcal.calibrate_response` takes go there (e.g.
-        ``refine_exposures``, ``saturation_threshold``), the others to ``fit_pipeline``.
+        ``refine_exposures``), the others to ``fit_pipeline``; ``options=`` goes to the
+        path whose options class it is (:class:`~selfcal.response.ResponseOptions` or
+        :class:`~selfcal.pipeline.PipelineOptions`).
 
     Returns
     -------
@@ -316,10 +279,13 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
     if exposure_source not in ("auto", "raw", "exif", "unknown"):
         raise InputError(f"exposure_source must be auto, raw, exif or unknown, got "
                          f"{exposure_source!r}")
+    pair_fields = {f for f in PairOptions.__dataclass_fields__ if f in options}
+    pairs = options_from_keywords(PairOptions, pairs, {f: options.pop(f) for f in pair_fields},
+                                  "calibrate")
     resp_opts, pipe_opts = _split_options(options, response_options, pipeline_options)
     resp_opts.setdefault("seed", seed)
     groups = group_inputs(paths)
-    report = _Report()
+    report = SessionReport()
     for p, why in groups.ignored:
         report.warn(f"{p}: ignored ({why})")
     for raw in groups.unpaired_raws:
@@ -327,7 +293,7 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
                     f"({raw.stem}.jpg) in its folder; not used")
 
     _check_folders(groups, report)
-    given_times = _given_times(exposure_times, groups.rendered)
+    given_times = times_by_frame(exposure_times, groups.rendered)
     candidates, infos, eff = _size_groups(groups, given_times, exposure_source)
     chosen = _response_group(candidates, groups, report)
     if chosen is not None and not groups.pairs:
@@ -338,12 +304,12 @@ def calibrate(paths, *, progress=None, seed: int = 0, exposure_times=None,
 
     samples, pair_data = None, []
     if want_pipeline:
-        samples, pair_data = _read_pairs(groups, seed=seed, max_samples=max_pair_samples,
-                                         half_size=raw_half_size, block=block,
+        samples, pair_data = _read_pairs(groups, seed=seed, max_samples=pairs.max_pair_samples,
+                                         half_size=pairs.raw_half_size, block=pairs.block,
                                          progress=progress, report=report)
-    plan = _ResponsePlan()
+    plan = ResponsePlan()
     if chosen is not None:
-        plan = _plan_response(chosen, pair_data, infos, eff, given_times, exposure_source,
+        plan = plan_response(chosen, pair_data, infos, eff, given_times, exposure_source,
                               report)
     if not plan.frames and not plan.raw_decided:
         why = _response_missing(groups, candidates)
@@ -412,7 +378,7 @@ def _size_groups(groups: InputGroups, given_times, exposure_source):
         with_raw = [p for p in frames if p in raw_of]
         if len(frames) < 2:
             status = "single"
-        elif _distinct(known) >= 2:
+        elif distinct_exposures(known) >= 2:
             status = "ok"
         elif len(with_raw) >= 2 and exposure_source in ("auto", "raw") and \
                 given_times is None:
@@ -425,7 +391,7 @@ def _size_groups(groups: InputGroups, given_times, exposure_source):
     return candidates, infos, eff
 
 
-def _response_group(candidates, groups: InputGroups, report: _Report) -> _SizeGroup | None:
+def _response_group(candidates, groups: InputGroups, report: SessionReport) -> _SizeGroup | None:
     """The size group the response path calibrates: the usable one with most frames (one
     scene per calibration).
 
@@ -450,14 +416,14 @@ def _response_group(candidates, groups: InputGroups, report: _Report) -> _SizeGr
             if p not in from_folder:
                 raise InputError(
                     f"frame size {c.size[1]}x{c.size[0]} differs from the other frames' "
-                    f"{size} ({_names(chosen.frames, 2)}): one scene per calibration; "
+                    f"{size} ({file_names(chosen.frames, 2)}): one scene per calibration; "
                     "leave it out or give frames of one size", p)
             report.warn(f"{p}: left out ({c.size[1]}x{c.size[0]}, the calibrated frames "
                         f"are {size}: one scene per calibration)")
     return chosen
 
 
-def _check_folders(groups: InputGroups, report: _Report) -> None:
+def _check_folders(groups: InputGroups, report: SessionReport) -> None:
     """An empty folder: an error naming it when nothing else is given, else a warning."""
     empty = [folder for folder, files in groups.folders.items() if not files]
     if not empty:
@@ -475,7 +441,7 @@ def _refuse_linear(frames, eff) -> None:
     why = linear_evidence(frames, [eff.get(p) for p in frames])
     if why:
         raise CalibrationError(
-            f"{_names(frames)} are linear data, not rendered frames: {why}; linear data "
+            f"{file_names(frames)} are linear data, not rendered frames: {why}; linear data "
             "have no response to calibrate: merge them to HDR as they are (selfcal merge, "
             "which measures their exposure ratios from the pixels; merge_hdr(..., "
             "linear=True)), put each raw beside the camera's JPEG of the same name for the "
@@ -483,7 +449,7 @@ def _refuse_linear(frames, eff) -> None:
 
 
 def _read_pairs(groups: InputGroups, *, seed, max_samples, half_size, block, progress,
-                report: _Report):
+                report: SessionReport):
     """Read, register and sample every RAW+JPEG pair (pipeline data and raw exposure
     ratios); warn about pairs with too few usable samples."""
     samples, pair_data = collect_pair_samples(
@@ -499,117 +465,8 @@ def _read_pairs(groups: InputGroups, *, seed, max_samples, half_size, block, pro
     return samples, pair_data
 
 
-@dataclass
-class _ResponsePlan:
-    """The response path's frames and exposures, as :func:`_plan_response` decided them."""
-
-    frames: list = field(default_factory=list)
-    times: list | None = None          # passed to calibrate_response (None: it reads EXIF)
-    exposure_kind: str | None = None   # CalibrationResult.exposure_source
-    raw_exposures: dict = field(default_factory=dict)
-    raw_decided: bool = False          # the raw ratios decided whether the path is taken
-
-
-def _plan_response(group: _SizeGroup, pair_data, infos, eff, given_times, exposure_source,
-                   report: _Report) -> _ResponsePlan:
-    """The response path's frames and where their exposures come from, with the reasons.
-
-    Raw exposure ratios (Lin et al. §5) decide a group whose frames have raws but fewer
-    than two known exposures: without an exposure change between the raws, the response
-    path is not taken.
-    """
-    plan = _ResponsePlan(frames=list(group.frames))
-    raw_rel, framed = _raw_ratios(plan.frames, pair_data, exposure_source, report)
-    if group.status == "raw?":
-        plan.raw_decided = True
-        if _distinct([v[0] for v in raw_rel.values()]) < 2:
-            report.reasons.append(
-                f"no response path: the raws of {_noun(framed)} show no exposure "
-                "change between them")
-            plan.frames = []
-            return plan
-    reasons = _response_exposures(plan, raw_rel, infos, eff, given_times, exposure_source,
-                                  report)
-    shown = sorted({t for t in (eff.get(p) for p in plan.frames) if t is not None})
-    span = f" ({_fmt_time(shown[0])} … {_fmt_time(shown[-1])})" if len(shown) >= 2 else ""
-    n_exp = _distinct([eff.get(p) for p in plan.frames])
-    header = (f"response path: {_noun(plan.frames)} of one scene"
-              + (f" at {n_exp} exposures{span}" if n_exp >= 2 else " at different exposures"))
-    report.reasons += [header] + reasons
-    return plan
-
-
-def _raw_ratios(frames, pair_data, exposure_source, report: _Report):
-    """Relative exposures of the frames with raws, from the raws themselves.
-
-    :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
-    directly computed by dividing the raw values between two images"), on the two halves
-    of :func:`selfcal.stack.exposure_ratios.split_thumbnails` (pixels chosen on one, measured on the
-    other: no selection bias).  Returns
-    ``(raw_rel, framed)``: frame → (relative exposure, connected set), for the frames whose
-    ratio is known, and the frames that have a raw.
-    """
-    pd_by_rendered = {Path(pd.rendered_name): pd for pd in pair_data}
-    framed = [p for p in frames if p in pd_by_rendered]
-    raw_rel = {}
-    if len(framed) >= 2 and exposure_source in ("auto", "raw"):
-        try:
-            halves = [pd_by_rendered[p].thumbnail for p in framed]
-            rel, rep = raw_exposure_ratios([v for v, _ in halves],
-                                           select=[c for _, c in halves],
-                                           statistic="sum", max_side=1024)
-        except InputError as exc:
-            report.warn(f"exposure ratios from the raws failed ({exc}); using EXIF times")
-        else:
-            for p, e, cmp_ in zip(framed, rel, rep["component"]):
-                if cmp_ >= 0 and np.isfinite(e):
-                    raw_rel[p] = (float(e), cmp_)
-    return raw_rel, framed
-
-
-def _response_exposures(plan: _ResponsePlan, raw_rel, infos, eff, given_times,
-                        exposure_source, report: _Report) -> list[str]:
-    """Fill in the plan's exposures: given, unknown, from the raws, or EXIF (in that order
-    of precedence); returns the reasons that say which."""
-    frames = plan.frames
-    if given_times is not None:
-        plan.times, plan.exposure_kind = [given_times[p] for p in frames], "given"
-        return ["exposure times: given by the caller"]
-    if exposure_source == "unknown":
-        plan.times, plan.exposure_kind = [None] * len(frames), "unknown"
-        return ["exposure times: unknown (solved jointly with the response)"]
-    if raw_rel and exposure_source in ("auto", "raw") and len(raw_rel) >= 2:
-        plan.times, plan.exposure_kind, plan.raw_exposures = _times_from_raws(
-            frames, raw_rel, eff, report.warn)
-        n_used = sum(1 for p in frames if p in raw_rel)
-        dev = _exif_deviation(plan.raw_exposures)
-        return [
-            f"exposure ratios from the raws (Lin et al. 2011 §5: median ratio of "
-            f"unclipped, well-exposed raw values) for {n_used} of {len(frames)} frames"
-            + (f"; EXIF times differ from them by up to {100 * dev:.1f}%"
-               if dev is not None else "")
-            + ("; in seconds via the EXIF times" if any(
-                eff.get(p) is not None for p in raw_rel) else
-               "; relative to the first frame (no EXIF times)")]
-    if exposure_source == "raw":
-        raise CalibrationError(
-            "exposure_source='raw' needs at least two response frames with raws "
-            f"(have {len(raw_rel)}: {_names(list(raw_rel)) or 'none'})")
-    plan.exposure_kind = "exif"
-    if any(infos[p].exposure_time is None and eff.get(p) is not None for p in frames):
-        plan.times = [eff[p] for p in frames]
-    missing = [p for p in frames if eff.get(p) is None]
-    if len(missing) == len(frames):
-        plan.exposure_kind = "unknown"
-        return ["exposure times: none in EXIF; solved jointly with the response (up to the "
-                "exponential ambiguity of Lin et al. §5 -- raws of the same frames would "
-                "fix it)"]
-    return ["exposure times: EXIF" + (
-        f" ({len(missing)} frame(s) without: solved jointly)" if missing else "")]
-
-
-def _run_response(plan: _ResponsePlan, resp_opts, *, progress, pipeline_follows,
-                  report: _Report):
+def _run_response(plan: ResponsePlan, resp_opts, *, progress, pipeline_follows,
+                  report: SessionReport):
     """The response path (:func:`selfcal.calibrate_response`) on the planned frames, or
     None without frames; a failure is an error unless the pipeline path follows."""
     if not plan.frames:
@@ -632,7 +489,7 @@ def _run_response(plan: _ResponsePlan, resp_opts, *, progress, pipeline_follows,
 
 
 def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, progress,
-                  response_taken, report: _Report):
+                  response_taken, report: SessionReport):
     """The pipeline path (:func:`selfcal.pipeline.fit_pipeline`) on the joined pair samples.
 
     With too few samples it is skipped with a warning when the response path was taken,
@@ -663,78 +520,16 @@ def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, p
     model = fit_pipeline(samples.raw, samples.rendered, options, progress=progress, **rest)
     report.reasons.append(
         f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
-        f"({_names([j for _, j in groups.pairs], 3)}); {n_samples} samples"
+        f"({file_names([j for _, j in groups.pairs], 3)}); {n_samples} samples"
         + (f"; regulariser weights by leave-one-scene-out over {n_groups} pairs"
            if n_groups > 1 else ""))
     return model
 
 
-def _given_times(exposure_times, rendered):
-    if exposure_times is None:
-        return None
-    if isinstance(exposure_times, dict):
-        lookup = {Path(k).resolve(): v for k, v in exposure_times.items()}
-        times = [lookup.get(p.resolve()) for p in rendered]
-        return {p: (None if t is None else float(t)) for p, t in zip(rendered, times)}
-    times = list(exposure_times)
-    if len(times) != len(rendered):
-        raise InputError(f"{len(times)} exposure times given for {len(rendered)} rendered "
-                         f"frames ({_names(rendered)})")
-    out = {}
-    for p, t in zip(rendered, times):
-        if t is not None:
-            t = float(t)
-            if not (math.isfinite(t) and t > 0):
-                raise InputError(f"exposure time {t!r} must be a positive number", p)
-        out[p] = t
-    return out
-
-
-def _times_from_raws(frames, raw_rel, eff, warn):
-    """Response exposures: raw ratios (per connected set), in seconds via EXIF."""
-    comps: dict[int, list[Path]] = {}
-    for p in frames:
-        if p in raw_rel:
-            comps.setdefault(raw_rel[p][1], []).append(p)
-    times = {p: None for p in frames}
-    kind = "raw"
-    for members in comps.values():
-        logs = {p: math.log(raw_rel[p][0]) for p in members}
-        anchors = [math.log(eff[p]) - logs[p] for p in members if eff.get(p) is not None]
-        if anchors:
-            offset = float(np.mean(anchors))
-        elif len(comps) == 1 and not any(eff.get(p) is not None for p in frames):
-            offset = 0.0
-        else:
-            warn(f"exposure ratios from the raws of {_names(members)} cannot be put on the "
-                 "scale of the other frames (no EXIF times among them); those frames are "
-                 "treated as unknown")
-            continue
-        for p in members:
-            times[p] = math.exp(logs[p] + offset)
-    for p in frames:
-        if p not in raw_rel:
-            kind = "raw+exif"
-            times[p] = eff.get(p)
-    raw_exposures = {str(p): {"raw_relative": raw_rel[p][0], "exif": eff.get(p),
-                              "used": times[p]} for p in frames if p in raw_rel}
-    return [times[p] for p in frames], kind, raw_exposures
-
-
-def _exif_deviation(raw_exposures):
-    """Largest relative deviation of EXIF times from the raw-derived (used) exposures."""
-    devs = [math.log(v["exif"] / v["used"]) for v in raw_exposures.values()
-            if v["exif"] is not None and v["used"] is not None]
-    if len(devs) < 2:
-        return None
-    devs = np.array(devs) - np.mean(devs)
-    return float(np.exp(np.max(np.abs(devs))) - 1.0)
-
-
 def _raws_note(groups: InputGroups) -> str:
     if groups.unpaired_raws:
         verb = "has" if len(groups.unpaired_raws) == 1 else "have"
-        return (f"no RAW+JPEG pair ({_names(groups.unpaired_raws)} {verb} no JPEG of the "
+        return (f"no RAW+JPEG pair ({file_names(groups.unpaired_raws)} {verb} no JPEG of the "
                 "same name in the same folder)")
     return "no raw files"
 
@@ -745,17 +540,17 @@ def _response_missing(groups: InputGroups, candidates) -> str:
     if not frames:
         return ""
     if len(frames) == 1:
-        return f"{_noun(frames)} ({frames[0].name}) only"
+        return f"{noun(frames)} ({frames[0].name}) only"
     if len(candidates) > 1:
-        return (f"{_noun(frames)} of {len(candidates)} different sizes, none with frames at "
+        return (f"{noun(frames)} of {len(candidates)} different sizes, none with frames at "
                 "≥ 2 exposures")
     _, fr, status, known = candidates[0]
     if status == "same":
-        return f"{_noun(fr)} all at {_fmt_time(known[0])}"
+        return f"{noun(fr)} all at {seconds_text(known[0])}"
     if status == "no_change":
-        return (f"{_noun(fr)} with no exposure times (EXIF) nor any brightness change "
+        return (f"{noun(fr)} with no exposure times (EXIF) nor any brightness change "
                 "between them")
-    return f"{_noun(fr)} without two distinct exposures"
+    return f"{noun(fr)} without two distinct exposures"
 
 
 def _missing_message(groups: InputGroups, candidates) -> str:
@@ -764,7 +559,7 @@ def _missing_message(groups: InputGroups, candidates) -> str:
         return "no input images: " + need
     if not groups.rendered:
         k = len(groups.unpaired_raws)
-        return (f"{k} raw file{'s' if k != 1 else ''} ({_names(groups.unpaired_raws)}) "
+        return (f"{k} raw file{'s' if k != 1 else ''} ({file_names(groups.unpaired_raws)}) "
                 "without a JPEG of the same name, and no other images: raws are linear "
                 "and have no response to calibrate (a bracket of them merges to HDR as it "
                 "is: selfcal merge RAWS -o OUT.exr); put each raw's camera JPEG beside it "

@@ -84,8 +84,7 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
                       error_transform=None, refine: bool = False, groups=None) -> dict:
     """Leave-one-out RMSE of the linear-kernel RBF (degree-1 affine part) per smoothing.
 
-    Rippa's closed form (Rippa, *An algorithm for selecting a good value for the parameter
-    c in radial basis function interpolation*, Adv. Comput. Math. 1999): for the system
+    Rippa's closed form ([Rippa1999]): for the system
     ``(K + s I) a + P b = y``, ``Pᵀ a = 0`` (``K_ij = -||c_i - c_j||`` as in
     :class:`scipy.interpolate.RBFInterpolator`), the error at ``c_i`` of the interpolant
     fitted without sample ``i`` is ``a_i / (A⁻¹)_ii``.  With ``Q`` an orthonormal basis of
