@@ -1,4 +1,12 @@
-"""``.cube`` exports of the NUS model folder applied by ffmpeg's ``lut3d`` (issue 18).
+"""LUT exports of the NUS model folder, applied by OpenColorIO and ffmpeg.
+
+``python bench/bench_export_cube.py``: shaper LUTs (1D shaper + 3D table; CLF and
+Resolve ``.cube``), the ffmpeg ``lut1d`` + ``lut3d`` chain, response-model LUTs and the
+OpenColorIO config -- see ``bench/bench_export_shaper.py``.
+
+``python bench/bench_export_cube.py --no-shaper``: what follows, the 3D-only cubes.
+
+``.cube`` exports of the NUS model folder applied by ffmpeg's ``lut3d`` (issue 18).
 
 Issue 18 asks that a 3D ``.cube`` applied by ffmpeg's ``lut3d`` filter to a real frame
 equal selfcal's own ``to_raw`` / ``render`` within 0.5 % (33³) on the pixels inside the
@@ -156,7 +164,8 @@ def domain_check(exe: str, folder: Path) -> list[list[str]]:
             for p, o in zip(probe, out)]
 
 
-def main() -> None:
+def main_no_shaper() -> None:
+    """The 3D-only cubes of issue 18 applied by ffmpeg's lut3d (``--no-shaper``)."""
     folder = data_dir("nus_model_nikon_d7000")
     jpg_path = data_dir("real_brackets", "sony_ilce6400", "scene1") / "DSC04141.JPG"
     exes = ffmpeg_binaries()
@@ -230,4 +239,11 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--no-shaper" in sys.argv[1:]:
+        main_no_shaper()
+    else:
+        from bench_export_shaper import main_shaper
+
+        main_shaper()

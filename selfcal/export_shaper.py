@@ -53,7 +53,7 @@ from .io import atomic_output, check_output_path
 from .pipeline.model import SHAPER_GAMMA
 
 __all__ = ["ShaperLUT", "SHAPER_DIRECTIONS", "DEFAULT_SHAPER_SIZE", "shaper_curve",
-           "shaper_lut", "write_shaper_cube", "apply_shaper_lut"]
+           "shaper_lut", "write_shaper_cube", "write_ffmpeg_cubes", "apply_shaper_lut"]
 
 SHAPER_DIRECTIONS = ("to-raw", "render")
 #: Nodes of the 1D shaper unless asked otherwise: 16 per 8-bit code, and one on each code.
@@ -293,3 +293,32 @@ def write_shaper_cube(lut: ShaperLUT, path, *, title: str | None = None,
             np.savetxt(fh, lut.shaper, fmt="%.8f")
             np.savetxt(fh, lut.rows_red_fastest(), fmt="%.7f")
     return path
+
+
+def write_ffmpeg_cubes(lut: ShaperLUT, path_1d, path_3d, *, force: bool = False) -> tuple:
+    """Write ``lut`` as two ``.cube`` files for ffmpeg's ``lut1d`` then ``lut3d`` filters.
+
+    ffmpeg reads one table per file (its ``lut3d`` refuses a file that also holds a 1D
+    table), so the shaper goes to ``path_1d`` (``LUT_1D_SIZE``, ``LUT_1D_INPUT_RANGE 0 1``)
+    and the 3D table to ``path_3d`` (``LUT_3D_SIZE``, red fastest, Adobe Cube 1.0); the
+    chain is ``-vf lut1d=file=<path_1d>,lut3d=file=<path_3d>``.  Both written atomically.
+
+    Returns
+    -------
+    (pathlib.Path, pathlib.Path)
+    """
+    path_1d, path_3d = Path(path_1d), Path(path_3d)
+    for p in (path_1d, path_3d):
+        check_output_path(p, force=force)
+    parts = ((path_1d, [f"# selfcal {lut.direction} shaper: {lut.kind}",
+                        f"LUT_1D_SIZE {lut.shaper.shape[0]}", "LUT_1D_INPUT_RANGE 0.0 1.0"],
+              lut.shaper, "%.8f"),
+             (path_3d, [f"# selfcal {lut.direction} 3D table, after {path_1d.name}",
+                        f"LUT_3D_SIZE {lut.size}", "DOMAIN_MIN 0.0 0.0 0.0",
+                        "DOMAIN_MAX 1.0 1.0 1.0"], lut.rows_red_fastest(), "%.7f"))
+    for path, head, rows, fmt in parts:
+        with atomic_output(path, force=force) as tmp:
+            with open(tmp, "w", encoding="ascii", newline="\n") as fh:
+                fh.write("\n".join(head) + "\n")
+                np.savetxt(fh, rows, fmt=fmt)
+    return path_1d, path_3d

@@ -117,7 +117,7 @@ def test_export_cli_directions_and_errors(response_model, pipeline_model, tmp_pa
     assert main(["export", str(tmp_path / "resp.json"), "-o", str(tmp_path / "r.cube")]) == 0
     assert read_cube_header(tmp_path / "r.cube")["LUT_1D_SIZE"] == "256"
     assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "p.cube"),
-                 "--direction", "render", "--size", "17"]) == 0
+                 "--direction", "render", "--size", "17", "--no-shaper"]) == 0
     head = read_cube_header(tmp_path / "p.cube")
     assert head["LUT_3D_SIZE"] == "17" and "pipe.json" in head["TITLE"]
     assert len((tmp_path / "p.cube").read_text().splitlines()) == 6 + 17 ** 3
@@ -215,11 +215,13 @@ def test_export_cli_range(pipeline_model, tmp_path, capsys):
                  "--size", "5"]) == 0
     assert "codes" not in (tmp_path / "a.cube").read_text()     # a fitted model: no range
     assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "b.cube"),
-                 "--size", "5", "--range", "3", "250"]) == 0
+                 "--size", "5", "--range", "3", "250", "--no-shaper"]) == 0
     assert "codes 3-250" in (tmp_path / "b.cube").read_text()
     assert "3-250" in capsys.readouterr().err                   # messages go to stderr
-    for extra in (["--range", "250", "3"], ["--range", "0", "300"],
-                  ["--direction", "render", "--range", "3", "250"]):
+    for extra in (["--range", "250", "3", "--no-shaper"],
+                  ["--range", "0", "300", "--no-shaper"],
+                  ["--direction", "render", "--range", "3", "250", "--no-shaper"],
+                  ["--range", "3", "250"]):     # a shaper cube (the default) has no range
         with pytest.raises(SystemExit) as info:
             main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "c.cube"),
                   *extra])
