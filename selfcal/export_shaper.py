@@ -222,6 +222,26 @@ def shaper_lut(model, direction: str, *, size: int = 33,
     return ShaperLUT(direction, shaper, table, kind)
 
 
+def _tetrahedra(u: np.ndarray, n: int):
+    """For ``(N, 3)`` points ``u`` in ``[0, 1]``: the four nodes (flat ``[r, g, b]``
+    indices) of the tetrahedron holding each, and its barycentric weights -- the split of
+    each cell along its main diagonal that OpenColorIO's and ffmpeg's tetrahedral
+    interpolation use."""
+    p = u * (n - 1)
+    base = np.minimum(np.floor(p), n - 2).astype(np.int64)
+    frac = p - base
+    order = np.argsort(-frac, axis=1, kind="stable")
+    f = np.take_along_axis(frac, order, axis=1)
+    stride = np.array([n * n, n, 1])
+    i0 = base @ stride
+    steps = stride[order]
+    i1 = i0 + steps[:, 0]
+    i2 = i1 + steps[:, 1]
+    idx = np.stack([i0, i1, i2, i2 + steps[:, 2]], axis=1)
+    w = np.stack([1 - f[:, 0], f[:, 0] - f[:, 1], f[:, 1] - f[:, 2], f[:, 2]], axis=1)
+    return idx, w
+
+
 def apply_shaper_lut(lut: ShaperLUT, x) -> np.ndarray:
     """``lut`` applied to ``(..., 3)`` values in ``[0, 1]``: the shaper by linear
     interpolation, then the 3D table by tetrahedral interpolation (ours; a reference for
@@ -231,21 +251,9 @@ def apply_shaper_lut(lut: ShaperLUT, x) -> np.ndarray:
     x = x.reshape(-1, 3)
     grid = np.linspace(0.0, 1.0, lut.shaper.shape[0])
     u = np.stack([np.interp(x[:, c], grid, lut.shaper[:, c]) for c in range(3)], axis=1)
-    n = lut.size
-    p = u * (n - 1)
-    base = np.minimum(np.floor(p), n - 2).astype(np.int64)
-    frac = p - base
-    order = np.argsort(-frac, axis=1, kind="stable")
-    f = np.take_along_axis(frac, order, axis=1)
+    idx, w = _tetrahedra(u, lut.size)
     flat = lut.table.reshape(-1, 3)
-    stride = np.array([n * n, n, 1])
-    i0 = base @ stride
-    steps = stride[order]
-    i1 = i0 + steps[:, 0]
-    i2 = i1 + steps[:, 1]
-    i3 = i2 + steps[:, 2]
-    out = (flat[i0] * (1 - f[:, :1]) + flat[i1] * (f[:, :1] - f[:, 1:2])
-           + flat[i2] * (f[:, 1:2] - f[:, 2:3]) + flat[i3] * f[:, 2:3])
+    out = np.einsum("nk,nkc->nc", w, flat[idx])
     return out.reshape(shape)
 
 
