@@ -38,9 +38,11 @@ scaling by ``min(1, 1 / (max - min))`` and ignoring ``DOMAIN_MIN``, so a table f
 A 3D table is sampled on a uniform grid of its input, so it is coarse where the model
 is steep: the ``render`` table in the darkest grid cells of linear raw (the tone curve
 rises fastest there), the ``to-raw`` table in the last cell before code 255 (a camera's
-``f⁻¹`` can climb a fifth of full scale over its last three codes).  A shaper LUT would
-fix both, but neither the 3D-only ``.cube`` files ffmpeg reads nor this module write one.
-Instead, a ``to-raw`` table can follow the model inside a range of codes and extrapolate
+``f⁻¹`` can climb a fifth of full scale over its last three codes).  A shaper LUT
+fixes both: :mod:`selfcal.export_shaper` (a 1D shaper chosen from the model before the
+3D table; Resolve ``.cube`` and CLF files, what ``selfcal export`` writes for a pipeline
+model unless ``--no-shaper``).  The 3D-only table here is what ffmpeg's ``lut3d`` reads
+alone; for it, a ``to-raw`` table can follow the model inside a range of codes and extrapolate
 outside it (``code_range``; by default the codes the model was fitted on, when it says:
 an NUS folder's 5-252): the cell holding code 252 then interpolates towards the model at
 252, not at 255.  ``bench/bench_export_cube.py`` measures what is left, and prints the
