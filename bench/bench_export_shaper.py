@@ -245,10 +245,10 @@ def main_shaper() -> None:
     print()
     print("The Resolve .cube (shaper + 3D in one file) applied by OpenColorIO (tetrahedral) "
           "against the CLF, tuning image; and the time to build the tables")
-    print(table(["LUT", "largest |cube - clf|", "build s"], same))
+    print(table(["LUT", "largest difference, cube vs CLF", "build s"], same))
     print()
-    print(f"2. ffmpeg: lut1d (the shaper) then lut3d (tetrahedral), 16-bit frames, "
-          f"against selfcal's own render / to_raw; in-range pixels")
+    print("2. ffmpeg: lut1d (the shaper) then lut3d (tetrahedral), 16-bit frames, "
+          "against selfcal's own render / to_raw; in-range pixels")
     print(table(["LUT", "split", "image", "% within", "p99", "worst"], ff_rows))
     print()
     print("3. Response models (JPEG-only path) through OpenColorIO against "
