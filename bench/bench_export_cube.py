@@ -4,6 +4,9 @@
 Resolve ``.cube``), the ffmpeg ``lut1d`` + ``lut3d`` chain, response-model LUTs and the
 OpenColorIO config -- see ``bench/bench_export_shaper.py``.
 
+``python bench/bench_export_cube.py --tune``: the render shaper's knee swept on the
+tuning image.
+
 ``python bench/bench_export_cube.py --no-shaper``: what follows, the 3D-only cubes.
 
 ``.cube`` exports of the NUS model folder applied by ffmpeg's ``lut3d`` (issue 18).
@@ -243,6 +246,10 @@ if __name__ == "__main__":
 
     if "--no-shaper" in sys.argv[1:]:
         main_no_shaper()
+    elif "--tune" in sys.argv[1:]:
+        from bench_export_shaper import main_tune
+
+        main_tune()
     else:
         from bench_export_shaper import main_shaper
 
