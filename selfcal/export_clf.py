@@ -26,6 +26,13 @@ What each direction writes:
 Ours: the writer (XML by hand, ~60 lines, so that no XML or colour library is a
 dependency) and the choice of nodes; the format is the spec's.  OpenColorIO reads these
 files with its own CLF parser (``FileTransform``); the tests apply them with it.
+
+References
+----------
+.. [CLF3] Academy of Motion Picture Arts and Sciences / ASC, "Common LUT Format (CLF):
+   A Common File Format for Look-Up Tables", Academy S-2014-006, version 3 (2020).
+.. [Lin2011] H. Lin, S. J. Kim, S. Süsstrunk and M. S. Brown, "Revisiting Radiometric
+   Calibration for Color Computer Vision", ICCV 2011.
 """
 
 from __future__ import annotations

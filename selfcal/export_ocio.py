@@ -33,6 +33,14 @@ The folder is written all or nothing: into a hidden temporary folder beside it, 
 into place when complete (with ``force``, an existing folder is swapped out and removed
 only after the new one is in place).  OpenColorIO is not needed to write it; the tests
 load it with OpenColorIO's Python bindings and run ``Config.validate()``.
+
+References
+----------
+.. [OCIO2] OpenColorIO v2 documentation, "Config syntax" (ocio_profile_version 2,
+   ColorSpace to_scene_reference / from_scene_reference, FileTransform, roles, file_rules,
+   displays) and ``Config.validate()``, https://opencolorio.readthedocs.io
+.. [Lin2011] H. Lin, S. J. Kim, S. Süsstrunk and M. S. Brown, "Revisiting Radiometric
+   Calibration for Color Computer Vision", ICCV 2011.
 """
 
 from __future__ import annotations

@@ -39,6 +39,16 @@ sit at the exact preimages of the uniform ``u`` grid through that table, so a re
 interpolating both tables linearly reproduces the model at every 3D node.  Node values
 are the model's ``render`` (its reference evaluation ``render_exact`` where it has one)
 or ``to_raw``.
+
+References
+----------
+.. [RESOLVE] P. Chamberlain (Blackmagic Design), "LUT documentation (to create from another
+   program)", DaVinci Resolve forum, 2015: the .cube layout with LUT_1D_INPUT_RANGE /
+   LUT_3D_INPUT_RANGE and a 1D table before a 3D one.
+.. [Lin2011] H. Lin, S. J. Kim, S. Süsstrunk and M. S. Brown, "Revisiting Radiometric
+   Calibration for Color Computer Vision", ICCV 2011.
+.. [Gong2019] H. Gong et al., "Rank-based radiometric calibration": the RAW-path pipeline
+   model of :mod:`selfcal.pipeline` (colour matrix, tone curves ``f`` and ``f⁻¹``).
 """
 
 from __future__ import annotations
