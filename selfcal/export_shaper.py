@@ -29,8 +29,8 @@ The shaper is chosen from the model (ours):
     ``e = u^(1/0.6)``): the 3D table then holds only the colour part of the model
     (``M⁻¹ h⁻¹(e)``, or ``M⁻¹ e`` plus the lattice correction), on the grid the model
     itself was baked on, while the steep climb of ``f⁻¹`` over the last codes stays in
-    the 1D table.  (Tuned on the fixture pair's fitted model, where ``e`` alone (power 1)
-    left 5 % of the pixels beyond 0.005 at 33³ and 0.6 left 0.05 %.)
+    the 1D table.  (Chosen on the fixture pair's fitted model, where ``e`` alone (power
+    1) left clearly more pixels beyond 0.005 at 33³ than 0.6.)
 
 Either shaper is blended with the identity (``0.999 s + 0.001 x``) so that it is strictly
 increasing (a flat stretch would merge inputs the model tells apart).  The shaper is a
