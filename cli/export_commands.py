@@ -160,9 +160,10 @@ def register(sub) -> None:
                         "default for pipeline models) or render")
     p.add_argument("--size", type=int_range(2, 65536, "the LUT size"), default=None,
                    help="nodes: LUT_1D_SIZE 2-65536 (default max_code+1), LUT_3D_SIZE "
-                        "2-256 (default 33; 65 is finer)")
+                        "2-256 (default 33, --ocio 65; 65 is finer)")
     p.add_argument("--range", nargs=2, type=int, default=None, metavar=("LOW", "HIGH"),
-                   help="to-raw: the codes inside which the 3D LUT follows the model; nodes "
+                   help="--no-shaper to-raw: the codes inside which the 3D LUT follows the "
+                        "model; nodes "
                         "outside continue its chords (default: the codes the model was "
                         "fitted on when it says, e.g. an NUS folder's 5 252; 0 255: every "
                         "node holds the model)")
