@@ -1,4 +1,15 @@
-"""``.cube`` exports of the NUS model folder applied by ffmpeg's ``lut3d`` (issue 18).
+"""LUT exports of the NUS model folder, applied by OpenColorIO and ffmpeg.
+
+``python bench/bench_export_cube.py``: shaper LUTs (1D shaper + 3D table; CLF and
+Resolve ``.cube``), the ffmpeg ``lut1d`` + ``lut3d`` chain, response-model LUTs and the
+OpenColorIO config -- see ``bench/bench_export_shaper.py``.
+
+``python bench/bench_export_cube.py --tune``: the render shaper's knee swept on the
+tuning image.
+
+``python bench/bench_export_cube.py --no-shaper``: what follows, the 3D-only cubes.
+
+``.cube`` exports of the NUS model folder applied by ffmpeg's ``lut3d`` (issue 18).
 
 Issue 18 asks that a 3D ``.cube`` applied by ffmpeg's ``lut3d`` filter to a real frame
 equal selfcal's own ``to_raw`` / ``render`` within 0.5 % (33³) on the pixels inside the
@@ -52,7 +63,8 @@ from scipy.optimize import linprog
 from common import data_dir, table
 
 import selfcal
-from selfcal.export import apply_cube_ffmpeg, cube_table, ffmpeg_binaries, write_cube
+from ffmpeg_lut import apply_cube_ffmpeg, ffmpeg_binaries  # noqa: E402
+from selfcal.export import cube_table, write_cube
 from selfcal.io import read_image
 
 SIZES = (33, 65)
@@ -156,7 +168,8 @@ def domain_check(exe: str, folder: Path) -> list[list[str]]:
             for p, o in zip(probe, out)]
 
 
-def main() -> None:
+def main_no_shaper() -> None:
+    """The 3D-only cubes of issue 18 applied by ffmpeg's lut3d (``--no-shaper``)."""
     folder = data_dir("nus_model_nikon_d7000")
     jpg_path = data_dir("real_brackets", "sony_ilce6400", "scene1") / "DSC04141.JPG"
     exes = ffmpeg_binaries()
@@ -230,4 +243,15 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--no-shaper" in sys.argv[1:]:
+        main_no_shaper()
+    elif "--tune" in sys.argv[1:]:
+        from bench_export_shaper import main_tune
+
+        main_tune()
+    else:
+        from bench_export_shaper import main_shaper
+
+        main_shaper()

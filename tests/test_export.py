@@ -15,16 +15,22 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal.export import (apply_cube_ffmpeg, cube_table, ffmpeg_binaries, read_cube_header,
-                            write_cube)
+from bench.ffmpeg_lut import apply_cube_ffmpeg, ffmpeg_binaries
+from selfcal.export import cube_table, read_cube_header, write_cube
 from selfcal.io import read_image
 from selfcal.pipeline import PipelineOptions, fit_pipeline
 from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT
 from selfcal_cli.main import main
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
-colour = pytest.importorskip("colour", reason="colour-science (the independent .cube "
-                             "reader) is not installed")
+
+
+@pytest.fixture
+def colour():
+    """colour-science, the independent .cube reader (only the tests that read with it skip
+    without it)."""
+    return pytest.importorskip("colour", reason="colour-science (the independent .cube "
+                               "reader) is not installed")
 
 
 FFMPEG = ffmpeg_binaries()
@@ -48,7 +54,7 @@ def pipeline_model():
                         n_train=600, seed=0)
 
 
-def test_1d_cube_read_by_colour_linearises_every_code(response_model, tmp_path):
+def test_1d_cube_read_by_colour_linearises_every_code(response_model, tmp_path, colour):
     path = write_cube(response_model, tmp_path / "lin.cube")
     head = read_cube_header(path)
     assert head["LUT_1D_SIZE"] == "256" and head["TITLE"].startswith('"')
@@ -75,7 +81,7 @@ def test_3d_table_order_red_fastest(pipeline_model):
 
 @needs_ffmpeg
 @pytest.mark.parametrize("exe", FFMPEG)
-def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
+def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe, colour):
     cube = write_cube(pipeline_model, tmp_path / "to_raw.cube", direction="to-raw")
     assert read_cube_header(cube)["LUT_3D_SIZE"] == "33"
     jpg = read_image(FIXTURES / "pair" / "pair.jpg")
@@ -93,7 +99,7 @@ def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
 
 @needs_ffmpeg
 @pytest.mark.parametrize("exe", FFMPEG)
-def test_3d_render_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe):
+def test_3d_render_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe, colour):
     cube = write_cube(pipeline_model, tmp_path / "render.cube", direction="render")
     raw16 = read_image(FIXTURES / "pair" / "pair.tiff")
     by_colour = colour.read_LUT(str(cube)).apply(raw16 / 65535.0)
@@ -117,7 +123,7 @@ def test_export_cli_directions_and_errors(response_model, pipeline_model, tmp_pa
     assert main(["export", str(tmp_path / "resp.json"), "-o", str(tmp_path / "r.cube")]) == 0
     assert read_cube_header(tmp_path / "r.cube")["LUT_1D_SIZE"] == "256"
     assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "p.cube"),
-                 "--direction", "render", "--size", "17"]) == 0
+                 "--direction", "render", "--size", "17", "--no-shaper"]) == 0
     head = read_cube_header(tmp_path / "p.cube")
     assert head["LUT_3D_SIZE"] == "17" and "pipe.json" in head["TITLE"]
     assert len((tmp_path / "p.cube").read_text().splitlines()) == 6 + 17 ** 3
@@ -215,11 +221,13 @@ def test_export_cli_range(pipeline_model, tmp_path, capsys):
                  "--size", "5"]) == 0
     assert "codes" not in (tmp_path / "a.cube").read_text()     # a fitted model: no range
     assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "b.cube"),
-                 "--size", "5", "--range", "3", "250"]) == 0
+                 "--size", "5", "--range", "3", "250", "--no-shaper"]) == 0
     assert "codes 3-250" in (tmp_path / "b.cube").read_text()
     assert "3-250" in capsys.readouterr().err                   # messages go to stderr
-    for extra in (["--range", "250", "3"], ["--range", "0", "300"],
-                  ["--direction", "render", "--range", "3", "250"]):
+    for extra in (["--range", "250", "3", "--no-shaper"],
+                  ["--range", "0", "300", "--no-shaper"],
+                  ["--direction", "render", "--range", "3", "250", "--no-shaper"],
+                  ["--range", "3", "250"]):     # a shaper cube (the default) has no range
         with pytest.raises(SystemExit) as info:
             main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "c.cube"),
                   *extra])

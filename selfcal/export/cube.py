@@ -38,9 +38,11 @@ scaling by ``min(1, 1 / (max - min))`` and ignoring ``DOMAIN_MIN``, so a table f
 A 3D table is sampled on a uniform grid of its input, so it is coarse where the model
 is steep: the ``render`` table in the darkest grid cells of linear raw (the tone curve
 rises fastest there), the ``to-raw`` table in the last cell before code 255 (a camera's
-``f⁻¹`` can climb a fifth of full scale over its last three codes).  A shaper LUT would
-fix both, but neither the 3D-only ``.cube`` files ffmpeg reads nor this module write one.
-Instead, a ``to-raw`` table can follow the model inside a range of codes and extrapolate
+``f⁻¹`` can climb a fifth of full scale over its last three codes).  A shaper LUT
+fixes both: :mod:`selfcal.export.shaper` (a 1D shaper chosen from the model before the
+3D table; Resolve ``.cube`` and CLF files, what ``selfcal export`` writes for a pipeline
+model unless ``--no-shaper``).  The 3D-only table here is what ffmpeg's ``lut3d`` reads
+alone; for it, a ``to-raw`` table can follow the model inside a range of codes and extrapolate
 outside it (``code_range``; by default the codes the model was fitted on, when it says:
 an NUS folder's 5-252): the cell holding code 252 then interpolates towards the model at
 252, not at 255.  ``bench/bench_export_cube.py`` measures what is left, and prints the
@@ -67,7 +69,6 @@ from ..errors import InputError
 from ..io.images import atomic_output, check_output_path
 
 __all__ = ["DIRECTIONS", "DEFAULT_3D_SIZE", "cube_table", "write_cube", "read_cube_header",
-           "ffmpeg_binaries", "apply_cube_ffmpeg",
            "model_code_range"]
 
 DIRECTIONS = ("linearize", "to-raw", "render")
@@ -307,45 +308,3 @@ def read_cube_header(path) -> dict:
             break
         out[key] = value.strip()
     return out
-
-
-# ---- checking a cube with ffmpeg ----------------------------------------------------
-
-def ffmpeg_binaries() -> list:
-    """The ffmpeg executables present: imageio-ffmpeg's, then one on PATH (either may be
-    missing; ``pip install imageio-ffmpeg`` provides the first)."""
-    import shutil
-
-    found = []
-    try:
-        import imageio_ffmpeg
-
-        found.append(imageio_ffmpeg.get_ffmpeg_exe())
-    except (ImportError, RuntimeError):
-        pass
-    system = shutil.which("ffmpeg")
-    if system and system not in found:
-        found.append(system)
-    return found
-
-
-def apply_cube_ffmpeg(exe: str, cube, frame16: np.ndarray, interp: str = "tetrahedral",
-                      *, timeout: float = 600) -> np.ndarray:
-    """``cube`` applied to a uint16 ``HxWx3`` RGB frame by ffmpeg's ``lut3d`` filter (an
-    independent implementation of the format), as float64 on [0, 1].
-
-    ``interp`` is ffmpeg's: ``nearest``, ``trilinear`` or ``tetrahedral``.  Raises
-    :class:`subprocess.CalledProcessError` when ffmpeg fails.
-    """
-    import subprocess
-
-    cube = Path(cube)
-    h, w, _ = frame16.shape
-    cmd = [exe, "-hide_banner", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
-           "rgb48le", "-s", f"{w}x{h}", "-i", "-", "-vf",
-           f"lut3d=file={cube.name}:interp={interp}", "-f", "rawvideo", "-pix_fmt",
-           "rgb48le", "-"]
-    res = subprocess.run(cmd, input=frame16.astype("<u2").tobytes(), capture_output=True,
-                         cwd=cube.parent, check=True, timeout=timeout)
-    return np.frombuffer(res.stdout, "<u2").reshape(h, w, 3) / 65535.0
-

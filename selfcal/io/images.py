@@ -306,7 +306,7 @@ def _hidden_temp_names(text: str, folder: Path, target: Path) -> str:
     return re.sub(re.escape(str(folder)) + r"/\.[^\s:'\"()]+", str(target), text)
 
 
-def _first_blocker(folder: Path):
+def first_blocker(folder: Path):
     """Walk up from ``folder`` to the first path that exists: ``(existing, missing)``,
     where ``missing`` are the folders below it to be created (deepest last)."""
     missing = []
@@ -342,7 +342,7 @@ def check_output_path(path, *, force: bool = False, inputs=(), create_folder: bo
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
     folder = path.parent
-    existing, missing = _first_blocker(folder)
+    existing, missing = first_blocker(folder)
     if not existing.is_dir():
         raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
                                "folder)")
@@ -406,7 +406,7 @@ def atomic_output(path, *, force: bool = False, inputs=()):
             raise OutputExistsError(f"{path}: refusing to write over an input file")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
-    existing, _ = _first_blocker(path.parent)
+    existing, _ = first_blocker(path.parent)
     if not existing.is_dir():
         raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
                                "folder)")
@@ -472,7 +472,7 @@ class StagedOutputs:
 
     def _stage(self, target: Path) -> Path:
         check_output_path(target, force=self.force, inputs=self.inputs, create_folder=True)
-        _, missing = _first_blocker(target.parent)
+        _, missing = first_blocker(target.parent)
         try:
             for folder in missing:
                 folder.mkdir()
