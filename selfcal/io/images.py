@@ -448,9 +448,13 @@ class StagedOutputs:
 
     Examples
     --------
-    >>> with StagedOutputs(force=False) as out:                 # doctest: +SKIP
-    ...     out.write("model.json", lambda tmp: model.save(tmp, force=True))
-    ...     out.write("plot.png", lambda tmp: plot_response(model, tmp, force=True))
+    >>> import pathlib, tempfile
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> with StagedOutputs(force=False) as out:
+    ...     _ = out.write(folder / "model.json", lambda tmp: pathlib.Path(tmp).write_text("{}"))
+    ...     _ = out.write(folder / "notes.txt", lambda tmp: pathlib.Path(tmp).write_text("ok"))
+    >>> sorted(p.name for p in folder.iterdir())
+    ['model.json', 'notes.txt']
     """
 
     def __init__(self, *, force: bool = False, inputs=()):

@@ -308,9 +308,15 @@ def read_raw_linear(path, *, half_size: bool = False) -> RawImage:
 
     Examples
     --------
-    >>> raw = read_raw_linear("IMG_0001.CR2", half_size=True)    # doctest: +SKIP
-    >>> raw.rgb.dtype, float(raw.rgb.max()) <= 1.0                # doctest: +SKIP
-    (dtype('float32'), True)
+    A raw converter's 16-bit linear TIFF (a camera raw file reads the same way):
+
+    >>> import pathlib, tempfile
+    >>> import numpy as np, tifffile
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "linear.tiff"
+    >>> tifffile.imwrite(path, np.full((4, 6, 3), 32768, np.uint16))
+    >>> raw = read_raw_linear(path)
+    >>> raw.rgb.dtype, raw.rgb.shape, round(float(raw.rgb.max()), 3)
+    (dtype('float32'), (4, 6, 3), 0.5)
     """
     path = Path(path)
     if not path.exists():
