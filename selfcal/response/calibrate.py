@@ -25,6 +25,7 @@ from ..stack.frames import (
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import collect_samples, frame_masks
+from .bands import band_for_fit
 from .delta import delta_eq12
 from .solver import DEFAULT_SATURATION_THRESHOLD, solve_exposure_equations
 from .verdict import CONTRADICTED_UNUSABLE_SHARE as CONTRADICTED_MAJORITY
@@ -236,6 +237,8 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                       n_components=n_components, clip_margin=clip_margin,
                       refine_exposures=refine_exposures, contradictions=contradictions,
                       used_sources=used_sources, sub_times=sub_times)
+    log_sigma = band_for_fit(sub, sub_masks, basis, result, log_times, fit, warnings,
+                             n_components=n_components, seed=seed)   # bands.py
 
     full_exposures = np.full(len(frames), np.nan)
     full_exposures[keep] = np.exp(result.log_exposures)
@@ -252,7 +255,7 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                           coefficients=result.coefficients, basis_name=basis.name,
                           exposures=full_exposures, exposure_times=list(times),
                           sources=sources, max_code=samples.max_code,
-                          diagnostics=diagnostics)
+                          diagnostics=diagnostics, inverse_log_sigma=log_sigma)
     model.fit_data = _btf_data(sub, sub_masks, result, used_sources)
     return model
 
