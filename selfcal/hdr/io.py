@@ -315,7 +315,7 @@ def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bo
 
     ``.exr``: one single-part scan-line file with the channels ``R, G, B`` and a
     ``sigma`` layer, ``sigma.R, sigma.G, sigma.B`` (OpenEXR's layer naming, which OpenEXR's
-    own tools and OpenImageIO read), written with the OpenEXR Python bindings.  Other
+    own tools and OpenImageIO read, [OpenEXR]_), written with the OpenEXR Python bindings.  Other
     suffixes: the radiance as :func:`write_radiance` writes it, and σ as a float TIFF
     beside it (:func:`sigma_path`).  σ may hold +inf (pixels no frame measured,
     :attr:`selfcal.hdr.HDRResult.sigma`); a half-float output scaled into range

@@ -11,7 +11,7 @@ Two estimates, measured against each other on the tuning split
 (``bench/bench_uncertainty.py --split tuning``):
 
 ``"bootstrap"``
-    A one-step bootstrap over sample locations: the weighted normal equations of the
+    A one-step bootstrap [Efron1993]_ over sample locations: the weighted normal equations of the
     final robust fit are re-formed with each location's rows counted by a multinomial
     draw (a location enters up to 3·(F−1) correlated rows — channels and frame pairs —
     so locations, not rows, are the independent units), and solved again, curves and
@@ -276,7 +276,7 @@ def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
     known = np.isfinite(np.asarray(log_times, dtype=float))
     log_sigma = curve_band(samples, masks, basis, result.coefficients, result.log_exposures,
                            known, n_components=n_components,
-                           settings=BandSettings(seed=seed))
+                           settings=BandSettings(method=DEFAULT_BAND_METHOD, seed=seed))
     judge_band(fit, log_sigma, samples.max_code, warnings)
     return log_sigma
 
