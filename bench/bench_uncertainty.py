@@ -18,7 +18,8 @@ bootstrap) beside the default covariance: the measurement the default was chosen
 **sim** -- the hard synthetic stacks of ``bench_hdr_synthetic.py`` (one DoRF curve per
 stack, saturated 14-stop scene, six frames, ±3 % jitter, JPEG 85/90/95; held-out: odd
 curves, seed 1000 + i; tuning: even curves, seed i; ``--step`` as there), calibrated and
-merged by selfcal with ``MergeOptions(sigma=True)``.  Per stack, over the scored channels
+merged by selfcal with ``MergeOptions(sigma=True)``; κ is the noise scale the merge
+measured on the stack (``selfcal.hdr.sigma``).  Per stack, over the scored channels
 of ``truth_masks`` that the merge measured: the median of ``|E − E_true| / σ`` (0.674
 for a perfect Gaussian σ), absolute (no rescaling: the merge's units are the truth's,
 f⁻¹(255) = 1) and after the bench's global scale; and the median relative σ and error.
@@ -182,15 +183,16 @@ def sim_task(task):
     return {"index": index, "abs": float(np.median(np.abs(E - T) / S)),
             "scaled": float(np.median(np.abs(s * E - T) / (s * S))),
             "rel_sigma": float(np.median(S / E)), "rel_err": float(np.median(np.abs(E - T) / T)),
+            "kappa": r.diagnostics["sigma_noise_scale"],
             "same": bool(np.array_equal(plain.radiance, r.radiance))}
 
 
 def sim_report(results) -> list:
     rows = [[r["index"], f"{r['abs']:.3f}", f"{r['scaled']:.3f}", f"{r['rel_sigma']:.4f}",
-             f"{r['rel_err']:.4f}"] for r in results]
+             f"{r['rel_err']:.4f}", f"{r['kappa']:.2f}"] for r in results]
     med = np.median([r["abs"] for r in results])
     return [table(["DoRF curve", "median |E − E_true|/σ", "after global scale",
-                   "median σ/E", "median |E − E_true|/E_true"], rows),
+                   "median σ/E", "median |E − E_true|/E_true", "κ"], rows),
             "", f"- median over stacks of median |E − E_true|/σ: {med:.3f} (target 0.6-0.8: "
             f"{'met' if 0.6 <= med <= 0.8 else 'NOT met'}); radiance unchanged by σ: "
             f"{all(r['same'] for r in results)}"]
@@ -232,21 +234,23 @@ def real_task(task):
         g = np.exp(-s)
         z = (a[ok] * g - b[ok]) / np.sqrt((sa[ok] * g) ** 2 + sb[ok] ** 2)
         out[label] = float(np.median(np.abs(z)))
+        out["kappa"] = [r.diagnostics["sigma_noise_scale"] for r in res]
         out["pixels"] = float(keep.mean())
     return out
 
 
 def real_report(results, tuning) -> list:
     rows = [[r["name"], "tuning" if r["name"] in tuning else "held out", r["size"],
-             f"{100 * r['pixels']:.0f} %", f"{r['noise']:.3f}", f"{r['full']:.3f}"]
+             f"{100 * r['pixels']:.0f} %", f"{r['noise']:.3f}", f"{r['full']:.3f}",
+             " / ".join(f"{k:.2f}" for k in r["kappa"])]
             for r in results]
     held = [r["noise"] for r in results if r["name"] not in tuning]
     if not held:
         return [table(["stack", "split", "size", "scored pixels", "median |z| noise",
-                       "median |z| full"], rows)]
+                       "median |z| full", "κ odd / even"], rows)]
     ok = all(0.55 <= v <= 0.85 for v in held)
     return [table(["stack", "split", "size", "scored pixels", "median |z| noise",
-                   "median |z| full"], rows), "",
+                   "median |z| full", "κ odd / even"], rows), "",
             f"- held-out median |z| (noise σ) in 0.55-0.85 on every stack: "
             f"{'met' if ok else 'NOT met'} ({', '.join(f'{v:.2f}' for v in held)})"]
 

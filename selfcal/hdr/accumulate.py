@@ -194,6 +194,8 @@ class MergeSums:
         """
         hh, ww = self.num.shape[:2]
         unmeasured = np.zeros((hh, ww), dtype=bool)
+        if self.sigma is not None:
+            self.sigma.calibrate_noise()
 
         def strip(s):
             ns, ds = self.num[s], self.den[s]
@@ -279,6 +281,8 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             if (k in (sums.darkest, sums.brightest)
                     or (k == ref and (deghost or transforms is not None))):
                 sums.kept[k] = (img, cover)
+            if sums.sigma is not None:
+                sums.sigma.keep_sample(img, cover, tab)
             own_white = tab.white(img)
             if kernel is not None and cv2.countNonZero(own_white):
                 # (the default border of cv2.dilate is +inf: it would widen the edges)

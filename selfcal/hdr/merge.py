@@ -355,7 +355,13 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
-                     sigma=None if sums.sigma is None else sums.sigma.result())
+                     sigma=None if sums.sigma is None else _sigma_result(sums, diagnostics))
+
+
+def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
+    """:attr:`HDRResult.sigma`, with the noise scale κ it used in the diagnostics."""
+    diagnostics["sigma_noise_scale"] = round(sums.sigma.kappa, 4)
+    return sums.sigma.result()
 
 
 def _reference_frame(exposures, reference, n: int) -> int:

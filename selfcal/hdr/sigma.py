@@ -22,7 +22,17 @@ Together::
     Var E = Σ_j w_j² (V_j + X_j² σ_t²) / (Σ_j w_j)²  +  (Σ_j w_j X_j σ_g(I_j) / Σ_j w_j)²
 
 Each frame contributes through two tables on its codes (like the merge's own), so the σ
-costs two lookups and two additions per frame and two float32 sums.  Pixels no frame
+costs two lookups and two additions per frame and two float32 sums.
+
+The noise model's constants are fixed, but cameras are not: one JPEG engine smooths its
+noise away, another sharpens it.  So the independent part (noise and exposures) is scaled
+by κ, measured on the stack itself (:meth:`SigmaSums.keep_sample`): on every 4th pixel of
+every 4th row, for each pair of frames merged one after the other (neighbours in
+exposure), ``z = (g X_a − X_b) / √(g² U_a + U_b)`` with ``U = V + X² σ_t²`` and ``g`` the
+pair's median ratio, where both frames measure the pixel; κ = median |z| / 0.6745 (1 for a
+noise model that is right), clamped to [1/4, 4], 1 with fewer than
+:data:`MIN_NOISE_SAMPLES` values.  The merge's diagnostics hold it
+(``sigma_noise_scale``).  Pixels no frame
 measured (the merge's fill) get σ = +inf: their values are bounds.  A model without a
 band (a version 1 model file, a pipeline model, linear frames) contributes no curve term;
 the merge's diagnostics say so.
@@ -38,6 +48,13 @@ from ..stack.frames import apply_lut
 from .weights import noise_variance
 
 __all__ = ["SigmaSums"]
+
+#: Every SAMPLE_STRIDE-th pixel of every SAMPLE_STRIDE-th row measures κ.
+SAMPLE_STRIDE = 4
+#: Fewer (pixel, channel) values than this leave κ at 1.
+MIN_NOISE_SAMPLES = 2000
+#: At most this many |z| are kept per pair of frames.
+_MAX_PER_PAIR = 200_000
 
 
 def _exposure_log_sigma() -> float:
@@ -66,6 +83,9 @@ class SigmaSums:
         self.sigma_t = (_exposure_log_sigma() if exposure_log_sigma is None
                         else float(exposure_log_sigma))
         self.has_band = getattr(model, "inverse_log_sigma", None) is not None
+        self.previous = None            # the last frame's sampled (X, U), NaN where unmeasured
+        self.z = []                     # |z| of the pairs so far
+        self.kappa = 1.0
 
     def _band_at(self, max_code: int) -> np.ndarray:
         """σ_g at every code (K, 3), zero without a band."""
@@ -86,8 +106,35 @@ class SigmaSums:
         v = noise_variance(x, lin.slope, tab.e, noise, code_std=lin.code_std())
         w = tab.w_table.astype(np.float64)
         X = x / tab.e
-        tab.sv_table = (w * w * (v + (X * self.sigma_t) ** 2)).astype(np.float32)
+        u = v + (X * self.sigma_t) ** 2
+        tab.su_table = u.astype(np.float32)
+        tab.sv_table = (w * w * u).astype(np.float32)
         tab.sc_table = (w * X * self._band_at(lin.max_code)).astype(np.float32)
+
+    def keep_sample(self, img, cover, tab) -> None:
+        """Sample a frame (after its warp) and pair it with the previous one (see the
+        module docstring: the noise scale κ)."""
+        if not tab.lut:
+            return
+        st = SAMPLE_STRIDE
+        codes = np.ascontiguousarray(img[::st, ::st])
+        ok = tab.valid(codes) > 0
+        if cover is not None:
+            ok &= cover[::st, ::st] == 0
+        X = apply_lut(codes, tab.x_table)
+        U = apply_lut(codes, tab.su_table)
+        X[~ok] = np.nan
+        if self.previous is not None:
+            self.z.append(_pair_z(self.previous, (X, U)))
+        self.previous = (X, U)
+
+    def calibrate_noise(self) -> float:
+        """κ from the pairs seen (module docstring); sets and returns it."""
+        z = np.concatenate(self.z) if self.z else np.zeros(0)
+        self.previous, self.z = None, []
+        if z.size >= MIN_NOISE_SAMPLES:
+            self.kappa = float(np.clip(np.median(z) / 0.6745, 0.25, 4.0))
+        return self.kappa
 
     def add(self, s: slice, codes, tab, valid=None) -> None:
         """One strip of one frame: ``codes`` already masked as the merge masked them (table
@@ -109,7 +156,7 @@ class SigmaSums:
         v, c = self.var[s], self.cur[s]
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.float32(1.0) / den_strip
-            np.multiply(v, inv * inv, out=v)
+            np.multiply(v, inv * inv * np.float32(self.kappa ** 2), out=v)
             np.multiply(c, inv, out=c)
             np.multiply(c, c, out=c)
             np.add(v, c, out=v)
@@ -120,3 +167,16 @@ class SigmaSums:
         """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished."""
         self.cur = None
         return self.var
+
+
+def _pair_z(a, b) -> np.ndarray:
+    """|z| of two frames' sampled (X, U) where both measured (module docstring)."""
+    Xa, Ua = a
+    Xb, Ub = b
+    both = np.isfinite(Xa) & np.isfinite(Xb) & (Xa > 0) & (Xb > 0)
+    if np.count_nonzero(both) < 10:
+        return np.zeros(0)
+    xa, xb = Xa[both].astype(np.float64), Xb[both].astype(np.float64)
+    g = float(np.median(xb / xa))
+    z = np.abs(g * xa - xb) / np.sqrt(g * g * Ua[both] + Ub[both])
+    return z[::max(1, z.size // _MAX_PER_PAIR)]
