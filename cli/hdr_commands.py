@@ -23,8 +23,7 @@ def cmd_merge(args) -> int:
 
     import selfcal
     from selfcal.hdr import MergeOptions, merge_hdr
-    from selfcal.hdr.io import (RADIANCE_SUFFIXES, sigma_path, write_preview, write_radiance,
-                                write_radiance_sigma, write_sigma_tiff)
+    from selfcal.hdr.io import RADIANCE_SUFFIXES, sigma_path, write_preview
     from selfcal.io import StagedOutputs
 
     images = [Path(p) for p in args.images]
@@ -65,15 +64,7 @@ def cmd_merge(args) -> int:
                     {"verdict": result.diagnostics.get("model_verdict")},
                     args.force, "the response calibrated on the fly")
     with StagedOutputs(force=args.force, inputs=inputs) as staged:
-        if args.sigma and sig_out is None:           # EXR: a sigma layer
-            written = staged.write(out, lambda tmp: write_radiance_sigma(
-                tmp, result.radiance, result.sigma, force=True, half=args.half)[0])
-        else:
-            written = staged.write(out, lambda tmp: write_radiance(
-                tmp, result.radiance, force=True, half=args.half))
-        if sig_out is not None:                        # TIFF (or RGBE): OUT.sigma.tiff
-            staged.write(sig_out, lambda tmp: write_sigma_tiff(
-                tmp, result.sigma, scale=written.scale, half=args.half, force=True))
+        written = _stage_radiance(staged, result, out, sig_out, args)
         if args.preview:
             staged.write(args.preview, lambda tmp: write_preview(
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
@@ -121,22 +112,20 @@ def cmd_merge(args) -> int:
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
     for w in result.warnings:
         warn(w)
+    _say_written(result, written, out, sig_out, args)
+    return EXIT_OK
+
+
+def _say_written(result, written, out, sig_out, args) -> None:
+    """The summary's last lines: the files written (and the σ with ``--sigma``)."""
     say(f"wrote {out}" + ("" if written.scale == 1 else
                           f" (half floats scaled into range: stored values x {written.scale:g}"
                           " = radiance; the factor is recorded in the file as"
                           " selfcalRadianceScale)"))
     if args.sigma:
-        rel = result.sigma[measured] / np.maximum(rad[measured], 1e-30)
-        rel = rel[np.isfinite(rel)]
-        say(f"sigma: median {100 * float(np.median(rel)) if rel.size else float('nan'):.2g}% "
-            "of the radiance (noise, exposures"
-            + (", curve band" if result.diagnostics.get("sigma_curve_band") else
-               "; the model has no curve band") + "); +inf where unmeasured; "
-            + (f"wrote {sig_out}" if sig_out is not None else
-               f"in the {out.name}'s sigma layer (sigma.R, sigma.G, sigma.B)"))
+        _say_sigma(result, out, sig_out)
     if args.preview:
         say(f"wrote {args.preview}")
-    return EXIT_OK
 
 
 # ------------------------------------------------------------------------- linearize
@@ -181,6 +170,38 @@ def cmd_linearize(args) -> int:
 
 
 # ------------------------------------------------------------------------- parser
+
+def _stage_radiance(staged, result, out, sig_out, args):
+    """Stage the radiance file (with its sigma layer for an EXR with ``--sigma``) and, for
+    other formats with ``--sigma``, ``OUT.sigma.tiff``; returns the RadianceFile."""
+    from selfcal.hdr.io import write_radiance, write_radiance_sigma, write_sigma_tiff
+
+    if args.sigma and sig_out is None:           # EXR: a sigma layer
+        written = staged.write(out, lambda tmp: write_radiance_sigma(
+            tmp, result.radiance, result.sigma, force=True, half=args.half)[0])
+    else:
+        written = staged.write(out, lambda tmp: write_radiance(
+            tmp, result.radiance, force=True, half=args.half))
+    if sig_out is not None:                        # TIFF (or RGBE): OUT.sigma.tiff
+        staged.write(sig_out, lambda tmp: write_sigma_tiff(
+            tmp, result.sigma, scale=written.scale, half=args.half, force=True))
+    return written
+
+
+def _say_sigma(result, out, sig_out) -> None:
+    """The summary line of ``--sigma``."""
+    import numpy as np
+
+    measured = ~result.unmeasured
+    rel = result.sigma[measured] / np.maximum(result.radiance[measured], 1e-30)
+    rel = rel[np.isfinite(rel)]
+    say(f"sigma: median {100 * float(np.median(rel)) if rel.size else float('nan'):.2g}% "
+        "of the radiance (noise, exposures"
+        + (", curve band" if result.diagnostics.get("sigma_curve_band") else
+           "; the model has no curve band") + "); +inf where unmeasured; "
+        + (f"wrote {sig_out}" if sig_out is not None else
+           f"in {out.name}'s sigma layer (sigma.R, sigma.G, sigma.B)"))
+
 
 def register(subparsers) -> None:
     """Add the ``merge`` and ``linearize`` commands to the main parser's subparsers."""

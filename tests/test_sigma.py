@@ -97,3 +97,8 @@ def test_cli_merge_sigma_writes_a_tiff_beside_a_tiff(stack, tmp_path):
     sig = read_sigma(out)
     assert (tmp_path / "out.sigma.tiff").is_file()
     assert sig.shape == read_radiance(out).shape
+
+
+def test_noise_scale_is_measured_and_recorded(merged):
+    kappa = merged.diagnostics["sigma_noise_scale"]
+    assert 0.25 <= kappa <= 4.0
