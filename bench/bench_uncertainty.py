@@ -1,6 +1,8 @@
 """How sure: the calibration of the curve bands and of the radiance σ.
 
-Three parts, each printed as a table (``--parts bands,sim,real``; default all):
+Four parts, each printed as a table (``--parts bands,sim,real,cost``; default the first
+three; ``cost``: what the band adds to a calibration and ``sigma=True`` to a merge, best of
+three runs, see :func:`cost_report`):
 
 **bands** -- the condition matrix of ``bench_response_matrix.py``
 (``selfcal.sim.conditions.CONDITIONS``, the same cells, curves and seeds: held-out =
@@ -34,7 +36,7 @@ cancels in the difference) -- the σ this test can check; "|z| full": with it.  
 memorial and the first scene of each camera (as ``bench_hdr_oddeven.py``); the rest are
 held out.
 
-    python bench/bench_uncertainty.py [--split heldout|tuning] [--parts bands,sim,real]
+    python bench/bench_uncertainty.py [--split heldout|tuning] [--parts bands,sim,real,cost]
         [--curves 1] [--step 20] [--size 192x288] [--reduce 1] [--compare] [--jobs 2]
 """
 
@@ -255,6 +257,51 @@ def real_report(results, tuning) -> list:
             f"{'met' if ok else 'NOT met'} ({', '.join(f'{v:.2f}' for v in held)})"]
 
 
+# --------------------------------------------------------------------------------------
+# what the band and the σ cost
+# --------------------------------------------------------------------------------------
+
+def cost_report(repeats: int = 3) -> list:
+    """Best-of-``repeats`` seconds: a calibration of ``sim.demo_stack()`` with its band and
+    with the band replaced by zeros; a merge of a 6-frame 1536×2304 synthetic stack (arrays,
+    model given) without and with ``sigma=True``; the σ's share of the merge's peak memory
+    is two float32 HxWx3 sums (said, not measured)."""
+    import selfcal
+    from selfcal import sim
+    from selfcal.hdr import MergeOptions
+    from selfcal.response import bands
+
+    def best(call):
+        out = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            call()
+            out.append(time.perf_counter() - t0)
+        return min(out)
+
+    demo = sim.demo_stack(0)
+    times = list(demo.exposure_times)
+    with_band = best(lambda: selfcal.calibrate_response(demo.images, times))
+    real = bands.curve_band
+    bands.curve_band = lambda *a, **k: np.zeros((a[2].intensity.size, 3))
+    try:
+        without = best(lambda: selfcal.calibrate_response(demo.images, times))
+    finally:
+        bands.curve_band = real
+    pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.srgb(), seed=1)
+    scene = sim.make_scene(1536, 2304, saturation=0.5, seed=1)
+    big = sim.simulate_stack(scene, pipe, times, jitter=0.03, jpeg_quality=90, seed=1)
+    model = selfcal.calibrate_response(big.images, times)
+    plain = best(lambda: selfcal.merge_hdr(big.images, times, model))
+    sig = best(lambda: selfcal.merge_hdr(big.images, times, model,
+                                         options=MergeOptions(sigma=True)))
+    return [table(["what", "without", "with", "cost"], [
+        ["calibrate_response, demo stack 256×384 × 6, band (covariance)",
+         f"{without:.3f} s", f"{with_band:.3f} s", f"{100 * (with_band / without - 1):+.0f} %"],
+        ["merge_hdr, 1536×2304 × 6 arrays, sigma=True",
+         f"{plain:.3f} s", f"{sig:.3f} s", f"{100 * (sig / plain - 1):+.0f} %"]])]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--split", choices=("heldout", "tuning"), default="heldout")
@@ -303,6 +350,10 @@ def main(argv=None):
             print(f"## Radiance σ on real odd/even halves (JPEGs decoded at 1/{args.reduce}; "
                   "ntu at 1/4 at least)\n")
             print("\n".join(real_report(results, TUNING)) + "\n")
+    if "cost" in parts:
+        _init_worker()
+        print(f"## What the band and the σ cost (best of 3, one process, one thread)\n")
+        print("\n".join(cost_report()) + "\n")
     print(f"wall {time.perf_counter() - t0:.0f} s with {args.jobs} jobs")
 
 

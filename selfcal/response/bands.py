@@ -36,7 +36,7 @@ import numpy as np
 from scipy.stats import norm
 
 from ..errors import InputError
-from .equations import _interpolation_matrix, _NormalEquations, build_pair_rows
+from .equations import _NormalEquations, build_pair_rows
 from .priors import ExposurePrior, PriorTerms, pca_variance_precision, white_continuation_terms
 
 #: Band estimate used at calibration (chosen on the tuning split, see the module docstring).
@@ -167,9 +167,9 @@ def _row_weights(normal, rows, basis, coefficients, x) -> np.ndarray:
     dg = np.gradient(g_grid, grid, axis=1)
     m = rows.pa.size
     var = np.empty(3 * m)
-    for c in range(3):
-        sa = _interpolation_matrix(grid, rows.Ia[:, c]) @ dg[c]
-        sb = _interpolation_matrix(grid, rows.Ib[:, c]) @ dg[c]
+    for c in range(3):          # np.interp: the solver's interpolation matrices, applied
+        sa = np.interp(rows.Ia[:, c], grid, dg[c])
+        sb = np.interp(rows.Ib[:, c], grid, dg[c])
         var[c * m:(c + 1) * m] = _CODE_NOISE ** 2 * (sa ** 2 + sb ** 2)
     var = np.maximum(var, 0.05 * np.median(var))
     u = normal.residual(x) / np.sqrt(var)
