@@ -23,7 +23,7 @@ def cmd_merge(args) -> int:
 
     import selfcal
     from selfcal.hdr import MergeOptions, merge_hdr
-    from selfcal.hdr.io import RADIANCE_SUFFIXES, write_preview, write_radiance
+    from selfcal.hdr.io import RADIANCE_SUFFIXES, sigma_path, write_preview
     from selfcal.io import StagedOutputs
 
     images = [Path(p) for p in args.images]
@@ -37,7 +37,8 @@ def cmd_merge(args) -> int:
         raise selfcal.InputError(f"--times gives {len(args.times)} values for "
                                  f"{len(images)} images")
     inputs = images + ([Path(args.model)] if args.model else [])
-    check_outputs([out, args.preview], inputs, args.force)
+    sig_out = (sigma_path(out) if args.sigma and out.suffix.lower() != ".exr" else None)
+    check_outputs([out, args.preview, sig_out], inputs, args.force)
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
@@ -54,7 +55,8 @@ def cmd_merge(args) -> int:
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost, linear=args.linear,
                        options=MergeOptions(reference=args.reference,
-                                            linear_exposures=args.linear_exposures),
+                                            linear_exposures=args.linear_exposures,
+                                            sigma=args.sigma),
                        progress=progress_bar("merge"))
     args.linear = args.linear or "linear_evidence" in result.diagnostics
     if model is None and not args.linear:
@@ -62,8 +64,7 @@ def cmd_merge(args) -> int:
                     {"verdict": result.diagnostics.get("model_verdict")},
                     args.force, "the response calibrated on the fly")
     with StagedOutputs(force=args.force, inputs=inputs) as staged:
-        written = staged.write(out, lambda tmp: write_radiance(
-            tmp, result.radiance, force=True, half=args.half))
+        written = _stage_radiance(staged, result, out, sig_out, args)
         if args.preview:
             staged.write(args.preview, lambda tmp: write_preview(
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
@@ -111,13 +112,20 @@ def cmd_merge(args) -> int:
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
     for w in result.warnings:
         warn(w)
+    _say_written(result, written, out, sig_out, args)
+    return EXIT_OK
+
+
+def _say_written(result, written, out, sig_out, args) -> None:
+    """The summary's last lines: the files written (and the σ with ``--sigma``)."""
     say(f"wrote {out}" + ("" if written.scale == 1 else
                           f" (half floats scaled into range: stored values x {written.scale:g}"
                           " = radiance; the factor is recorded in the file as"
                           " selfcalRadianceScale)"))
+    if args.sigma:
+        _say_sigma(result, out, sig_out)
     if args.preview:
         say(f"wrote {args.preview}")
-    return EXIT_OK
 
 
 # ------------------------------------------------------------------------- linearize
@@ -163,6 +171,38 @@ def cmd_linearize(args) -> int:
 
 # ------------------------------------------------------------------------- parser
 
+def _stage_radiance(staged, result, out, sig_out, args):
+    """Stage the radiance file (with its sigma layer for an EXR with ``--sigma``) and, for
+    other formats with ``--sigma``, ``OUT.sigma.tiff``; returns the RadianceFile."""
+    from selfcal.hdr.io import write_radiance, write_radiance_sigma, write_sigma_tiff
+
+    if args.sigma and sig_out is None:           # EXR: a sigma layer
+        written = staged.write(out, lambda tmp: write_radiance_sigma(
+            tmp, result.radiance, result.sigma, force=True, half=args.half)[0])
+    else:
+        written = staged.write(out, lambda tmp: write_radiance(
+            tmp, result.radiance, force=True, half=args.half))
+    if sig_out is not None:                        # TIFF (or RGBE): OUT.sigma.tiff
+        staged.write(sig_out, lambda tmp: write_sigma_tiff(
+            tmp, result.sigma, scale=written.scale, half=args.half, force=True))
+    return written
+
+
+def _say_sigma(result, out, sig_out) -> None:
+    """The summary line of ``--sigma``."""
+    import numpy as np
+
+    measured = ~result.unmeasured
+    rel = result.sigma[measured] / np.maximum(result.radiance[measured], 1e-30)
+    rel = rel[np.isfinite(rel)]
+    say(f"sigma: median {100 * float(np.median(rel)) if rel.size else float('nan'):.2g}% "
+        "of the radiance (noise, exposures"
+        + (", curve band" if result.diagnostics.get("sigma_curve_band") else
+           "; the model has no curve band") + "); +inf where unmeasured; "
+        + (f"wrote {sig_out}" if sig_out is not None else
+           f"in {out.name}'s sigma layer (sigma.R, sigma.G, sigma.B)"))
+
+
 def register(subparsers) -> None:
     """Add the ``merge`` and ``linearize`` commands to the main parser's subparsers."""
     p = subparsers.add_parser(
@@ -203,6 +243,11 @@ def register(subparsers) -> None:
                    help="16-bit half floats (EXR, TIFF); values beyond half range are "
                         "stored divided by a power of two, recorded in the file "
                         "(selfcalRadianceScale) and said in the summary")
+    p.add_argument("--sigma", action="store_true",
+                   help="also write each value's standard deviation (noise model, exposure "
+                        "uncertainty, the curve's confidence band): a 'sigma' layer of the "
+                        "EXR (sigma.R, sigma.G, sigma.B), or OUT.sigma.tiff beside a TIFF "
+                        "or RGBE output; +inf where no frame measured the pixel")
     p.add_argument("--preview", metavar="PREVIEW.jpg",
                    help="also write a tone-mapped preview (Reinhard global operator)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")

@@ -113,6 +113,8 @@ class MergeSums:
         self.residuals: list[dict] = []           # neighbour pairs: misalignment test
         self.cv2 = import_cv2()
         self._local = threading.local()
+        #: the radiance's σ in the making (:class:`.sigma.SigmaSums`), or None
+        self.sigma = None
 
     def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
         """One strip of one frame into the sums (strips are disjoint: threads may share).
@@ -169,6 +171,8 @@ class MergeSums:
             a, w, _, _ = tab.evaluate(codes, need_x=False)
             cv2.add(num[s], a, dst=num[s], mask=valid)
             cv2.add(den[s], w, dst=den[s], mask=valid)
+        if self.sigma is not None:
+            self.sigma.add(s, codes, tab, valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
         return n_valid, excluded
 
@@ -190,10 +194,14 @@ class MergeSums:
         """
         hh, ww = self.num.shape[:2]
         unmeasured = np.zeros((hh, ww), dtype=bool)
+        if self.sigma is not None:
+            self.sigma.calibrate_noise()
 
         def strip(s):
             ns, ds = self.num[s], self.den[s]
             hole = ds <= 0
+            if self.sigma is not None:
+                self.sigma.finish_strip(s, ds)
             # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
             # masked division is several times slower
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -260,6 +268,8 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
             sums.tables[k] = tab
+            if sums.sigma is not None:
+                sums.sigma.prepare(tab)
             cover = None
             if (transforms is not None and k != ref
                     and not _negligible(transforms[k], frames.shape)):
@@ -271,6 +281,8 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             if (k in (sums.darkest, sums.brightest)
                     or (k == ref and (deghost or transforms is not None))):
                 sums.kept[k] = (img, cover)
+            if sums.sigma is not None:
+                sums.sigma.keep_sample(img, cover, tab)
             own_white = tab.white(img)
             if kernel is not None and cv2.countNonZero(own_white):
                 # (the default border of cv2.dilate is +inf: it would widen the edges)

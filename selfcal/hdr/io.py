@@ -45,7 +45,11 @@ __all__ = [
     "half_scale",
     "EXR_COMPRESSIONS",
     "write_radiance",
+    "write_radiance_sigma",
     "read_radiance",
+    "read_sigma",
+    "write_sigma_tiff",
+    "sigma_path",
     "tonemap_reinhard",
     "write_preview",
     "write_linear",
@@ -292,6 +296,112 @@ def _recorded_scale(path: Path) -> float:
     if not (math.isfinite(value) and value > 0):
         raise InputError(f"invalid {SCALE_ATTRIBUTE} {value!r}", path)
     return value
+
+
+#: Name of the layer of the EXR channels that hold the radiance's σ (``sigma.R`` …), and
+#: the suffix of the TIFF beside a TIFF (or RGBE) output that holds it.
+SIGMA_LAYER = "sigma"
+
+
+def sigma_path(path) -> Path:
+    """Where :func:`write_radiance_sigma` puts σ for a non-EXR output: ``OUT.sigma.tiff``."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.{SIGMA_LAYER}.tiff")
+
+
+def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bool = False,
+                         inputs=(), compression: str = "piz"):
+    """Write a radiance map with its standard deviation, atomically.
+
+    ``.exr``: one single-part scan-line file with the channels ``R, G, B`` and a
+    ``sigma`` layer, ``sigma.R, sigma.G, sigma.B`` (OpenEXR's layer naming, which OpenEXR's
+    own tools and OpenImageIO read, [OpenEXR]_), written with the OpenEXR Python bindings.  Other
+    suffixes: the radiance as :func:`write_radiance` writes it, and σ as a float TIFF
+    beside it (:func:`sigma_path`).  σ may hold +inf (pixels no frame measured,
+    :attr:`selfcal.hdr.HDRResult.sigma`); a half-float output scaled into range
+    (:func:`half_scale`) stores σ with the same scale.
+
+    Returns
+    -------
+    (RadianceFile, pathlib.Path)
+        The radiance file and the file holding σ (the same path for EXR).
+    """
+    path = Path(path)
+    arr = _check_radiance(radiance)
+    sig = np.asarray(sigma)
+    if sig.shape != arr.shape or np.any(np.isnan(sig)) or np.any(sig < 0):
+        raise InputError(f"sigma must be shaped like the radiance {arr.shape}, >= 0, "
+                         "without NaN", path)
+    if path.suffix.lower() != ".exr":
+        spath = sigma_path(path)
+        written = write_radiance(path, arr, force=force, half=half, inputs=inputs,
+                                 compression=compression)
+        write_sigma_tiff(spath, sig, scale=written.scale, half=half, force=force,
+                         inputs=inputs)
+        return written, spath
+    try:
+        import OpenEXR
+    except ImportError:     # pragma: no cover - a dependency
+        raise InputError("writing the sigma layer of an EXR needs the OpenEXR Python "
+                         "bindings (pip install OpenEXR)", path) from None
+    modes = {"piz": OpenEXR.PIZ_COMPRESSION, "zip": OpenEXR.ZIP_COMPRESSION,
+             "zips": OpenEXR.ZIPS_COMPRESSION, "rle": OpenEXR.RLE_COMPRESSION,
+             "none": OpenEXR.NO_COMPRESSION}
+    if compression not in modes:
+        raise InputError(f"unknown EXR compression {compression!r} "
+                         f"({', '.join(EXR_COMPRESSIONS)})")
+    scale = half_scale(arr) if half else 1.0
+    kind = np.float16 if half else np.float32
+    channels = {}
+    for name, data in (("", arr), (f"{SIGMA_LAYER}.", sig)):
+        scaled = data.astype(np.float32) / np.float32(scale)
+        for c, letter in enumerate("RGB"):
+            channels[name + letter] = np.ascontiguousarray(scaled[..., c]).astype(kind)
+    header = {"compression": modes[compression], "type": OpenEXR.scanlineimage}
+    if scale != 1.0:
+        header[SCALE_ATTRIBUTE] = float(scale)
+    with atomic_output(path, force=force, inputs=inputs) as tmp:
+        try:
+            with OpenEXR.File(header, channels) as exr:
+                exr.write(str(tmp))
+        except Exception as exc:     # the bindings raise plain exceptions
+            raise OutputWriteError(f"{path}: OpenEXR could not write it ({exc})") from None
+    return RadianceFile(path, scale), path
+
+
+def write_sigma_tiff(path, sigma, *, scale: float = 1.0, half: bool = False,
+                     force: bool = False, inputs=()) -> Path:
+    """σ as a float32 (float16 with ``half``) RGB TIFF, stored divided by ``scale`` (the
+    radiance file's, recorded as :data:`SCALE_ATTRIBUTE` when not 1), atomically."""
+    data = (np.asarray(sigma, dtype=np.float32) / np.float32(scale)).astype(
+        np.float16 if half else np.float32)
+    _write_tiff(Path(path), data, force=force, inputs=inputs,
+                metadata={SCALE_ATTRIBUTE: scale} if scale != 1.0 else None)
+    return Path(path)
+
+
+def read_sigma(path) -> np.ndarray:
+    """The σ that :func:`write_radiance_sigma` wrote for ``path``, float32 ``HxWx3``.
+
+    EXR: the ``sigma`` layer, read with the OpenEXR bindings; other outputs: the TIFF
+    beside them.  Stored values times the recorded scale.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".exr":
+        return read_radiance(sigma_path(path))
+    import OpenEXR
+
+    if not path.is_file():
+        raise InputError("no such file", path)
+    with OpenEXR.File(str(path), separate_channels=True) as exr:
+        chans = exr.channels()
+        names = [f"{SIGMA_LAYER}.{c}" for c in "RGB"]
+        if not all(n in chans for n in names):
+            raise InputError("the EXR has no sigma layer", path)
+        arr = np.stack([np.asarray(chans[n].pixels, dtype=np.float32) for n in names],
+                       axis=-1)
+        scale = float(exr.header().get(SCALE_ATTRIBUTE, 1.0))
+    return arr * np.float32(scale) if scale != 1.0 else arr
 
 
 def read_radiance(path) -> np.ndarray:

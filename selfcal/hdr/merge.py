@@ -99,6 +99,7 @@ from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import _misalignment_warning, _poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
 from .weights import DEFAULT_NOISE, NoiseModel
+from .sigma import SigmaSums
 
 __all__ = ["HDRResult", "MergeOptions", "merge_hdr", "linearize_images"]
 
@@ -137,6 +138,10 @@ class MergeOptions:
         Linear frames' exposures (:func:`.linear_exposures.measure_linear_exposures`).
     calibrate_options : dict, optional
         Keyword arguments for :func:`selfcal.calibrate_response` when it runs on the fly.
+    sigma : bool
+        Also compute the radiance's standard deviation, :attr:`HDRResult.sigma`
+        (:mod:`.sigma`: noise model, exposure uncertainty and the curve's band); two more
+        float32 sums the size of the radiance while merging.  Default False.
     """
 
     reference: int | None = None
@@ -148,6 +153,7 @@ class MergeOptions:
     stuck_codes: dict | bool | None = None
     linear_exposures: str = "auto"
     calibrate_options: dict | None = None
+    sigma: bool = False
 
 
 @dataclass
@@ -187,6 +193,11 @@ class HDRResult:
         ``neighbour_residuals`` (the misalignment test of each neighbour pair).
     model : object
         The response model used (calibrated on the fly when none was given).
+    sigma : numpy.ndarray or None
+        float32 ``HxWx3``, shaped like :attr:`radiance` and in its units: the standard
+        deviation of each value from the noise model, the exposures' uncertainty and the
+        curve's confidence band (:mod:`selfcal.hdr.sigma`); +inf where unmeasured.  None
+        unless ``MergeOptions(sigma=True)``.
     """
 
     radiance: np.ndarray
@@ -201,6 +212,7 @@ class HDRResult:
     frame_count: np.ndarray | None = None
     diagnostics: dict = field(default_factory=dict)
     model: object = field(default=None, repr=False)
+    sigma: np.ndarray | None = field(default=None, repr=False)
 
 
 # --------------------------------------------------------------------------------------
@@ -330,6 +342,9 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                                            linear=linear, warnings=warnings,
                                            diagnostics=diagnostics)
     sums = MergeSums(frames.shape, exposures, ref, used)
+    if opts.sigma:
+        sums.sigma = SigmaSums(frames.shape, model)
+        diagnostics["sigma_curve_band"] = sums.sigma.has_band
     need_x = deghost and len(used) > 1
     weighing = FrameWeighing(weighting, noise, opts.clip_margin, linear, stuck, radius, need_x,
                              opts.deghost_threshold, opts.deghost_tolerance)
@@ -339,7 +354,14 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
-                     frame_count=sums.count, diagnostics=diagnostics, model=model)
+                     frame_count=sums.count, diagnostics=diagnostics, model=model,
+                     sigma=None if sums.sigma is None else _sigma_result(sums, diagnostics))
+
+
+def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
+    """:attr:`HDRResult.sigma`, with the noise scale κ it used in the diagnostics."""
+    diagnostics["sigma_noise_scale"] = round(sums.sigma.kappa, 4)
+    return sums.sigma.result()
 
 
 def _reference_frame(exposures, reference, n: int) -> int:

@@ -1,7 +1,9 @@
 """Versioned JSON model files: the envelope and the JSON helpers both model kinds use.
 
-Every model file is a JSON object ``{"format": "selfcal-model", "version": 1, "kind": ...}``
-plus the fields of its kind.  Loading validates the envelope (:func:`read_model_dict`) and
+Every model file is a JSON object ``{"format": "selfcal-model", "version": 2, "kind": ...}``
+plus the fields of its kind.  Version 2 adds the optional ``inverse_log_sigma`` of a response
+model (its confidence band, :mod:`selfcal.response.bands`); version 1 files still load
+(without a band).  Loading validates the envelope (:func:`read_model_dict`) and
 the content (:func:`check_response_content`, :func:`check_pipeline_content`: every field's
 type, shape and range, so that a model that loads can be used), and raises
 :class:`selfcal.errors.ModelFileError` naming the file and the field on anything wrong.
@@ -21,7 +23,8 @@ from ..errors import ModelFileError
 from .images import write_bytes_atomic
 
 FORMAT = "selfcal-model"
-VERSION = 1
+#: Written; every version from 1 up to it is read.
+VERSION = 2
 
 
 def jsonable(obj):
@@ -295,6 +298,9 @@ def check_response_content(doc: dict, path=None) -> None:
         if np.any(values[np.isfinite(values)] <= 0):
             raise c.error("must hold positive numbers (or null where unknown), one per "
                           "source", key)
+    sigma = c.array("inverse_log_sigma", (3, grid.size), optional=True)   # version 2
+    if sigma is not None and np.any(sigma < 0):
+        raise c.error("holds negative values (a standard deviation)", "inverse_log_sigma")
     diag = c.sub("diagnostics", optional=True)
     if diag is not None:
         _check_response_diagnostics(diag)

@@ -101,6 +101,7 @@ def _describe_response(model) -> dict:
     if "stops_covered" in ev:
         fit.append(("stops covered R G B", " ".join(f"{v:.3g}"
                                                     for v in _floats(ev["stops_covered"]))))
+    fit.append(("90 % band of f⁻¹", _band_line(model)))
     codes = sorted({int(round(f * model.max_code)) for f in TABLE_FRACTIONS})
     inv = model.inverse_response(codes)
     curves = [{"title": "f⁻¹ (relative irradiance, f⁻¹(max) = 1)",
@@ -110,6 +111,19 @@ def _describe_response(model) -> dict:
             "verdict": level, "verdict_reasons": reasons,
             "warnings": [str(w) for w in d.get("warnings") or [] if str(w) not in reasons],
             "curves": curves}
+
+
+def _band_line(model) -> str:
+    """The widest 90 % band over the body of the curve, and where (or why none)."""
+    if getattr(model, "inverse_log_sigma", None) is None:
+        return "none (model file version 1: calibrate again for a band)"
+    from ..response.bands import BODY, widest_band
+
+    wide = widest_band(model.intensity, model.inverse, model.inverse_log_sigma)
+    lo, hi = (round(b * model.max_code) for b in BODY)
+    code = int(round(wide["intensity"] * model.max_code))
+    return (f"widest ±{100 * wide['width']:.1f} % at code {code} of {'RGB'[wide['channel']]}"
+            f" (over codes {lo}..{hi})")
 
 
 def _describe_pipeline(model) -> dict:

@@ -48,7 +48,8 @@ def plot_response(model, path, *, truth=None, force: bool = False):
         True f⁻¹ at codes 0…max_code, shape (max_code+1, 3), drawn dashed.
 
     The verdict (``model.diagnostics["verdict"]``) and its reasons head the figure, in
-    green, orange or red for ok, doubtful and unusable.
+    green, orange or red for ok, doubtful and unusable.  A model with a confidence band
+    (:meth:`selfcal.response.model.ResponseModel.inverse_band`) has its 90 % band shaded.
     """
     import matplotlib
 
@@ -62,9 +63,14 @@ def plot_response(model, path, *, truth=None, force: bool = False):
     top = 0.25 + 0.16 * len(header)          # inches above the axes for the verdict
     fig, axes = plt.subplots(1, ncols, figsize=(5.2 * ncols, 4.4 + top), squeeze=False)
     ax = axes[0, 0]
+    band = (model.inverse_band(0.9) if getattr(model, "inverse_log_sigma", None) is not None
+            else None)
     for c, colour in enumerate(CHANNEL_COLOURS):
         ax.plot(model.intensity, model.inverse[:, c], color=colour, lw=1.6,
                 label=f"{'RGB'[c]} f⁻¹")
+        if band is not None:
+            ax.fill_between(model.intensity, band[0][:, c], band[1][:, c], color=colour,
+                            alpha=0.18, lw=0, label="90 % band" if c == 0 else None)
         if truth is not None:
             codes = np.arange(truth.shape[0]) / (truth.shape[0] - 1)
             ax.plot(codes, truth[:, c], color=colour, lw=1, ls="--", alpha=0.8)

@@ -29,6 +29,7 @@ from ..stack.frames import (
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import SampleSet, collect_samples, frame_masks
+from .bands import band_for_fit
 from .delta import delta_eq12
 from .exposure_times import (
     CONTRADICTION_FACTOR,
@@ -250,6 +251,9 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
         result.log_exposures = anchor_refined(result.log_exposures, usable.log_times)
     fit = _judged_fit(usable, basis, result, warnings, options=options,
                       refine_exposures=refine_exposures, contradictions=contradictions)
+    log_sigma = band_for_fit(usable.samples, usable.masks, basis, result, usable.log_times,
+                             fit, warnings, n_components=options.n_components,
+                             seed=call.seed)
 
     full_exposures = np.full(len(frames), np.nan)
     full_exposures[keep] = np.exp(result.log_exposures)
@@ -264,7 +268,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
                           coefficients=result.coefficients, basis_name=basis.name,
                           exposures=full_exposures, exposure_times=list(times),
                           sources=sources, max_code=samples.max_code,
-                          diagnostics=diagnostics)
+                          diagnostics=diagnostics, inverse_log_sigma=log_sigma)
     model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
     return model
 

@@ -48,6 +48,10 @@ class ResponseModel:
         ``"unusable"``), ``verdict_reasons`` (one sentence each, also among the
         warnings) and ``verdict_evidence`` (the numbers they rest on).  Saved with the
         model and read back as they were.
+    inverse_log_sigma : ndarray, shape (K, 3), or None
+        Standard deviation of log f⁻¹ on ``intensity`` per channel, the confidence band
+        of the fit (:mod:`selfcal.response.bands`, ours); None for models loaded from
+        files of version 1, which have no band.
     """
 
     intensity: np.ndarray
@@ -59,6 +63,7 @@ class ResponseModel:
     sources: list
     max_code: int = 255
     diagnostics: dict = field(default_factory=dict)
+    inverse_log_sigma: np.ndarray | None = None
     #: samples of one frame pair with rejection reasons (for plots); not saved
     fit_data: dict | None = field(default=None, repr=False, compare=False)
 
@@ -79,6 +84,37 @@ class ResponseModel:
         e = np.clip(np.asarray(irradiance, dtype=float), 0.0, 1.0)
         return np.stack([np.interp(e, self.inverse[:, c], self.intensity) for c in range(3)],
                         axis=-1)
+
+    def inverse_band(self, level: float = 0.9):
+        """The two-sided confidence band of f⁻¹ at ``level``: ``(lower, upper)``.
+
+        Each is shaped like :attr:`inverse` (same grid, same normalisation: both are 1 at
+        intensity 1), ``inverse · exp(∓z σ)`` with σ = :attr:`inverse_log_sigma` and z the
+        normal quantile of (1 + level)/2 (:func:`selfcal.response.bands.band_from_sigma`).
+
+        Raises
+        ------
+        InputError
+            When the model has no band (loaded from a version 1 model file: calibrate
+            again to get one).
+        ValueError
+            ``level`` not in (0, 1).
+        """
+        if self.inverse_log_sigma is None:
+            raise InputError("this response model has no confidence band (its model file "
+                             "predates version 2); calibrate again to get one")
+        from .bands import band_from_sigma
+
+        return band_from_sigma(self.inverse, self.inverse_log_sigma, level)
+
+    def band_at_codes(self, codes=None, level: float = 0.9):
+        """:meth:`inverse_band` at integer ``codes`` (default every code), each (n, 3)."""
+        lower, upper = self.inverse_band(level)
+        if codes is None:
+            codes = np.arange(self.max_code + 1)
+        x = np.asarray(codes, dtype=float) / self.max_code
+        return tuple(np.stack([np.interp(x, self.intensity, t[:, c]) for c in range(3)],
+                              axis=-1) for t in (lower, upper))
 
     def lookup_table(self) -> np.ndarray:
         """f⁻¹ at every code of the model's bit depth, float32, shape (max_code+1, 3)."""
@@ -133,6 +169,9 @@ class ResponseModel:
             "exposure_times": [None if t is None else float(t) for t in self.exposure_times],
             "sources": list(self.sources),
             "diagnostics": jsonable(self.diagnostics),
+            **({} if self.inverse_log_sigma is None else
+               {"inverse_log_sigma": np.round(np.asarray(self.inverse_log_sigma).T,
+                                              7).tolist()}),
         }
 
     @classmethod
@@ -153,7 +192,9 @@ class ResponseModel:
             model = cls(intensity=intensity, inverse=inverse, coefficients=coefficients,
                         basis_name=str(d["basis"]), exposures=exposures,
                         exposure_times=list(d["exposure_times"]), sources=list(d["sources"]),
-                        max_code=max_code, diagnostics=dict(d.get("diagnostics", {})))
+                        max_code=max_code, diagnostics=dict(d.get("diagnostics", {})),
+                        inverse_log_sigma=(None if d.get("inverse_log_sigma") is None else
+                                           np.asarray(d["inverse_log_sigma"], float).T))
         except KeyError as exc:
             raise bad(f"response model lacks the field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:

@@ -1,0 +1,183 @@
+"""The standard deviation of every merged radiance value (selfcal's own).
+
+The merge's radiance is the weighted mean of [Debevec1997]_ Eq. 6 on linear values,
+``E = Σ_j w_j X_j / Σ_j w_j`` with ``X_j = f⁻¹(I_j) / e_j``.  To first order its error has
+three parts, which :class:`SigmaSums` accumulates beside the merge's own sums:
+
+* the noise of each frame's measurement, independent between frames: the variance
+  ``V_j`` of :func:`.weights.noise_variance` under the merge's noise model -- shot and
+  read noise [Granados2010]_, and the code noise (quantisation, JPEG) through the slope of
+  f⁻¹ -- *without* its relative term (which stands in the weights for the model and
+  exposure errors counted below);
+* each frame's exposure error, independent between frames: a log exposure off by δ_j
+  (std σ_t, :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA`) moves ``X_j`` by
+  ``X_j δ_j``;
+* the error of the curve, the same curve for every frame: where log f⁻¹ is off by ε(I)
+  (std σ_g of the model's confidence band, :mod:`selfcal.response.bands`), ``X_j`` moves
+  by ``X_j ε(I_j)``; taken as fully correlated between the frames (the band is dominated
+  by a shift of the whole curve), so it adds linearly.
+
+Together::
+
+    Var E = Σ_j w_j² (V_j + X_j² σ_t²) / (Σ_j w_j)²  +  (Σ_j w_j X_j σ_g(I_j) / Σ_j w_j)²
+
+Each frame contributes through two tables on its codes (like the merge's own), so the σ
+costs two lookups and two additions per frame and two float32 sums.
+
+The noise model's constants are fixed, but cameras are not: one JPEG engine smooths its
+noise away, another sharpens it.  So the independent part (noise and exposures) is scaled
+by κ, measured on the stack itself (:meth:`SigmaSums.keep_sample`): on every 8th pixel of
+every 8th row (at most 50,000 values a pair), for each pair of frames merged one after
+the other (neighbours in exposure), ``z = (g X_a − X_b) / √(g² U_a + U_b)`` with
+``U = V + X² σ_t²`` and ``g`` the pair's median ratio, where both frames measure the
+pixel; κ = median |z| / 0.6745 (1 for a noise model that is right), clamped to [1/4, 4],
+1 with fewer than :data:`MIN_NOISE_SAMPLES` values.  The merge's diagnostics hold it
+(``sigma_noise_scale``).
+
+Pixels no frame measured (the merge's fill) get σ = +inf: their values are bounds.  A model without a
+band (a version 1 model file, a pipeline model, linear frames) contributes no curve term;
+the merge's diagnostics say so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..stack.frames import apply_lut
+from .weights import noise_variance
+
+__all__ = ["SigmaSums"]
+
+#: Every SAMPLE_STRIDE-th pixel of every SAMPLE_STRIDE-th row measures κ.
+SAMPLE_STRIDE = 8
+#: Fewer (pixel, channel) values than this leave κ at 1.
+MIN_NOISE_SAMPLES = 2000
+#: At most this many |z| are kept per pair of frames.
+_MAX_PER_PAIR = 50_000
+
+
+def _exposure_log_sigma() -> float:
+    from ..response.bands import EXPOSURE_LOG_SIGMA
+
+    return EXPOSURE_LOG_SIGMA
+
+
+class SigmaSums:
+    """``Σ w² (V + X² σ_t²)`` and ``Σ w X σ_g`` per pixel and channel, and σ at the end.
+
+    Parameters
+    ----------
+    shape : (H, W)
+    model : object
+        The merge's model; its ``inverse_log_sigma`` (if any) gives σ_g.
+    exposure_log_sigma : float, optional
+        σ_t; default :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA`.
+    """
+
+    def __init__(self, shape, model, exposure_log_sigma: float | None = None):
+        hh, ww = shape
+        self.var = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.cur = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.model = model
+        self.sigma_t = (_exposure_log_sigma() if exposure_log_sigma is None
+                        else float(exposure_log_sigma))
+        self.has_band = getattr(model, "inverse_log_sigma", None) is not None
+        self.previous = None            # the last frame's sampled (X, U), NaN where unmeasured
+        self.z = []                     # |z| of the pairs so far
+        self.kappa = 1.0
+
+    def _band_at(self, max_code: int) -> np.ndarray:
+        """σ_g at every code (K, 3), zero without a band."""
+        if not self.has_band:
+            return np.zeros((max_code + 1, 3))
+        m = self.model
+        x = np.arange(max_code + 1) / max_code
+        return np.stack([np.interp(x, m.intensity, m.inverse_log_sigma[:, c])
+                         for c in range(3)], axis=-1)
+
+    def prepare(self, tab) -> None:
+        """Give the frame's :class:`.weights._FrameTables` its two σ tables (table path)."""
+        if not tab.lut:
+            return
+        lin = tab.lin
+        x = lin.table
+        noise = replace(tab.noise, relative=0.0)
+        v = noise_variance(x, lin.slope, tab.e, noise, code_std=lin.code_std())
+        w = tab.w_table.astype(np.float64)
+        X = x / tab.e
+        u = v + (X * self.sigma_t) ** 2
+        tab.su_table = u.astype(np.float32)
+        tab.sv_table = (w * w * u).astype(np.float32)
+        tab.sc_table = (w * X * self._band_at(lin.max_code)).astype(np.float32)
+
+    def keep_sample(self, img, cover, tab) -> None:
+        """Sample a frame (after its warp) and pair it with the previous one (see the
+        module docstring: the noise scale κ)."""
+        if not tab.lut:
+            return
+        st = SAMPLE_STRIDE
+        codes = np.ascontiguousarray(img[::st, ::st])
+        ok = tab.valid(codes) > 0
+        if cover is not None:
+            ok &= cover[::st, ::st] == 0
+        X = apply_lut(codes, tab.x_table)
+        U = apply_lut(codes, tab.su_table)
+        X[~ok] = np.nan
+        if self.previous is not None:
+            self.z.append(_pair_z(self.previous, (X, U)))
+        self.previous = (X, U)
+
+    def calibrate_noise(self) -> float:
+        """κ from the pairs seen (module docstring); sets and returns it."""
+        z = np.concatenate(self.z) if self.z else np.zeros(0)
+        self.previous, self.z = None, []
+        if z.size >= MIN_NOISE_SAMPLES:
+            self.kappa = float(np.clip(np.median(z) / 0.6745, 0.25, 4.0))
+        return self.kappa
+
+    def add(self, s: slice, codes, tab, valid=None) -> None:
+        """One strip of one frame: ``codes`` already masked as the merge masked them (table
+        path: invalid pixels at the maximum code, where the weights are zero); on the
+        functional path ``valid`` (uint8) says which pixels count."""
+        if tab.lut:
+            np.add(self.var[s], apply_lut(codes, tab.sv_table), out=self.var[s])
+            np.add(self.cur[s], apply_lut(codes, tab.sc_table), out=self.cur[s])
+            return
+        _, w, X, v = tab.evaluate(codes, need_x=True)
+        # the functional path's variance carries the relative term: take it out
+        v = np.maximum(v - (tab.noise.relative * np.maximum(X, 0)) ** 2, 0.0)
+        keep = (valid > 0)[..., None]
+        self.var[s] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
+
+    def finish_strip(self, s: slice, den_strip) -> None:
+        """σ of one strip into ``var[s]``, from the sums and the merge's ``den`` (Σ w)
+        before its division (strips are disjoint: threads may share)."""
+        v, c = self.var[s], self.cur[s]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.float32(1.0) / den_strip
+            np.multiply(v, inv * inv * np.float32(self.kappa ** 2), out=v)
+            np.multiply(c, inv, out=c)
+            np.multiply(c, c, out=c)
+            np.add(v, c, out=v)
+            np.sqrt(v, out=v)
+        v[~(den_strip > 0)] = np.inf
+
+    def result(self) -> np.ndarray:
+        """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished."""
+        self.cur = None
+        return self.var
+
+
+def _pair_z(a, b) -> np.ndarray:
+    """|z| of two frames' sampled (X, U) where both measured (module docstring)."""
+    Xa, Ua = a
+    Xb, Ub = b
+    both = np.flatnonzero(np.isfinite(Xa) & np.isfinite(Xb) & (Xa > 0) & (Xb > 0))
+    if both.size < 10:
+        return np.zeros(0)
+    both = both[::max(1, both.size // _MAX_PER_PAIR)]
+    xa, xb = Xa.ravel()[both], Xb.ravel()[both]
+    g = np.float32(np.median(xb / xa))
+    return np.abs(g * xa - xb) / np.sqrt(g * g * Ua.ravel()[both] + Ub.ravel()[both])
