@@ -139,6 +139,9 @@ class DaskExecutor:
             except (OSError, TimeoutError) as exc:
                 raise ClusterError(f"cannot reach the Dask scheduler at {scheduler} "
                                    f"({exc})") from None
+            except (ValueError, TypeError) as exc:
+                raise ClusterError(f"{scheduler!r} is not a Dask scheduler address "
+                                   f"({exc}); give one like tcp://host:8786") from None
             self._own.append(self.client)
         else:
             import dask
@@ -278,6 +281,7 @@ def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="aut
     Returns
     -------
     BatchResult
+        Without rows and with no file written when no session was found.
 
     Raises
     ------
@@ -291,8 +295,11 @@ def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="aut
     out_dir = Path(out_dir).resolve()
     _check_out_dir(out_dir, force)
     options = options or BatchOptions(linearize=linearize, pool=pool, force=force, seed=seed)
-    library = discover(roots, exclude=[out_dir], max_gap=max_gap)
+    library = discover(roots, exclude=[out_dir], max_gap=max_gap,
+                       by_content=options.by_content)
     plans, cameras = plan_batch(library, out_dir, options)
+    if not plans:              # nothing to do: nothing written, nothing started
+        return BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     fits, rows, todo = _earlier_work(plans, cameras, options, redo)
     result = BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     if progress is not None:

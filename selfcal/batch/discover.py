@@ -42,7 +42,7 @@ _TAGS = {
     "exposure_bias": 0x9204, "shutter_apex": 0x9201,
     "custom_rendered": 0xA401, "exposure_mode": 0xA402, "white_balance": 0xA403,
     "contrast": 0xA408, "saturation": 0xA409, "sharpness": 0xA40A,
-    "body_serial": 0xA431, "lens_make": 0xA433, "lens_model": 0xA434,
+    "focal_length": 0x920A, "body_serial": 0xA431, "lens_make": 0xA433, "lens_model": 0xA434,
 }
 #: Picture settings that change the rendering (and so the response) when EXIF has them.
 PICTURE_SETTINGS = ("custom_rendered", "contrast", "saturation", "sharpness")
@@ -73,6 +73,8 @@ class FrameInfo:
         ``(name, value)`` of the :data:`PICTURE_SETTINGS` EXIF gives.
     bracketing : bool
         EXIF ExposureMode says auto bracket.
+    focal_length : float or None
+        Millimetres (EXIF FocalLength).
     """
 
     path: Path
@@ -91,6 +93,7 @@ class FrameInfo:
     kind: str
     settings: tuple = ()
     bracketing: bool = False
+    focal_length: float | None = None
 
     @property
     def relative_exposure(self) -> float | None:
@@ -202,7 +205,8 @@ def read_frame_info(path, raw=None) -> FrameInfo:
         f_number=positive[0] if positive[0] and positive[0] > 0 else None,
         iso=positive[1] if positive[1] and positive[1] > 0 else None,
         exposure_bias=_number(tag("exposure_bias")), size=tuple(size), kind=kind,
-        settings=settings, bracketing=_number(tag("exposure_mode")) == 2)
+        settings=settings, bracketing=_number(tag("exposure_mode")) == 2,
+        focal_length=_number(tag("focal_length")))
 
 
 def _slug(text: str) -> str:
@@ -237,11 +241,17 @@ class Session:
         :func:`camera_key` of its frames.
     frames : list of FrameInfo
         In capture order.
+    reasons : list of str
+        Why each frame is in it (:mod:`.grouping`), empty for the time rule.
+    unsure : bool
+        Some decision was by time alone or near a threshold (:mod:`.grouping`).
     """
 
     id: str
     camera: str
     frames: list
+    reasons: list = field(default_factory=list)
+    unsure: bool = False
 
     @property
     def paths(self) -> list:
@@ -349,7 +359,8 @@ def _pair_raws(files, unassigned):
     return [(f, raws.get(key)) for key, f in rendered.items()]
 
 
-def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP) -> Library:
+def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP,
+             by_content: bool = True, rule=None, workers: int | None = None) -> Library:
     """Find the bracketed sessions under ``roots``.
 
     Parameters
@@ -360,7 +371,15 @@ def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP) -> Library:
         Folders not to walk (the batch's output folder).
     max_gap : float
         Seconds between the end of one frame and the start of the next beyond which a new
-        session starts (:func:`group_sessions`).
+        session starts (:func:`group_sessions`); with ``by_content``, the gap within
+        which time decides when thumbnails cannot be compared.
+    by_content : bool
+        Group by what the frames show, time as a hint (:func:`.grouping.group_by_content`);
+        False: by time alone (:func:`group_sessions`).
+    rule : GroupingRule, optional
+        The content grouping's thresholds (``max_gap`` replaces its ``max_gap``).
+    workers : int, optional
+        Threads reading EXIF and thumbnails (default: up to 8, one per core).
 
     Returns
     -------
@@ -371,21 +390,30 @@ def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP) -> Library:
     InputError
         A root that does not exist (named).
     """
+    from dataclasses import replace
+
+    from .grouping import GroupingRule, group_by_content, read_frames
+
     roots = [Path(r) for r in roots]
     unassigned: list = []
-    infos = []
-    for path, raw in _pair_raws(_walk(roots, exclude), unassigned):
-        try:
-            info = read_frame_info(path, raw)
-        except InputError as exc:
-            unassigned.append((path, exc.reason))
+    infos, thumbs = [], []
+    pairs = _pair_raws(_walk(roots, exclude), unassigned)
+    for (path, _), (info, thumb) in zip(pairs, read_frames(pairs, workers=workers,
+                                                               thumbnails=by_content)):
+        if isinstance(info, InputError):
+            unassigned.append((path, info.reason))
             continue
         if info.exposure_time is None:
             unassigned.append((path, "no exposure time in EXIF (sessions are found by "
                                      "their exposures)"))
             continue
         infos.append(info)
-    sessions, loose = group_sessions(infos, max_gap=max_gap)
+        thumbs.append(thumb)
+    if by_content:
+        rule = replace(rule or GroupingRule(), max_gap=max_gap)
+        sessions, loose = group_by_content(infos, thumbs, rule)
+    else:
+        sessions, loose = group_sessions(infos, max_gap=max_gap)
     unassigned += loose
     unassigned.sort(key=lambda x: str(x[0]))
     return Library(sessions=sessions, unassigned=unassigned, roots=roots)

@@ -71,6 +71,9 @@ class BatchOptions:
     force : bool
         Use a model whose verdict is ``unusable`` (as ``--force`` of the CLI).
     seed : int
+    by_content : bool
+        Find sessions by what the frames show, time as a hint (:mod:`.grouping`); False:
+        by the time gap alone (:func:`.discover.group_sessions`).
     """
 
     linearize: bool = False
@@ -79,6 +82,7 @@ class BatchOptions:
     pool_samples: int = POOL_SAMPLES
     force: bool = False
     seed: int = 0
+    by_content: bool = True
 
 
 @dataclass(frozen=True)
@@ -99,6 +103,8 @@ class SessionPlan:
     out_dir: str
     pool_candidate: bool = False
     alone_reason: str = ""
+    grouping: tuple = ()
+    grouping_unsure: bool = False
 
     @property
     def folder(self) -> Path:
@@ -220,7 +226,8 @@ def plan_batch(library, out_dir, options: BatchOptions):
                 exposure_bias=tuple(x.exposure_bias for x in f),
                 iso=tuple(x.iso for x in f), f_number=tuple(x.f_number for x in f),
                 lens=f[0].lens, start=s.start, out_dir=out_dir,
-                pool_candidate=s.id in candidates, alone_reason=reason))
+                pool_candidate=s.id in candidates, alone_reason=reason,
+                grouping=tuple(s.reasons), grouping_unsure=bool(s.unsure)))
     return plans, cameras
 
 
@@ -485,7 +492,8 @@ def plan_row(plan: SessionPlan) -> dict:
             "model_reason": "", "verdict": None, "pooled": False, "flagged": False,
             "agreement_shared": None, "agreement_own": None, "outputs": [], "warnings": [],
             "unmeasured_fraction": None, "prepare_seconds": None, "merge_seconds": None,
-            "seconds": None, "worker": "", "prepare_worker": ""}
+            "seconds": None, "worker": "", "prepare_worker": "",
+            "grouping_unsure": plan.grouping_unsure, "grouping": list(plan.grouping)}
 
 
 # ------------------------------------------------------------------------ rerun
@@ -573,7 +581,7 @@ MANIFEST_COLUMNS = ["session", "status", "error", "camera", "camera_label", "len
                     "f_number", "model_kind", "model_file", "model_reason", "verdict",
                     "pooled", "flagged", "agreement_shared", "agreement_own", "outputs",
                     "warnings", "unmeasured_fraction", "prepare_seconds", "merge_seconds",
-                    "seconds", "worker"]
+                    "seconds", "worker", "grouping_unsure", "grouping"]
 CAMERA_COLUMNS = ["camera", "camera_label", "lenses", "sessions", "ok", "skipped", "failed",
                   "pooled_fit", "model_file", "pooled_sessions", "flagged_sessions",
                   "alone_sessions", "residual_rms_log", "fit_error", "fit_seconds",
