@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import re
+import signal
 import sys
+import threading
 from collections import Counter
 from pathlib import Path
 
@@ -19,11 +21,31 @@ from .common import EPILOG, EXIT_OK, check_output_folder, int_range, say, warn
 EXIT_SESSIONS_FAILED = 6
 #: Dask is not installed, or the cluster cannot be reached or started.
 EXIT_CLUSTER = 7
+#: Interrupted by Ctrl-C (128 + SIGINT) or SIGTERM (128 + SIGTERM): finished sessions are
+#: kept, a rerun does the rest.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that the batch stops as on Ctrl-C."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _terminate_as_interrupt():
+    """Turn SIGTERM into :class:`Terminated` (main thread only); the previous handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 BATCH_EPILOG = EPILOG + """
 batch: 6 some sessions failed (named, with the error, on screen and in the manifest; the
 others are done and a rerun skips them), 7 Dask is missing (pip install "selfcal[batch]")
-or the scheduler cannot be reached."""
+or the scheduler cannot be reached, 130/143 interrupted by Ctrl-C/SIGTERM (finished
+sessions kept, none half written; the same command again does the rest)."""
 
 
 def _progress_bar():
@@ -121,6 +143,7 @@ def cmd_batch(args) -> int:
         warn("--workers is for the local cluster; the scheduler's workers are used")
     options = BatchOptions(linearize=args.linearize, pool=not args.no_pool,
                            force=args.force, by_content=not args.by_time)
+    previous = _terminate_as_interrupt()
     try:
         result = run_batch(
             [Path(r) for r in args.roots], out, scheduler=args.scheduler,
@@ -130,6 +153,14 @@ def cmd_batch(args) -> int:
     except ClusterError as exc:
         say(f"selfcal: error: {exc}")
         return EXIT_CLUSTER
+    except KeyboardInterrupt as exc:
+        say(f"selfcal: interrupted: the sessions finished so far are kept, none is half "
+            f"written ({out / 'manifest.csv'} names every session); the same command "
+            "again does the rest")
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     if not result.rows:
         return _nothing_to_do(result.unassigned, args.roots)
     _say_summary(result)

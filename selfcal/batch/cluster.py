@@ -36,6 +36,7 @@ from pathlib import Path
 
 from ..errors import OutputExistsError, SelfcalError
 from .discover import DEFAULT_MAX_GAP, discover
+from .faults import Journal, interrupted_rows, sweep_partial
 from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_row,
                   fit_camera, plan_batch, plan_row, prepare_session, reusable_camera_fit,
                   write_manifest)
@@ -304,26 +305,59 @@ def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="aut
     result = BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     if progress is not None:
         progress("sessions", len(rows), len(plans), "")
-    executor = None
-    if todo:
-        executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(
-            scheduler=scheduler, workers=workers, memory_limit=memory_limit,
-            processes=processes, client=client))
+    sweep_partial(out_dir)
+    journal = Journal(out_dir)
+    rows = _Journaled(rows, journal)
+    cluster = {"scheduler": scheduler, "workers": workers, "memory_limit": memory_limit,
+               "processes": processes, "client": client}
     try:
-        if executor is not None:
-            result.executor = executor.name
-            _drive(executor, todo, cameras, fits, options, rows, len(plans), progress)
-            if client is None and scheduler is None:
-                result.worker_memory = executor.worker_memory()
+        _execute(result, cluster, todo, cameras, fits, options, rows, len(plans), progress)
+    except KeyboardInterrupt:        # Ctrl-C, or SIGTERM as the CLI turns it
+        rows += interrupted_rows(todo, rows)
+        _conclude(result, list(rows), cameras, fits, plans, library)
+        journal.close(remove=True)
+        raise
+    journal.close()
+    sweep_partial(out_dir)           # what a killed worker left half-written
+    _conclude(result, list(rows), cameras, fits, plans, library)
+    journal.close(remove=True)
+    return result
+
+
+class _Journaled(list):
+    """The rows, each also appended to the journal as it comes."""
+
+    def __init__(self, rows, journal):
+        super().__init__(rows)
+        self.journal = journal
+
+    def append(self, row):
+        super().append(row)
+        self.journal.add(row)
+
+
+def _execute(result, cluster, todo, cameras, fits, options, rows, total, progress):
+    """Start the executor (when there is work), drive the tasks, close it."""
+    if not todo:
+        return
+    scheduler, client = cluster["scheduler"], cluster["client"]
+    executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(**cluster))
+    try:
+        result.executor = executor.name
+        _drive(executor, todo, cameras, fits, options, rows, total, progress)
+        if client is None and scheduler is None:
+            result.worker_memory = executor.worker_memory()
     finally:
-        if executor is not None:
-            executor.close()
+        executor.close()
+
+
+def _conclude(result, rows, cameras, fits, plans, library):
+    """The sorted manifest, camera summary and unassigned list, written together."""
     result.rows = sorted(rows, key=lambda r: r["session"])
     result.cameras = camera_rows(cameras, fits, result.rows)
     inputs = [f for p in plans for f in p.frames]
-    result.files = write_manifest(out_dir, result.rows, result.cameras, library.unassigned,
-                                  inputs=inputs)
-    return result
+    result.files = write_manifest(result.out_dir, result.rows, result.cameras,
+                                  library.unassigned, inputs=inputs)
 
 
 def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
