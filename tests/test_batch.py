@@ -292,3 +292,36 @@ def test_cli_exit_code_says_some_sessions_failed(library, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 6
     assert "failed: simcam-s2-2002" in err and BROKEN in err and "truncated" in err
+
+
+def test_a_plot_per_camera_beside_cameras_csv(batch, library):
+    """Each session's own curve over the pooled one; the flagged session stands out."""
+    import csv
+
+    from PIL import Image
+
+    from selfcal.batch.camera_plot import CURVE_POINTS, _shared_curve
+
+    out = Path(batch["out"])
+    with open(out / "cameras.csv", newline="") as fh:
+        cams = list(csv.DictReader(fh))
+    for cam in cams:
+        plot = Path(cam["plot"])
+        assert plot.parent == out and plot.name == f"camera-{cam['camera']}.png"
+        with Image.open(plot) as im:
+            assert im.format == "PNG" and im.size[0] > 400
+    rows = batch["rows"]
+    styled = _session_of(rows, library["lib"].sessions[4].frames[0])
+    shared = np.array(_shared_curve(styled["model"] if "model" in styled else
+                                    next(c["model_file"] for c in cams
+                                         if c["camera"] == styled["camera"])))
+
+    def off(row):
+        return float(np.abs(np.array(row["own_curve"]) - shared).max())
+
+    same = [r for r in rows.values() if r["camera"] == styled["camera"]
+            and r["status"] == "ok" and not r["flagged"]]
+    for r in same + [styled]:
+        curve = np.array(r["own_curve"])
+        assert curve.shape == (CURVE_POINTS,) and np.all(np.diff(curve) >= -1e-6)
+    assert off(styled) > 2 * max(off(r) for r in same)

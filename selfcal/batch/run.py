@@ -42,6 +42,7 @@ from pathlib import Path
 
 from ..errors import CalibrationError, SelfcalError, SelfcalWarning
 from ..modelfile import jsonable
+from .camera_plot import camera_plot_writers, own_curve
 from .pooled import (POOL_SAMPLES, POOL_SESSIONS, agreement_with, disagrees,
                      pooled_calibration, session_samples, shared_model)
 
@@ -368,6 +369,7 @@ def finish_session(plan: SessionPlan, options: BatchOptions, prep: SessionPrep,
             _warnings.simplefilter("always")
             choice = _choose_model(plan, prep, camera)
             row.update(choice)
+            row["own_curve"] = own_curve(prep.model)
             written = _merge_and_write(plan, options, prep, row)
         row["warnings"] = list(dict.fromkeys(
             prep.warnings + row.get("warnings", []) + [str(w.message) for w in caught
@@ -585,12 +587,13 @@ MANIFEST_COLUMNS = ["session", "status", "error", "camera", "camera_label", "len
 CAMERA_COLUMNS = ["camera", "camera_label", "lenses", "sessions", "ok", "skipped", "failed",
                   "pooled_fit", "model_file", "pooled_sessions", "flagged_sessions",
                   "alone_sessions", "residual_rms_log", "fit_error", "fit_seconds",
-                  "fit_reused"]
+                  "fit_reused", "plot"]
 
 
 def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:
-    """Write the manifest (JSON Lines and CSV), the camera summary and the unassigned
-    files, together (:class:`selfcal.io.StagedOutputs`); returns the paths written.
+    """Write the manifest (JSON Lines and CSV), the camera summary, a plot per camera
+    (:mod:`.camera_plot`) and the unassigned files, together
+    (:class:`selfcal.io.StagedOutputs`); returns the paths written.
 
     JSON Lines keeps lists as lists (``pandas.read_json(path, lines=True)`` reads it);
     the CSV joins them with ``;`` for spreadsheets.
@@ -610,7 +613,12 @@ def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:
         UNASSIGNED_CSV: _csv_text([{"path": str(p), "reason": why} for p, why in unassigned],
                                   ["path", "reason"]),
     }
+    plots = camera_plot_writers(out_dir, cameras, rows)     # sets cameras' "plot"
+    files[CAMERAS] = lines(cameras)
+    files[CAMERAS_CSV] = _csv_text(cameras, CAMERA_COLUMNS)
     with StagedOutputs(force=True, inputs=inputs) as staged:
         for name, text in files.items():
             staged.write(out_dir / name, lambda t, text=text: Path(t).write_text(text))
+        for path, writer in plots.items():
+            staged.write(path, writer)
     return staged.written
