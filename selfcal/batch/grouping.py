@@ -160,20 +160,23 @@ def similarity(a, b, rule: GroupingRule = GroupingRule()):
     ok_b = (b > rule.low) & (b < rule.high)
     need = max(16, rule.min_overlap * a.size)
     s = int(rule.max_shift)
-    for dy in range(-s, s + 1):
-        for dx in range(-s, s + 1):
-            ma, mb = _shifted(ok_a, ok_b, dy, dx)
-            m = ma & mb
-            n = int(m.sum())
-            if n < need:
-                continue
-            xa, xb = _shifted(la, lb, dy, dx)
-            x, y = xa[m], xb[m]
-            x, y = x - x.mean(), y - y.mean()
-            d = math.sqrt(float((x * x).sum()) * float((y * y).sum()))
-            c = float((x * y).sum()) / d if d > 0 else 0.0
-            if best is None or c > best:
-                best, used = c, n / a.size
+    shifts = [(0, 0)] + [(dy, dx) for dy in range(-s, s + 1) for dx in range(-s, s + 1)
+                         if dy or dx]
+    for dy, dx in shifts:
+        if best is not None and best >= rule.match:
+            break                        # agreement found: no need for the other shifts
+        ma, mb = _shifted(ok_a, ok_b, dy, dx)
+        m = ma & mb
+        n = int(m.sum())
+        if n < need:
+            continue
+        xa, xb = _shifted(la, lb, dy, dx)
+        x, y = xa[m], xb[m]
+        x, y = x - x.mean(), y - y.mean()
+        d = math.sqrt(float((x * x).sum()) * float((y * y).sum()))
+        c = float((x * y).sum()) / d if d > 0 else 0.0
+        if best is None or c > best:
+            best, used = c, n / a.size
     return best, used
 
 
@@ -233,9 +236,11 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
     open_.sort(key=lambda s: s.end)
     recent = [s for s in open_ if f.time - s.end <= rule.window][-rule.open_sessions:]
     scored = []
-    for s in reversed(recent):
+    for s in reversed(recent):           # most recent first
         if s.has_exposure(f.relative_exposure):
             continue
+        if any(x[2] == "match" for x in scored) and not s.unsure_start:
+            continue                     # placed; only a doubtful start may be bridged
         best = _compare(f, thumb, s, rule)
         scored.append((s, best, _verdict(best, rule)))
     matches = sorted((x for x in scored if x[2] == "match"), key=lambda x: -x[1][0])
