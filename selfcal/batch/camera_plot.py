@@ -103,7 +103,8 @@ def render_camera_plot(cam: dict, rows: list) -> bytes:
     ax.set_xlabel("normalised intensity I")
     ax.set_ylabel("f⁻¹(I), mean of R, G, B")
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper left", fontsize=8)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", fontsize=8)
     fig.text(0.02, 1 - 0.1 / (4.4 + top), "\n".join(header), fontsize=8, ha="left",
              va="top")
     fig.subplots_adjust(left=0.11, right=0.97, bottom=0.6 / (4.4 + top),

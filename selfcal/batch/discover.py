@@ -164,9 +164,21 @@ def read_frame_info(path, raw=None) -> FrameInfo:
     InputError
         When the file cannot be opened as an image (the message names it).
     """
+    return read_frame(path, raw)[0]
+
+
+def read_frame(path, raw=None, also=None):
+    """:func:`read_frame_info`, and ``also(image)`` on the same open image (the file
+    opened and its EXIF parsed once; :mod:`.grouping` takes its thumbnail so).
+
+    Returns
+    -------
+    (FrameInfo, what ``also`` returned or None)
+    """
     from PIL import Image
 
     path = Path(path)
+    extra = None
     try:
         with Image.open(path) as im:
             size = im.size
@@ -174,6 +186,8 @@ def read_frame_info(path, raw=None) -> FrameInfo:
             ifd0 = im.getexif()
             sub = dict(ifd0.get_ifd(_EXIF_IFD))
             ifd0 = dict(ifd0)
+            if also is not None:
+                extra = also(im)
     except FileNotFoundError:
         raise InputError("no such file", path) from None
     except Exception as exc:  # Pillow raises several types for bad headers
@@ -197,7 +211,7 @@ def read_frame_info(path, raw=None) -> FrameInfo:
                      if (v := _number(tag(k))) is not None)
     kind = {"JPEG": "jpeg", "PNG": "png", "TIFF": "tiff", "MPO": "jpeg"}.get(fmt, fmt.lower())
     positive = [_number(tag(k)) for k in ("f_number", "iso")]
-    return FrameInfo(
+    info = FrameInfo(
         path=path, raw=None if raw is None else Path(raw),
         make=_text(tag("make")), model=_text(tag("model")), serial=_text(tag("body_serial")),
         lens=_text(tag("lens_model")), time=when, time_source=source,
@@ -207,6 +221,7 @@ def read_frame_info(path, raw=None) -> FrameInfo:
         exposure_bias=_number(tag("exposure_bias")), size=tuple(size), kind=kind,
         settings=settings, bracketing=_number(tag("exposure_mode")) == 2,
         focal_length=_number(tag("focal_length")))
+    return info, extra
 
 
 def _slug(text: str) -> str:

@@ -83,7 +83,7 @@ class GroupingRule:
 # ------------------------------------------------------------------------ thumbnails
 
 def thumbnail(path, width: int = THUMB_WIDTH):
-    """A small grey thumbnail of a rendered frame (float32 codes 0-255), or None.
+    """A small grey thumbnail of a rendered frame (uint8 codes), or None.
 
     Decoded at reduced size where the format allows (JPEG DCT scaling), averaged over
     boxes.  Returns None when the pixels cannot be read (a truncated file, say): the
@@ -93,41 +93,70 @@ def thumbnail(path, width: int = THUMB_WIDTH):
 
     try:
         with Image.open(path) as im:
-            w, h = im.size
-            tw = max(1, min(int(width), w))
-            th = max(1, round(tw * h / w))
-            im.draft("RGB", (2 * tw, 2 * th))
-            grey = im.convert("L") if im.mode in ("RGB", "L", "YCbCr", "CMYK", "P") else \
-                im.convert("RGB").convert("L")
-            return np.asarray(grey.resize((tw, th), Image.BOX), dtype=np.float32)
+            return _thumbnail_of(im, width)
     except Exception:  # noqa: BLE001 -- any unreadable frame: no thumbnail
         return None
 
 
+def _thumbnail_of(im, width: int = THUMB_WIDTH):
+    """:func:`thumbnail` of an open Pillow image (None when its pixels cannot be read)."""
+    from PIL import Image
+
+    try:
+        w, h = im.size
+        tw = max(1, min(int(width), w))
+        th = max(1, round(tw * h / w))
+        im.draft("RGB", (2 * tw, 2 * th))
+        grey = im.convert("L") if im.mode in ("RGB", "L") else im.convert("RGB").convert("L")
+        return np.asarray(grey.resize((tw, th), Image.BOX), dtype=np.uint8)
+    except Exception:  # noqa: BLE001 -- truncated or corrupt pixels: no thumbnail
+        return None
+
+
+def _read_one(pair, thumbnails=True):
+    """EXIF and thumbnail of one frame from one opening of the file."""
+    from ..errors import InputError
+    from .discover import read_frame
+
+    try:
+        info, thumb = read_frame(*pair, also=_thumbnail_of if thumbnails else None)
+    except InputError as exc:
+        return exc, None
+    return info, (thumb if info.exposure_time is not None else None)
+
+
+def _read_chunk(pairs, thumbnails):
+    return [_read_one(p, thumbnails) for p in pairs]
+
+
+#: Frames from which :func:`read_frames` reads in worker processes rather than threads.
+PROCESS_THRESHOLD = 2000
+
+
 def read_frames(pairs, *, workers: int | None = None, thumbnails: bool = True):
-    """EXIF and thumbnail of each ``(rendered, raw)`` pair, read once, in parallel.
+    """EXIF and thumbnail of each ``(rendered, raw)`` pair, each file read once, in
+    parallel: threads for a few files, processes (``spawn``-safe, chunks of 500) from
+    :data:`PROCESS_THRESHOLD` on -- Pillow's EXIF parsing holds the GIL.
 
     Returns a list of ``(FrameInfo or InputError, thumbnail or None)`` in input order.
-    Threads: Pillow releases the GIL while it decodes.
     """
+    import multiprocessing
     import os
+    from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
 
-    from ..errors import InputError
-    from .discover import read_frame_info
-
-    def one(pair):
-        try:
-            info = read_frame_info(*pair)
-        except InputError as exc:
-            return exc, None
-        keep = thumbnails and info.exposure_time is not None
-        return info, (thumbnail(info.path) if keep else None)
-
+    pairs = list(pairs)
     n = int(workers or min(8, os.cpu_count() or 1))
     if n <= 1 or len(pairs) < 8:
-        return [one(p) for p in pairs]
-    with ThreadPoolExecutor(max_workers=n) as pool:
-        return list(pool.map(one, pairs, chunksize=64))
+        return [_read_one(p, thumbnails) for p in pairs]
+    if len(pairs) < PROCESS_THRESHOLD:
+        with ThreadPoolExecutor(max_workers=n) as pool:
+            return list(pool.map(partial(_read_one, thumbnails=thumbnails), pairs))
+    chunks = [pairs[i:i + 500] for i in range(0, len(pairs), 500)]
+    spawn = multiprocessing.get_context("spawn")     # no fork of a threaded process
+    with ProcessPoolExecutor(max_workers=n, mp_context=spawn) as pool:
+        done = pool.map(partial(_read_chunk, thumbnails=thumbnails), chunks)
+        return [x for chunk in done for x in chunk]
 
 
 def _shifted(a, b, dy, dx):
@@ -329,6 +358,10 @@ def group_by_content(frames, thumbs, rule: GroupingRule = GroupingRule()):
         open_: list = []
         for f, t in sorted(by_setup[key], key=lambda p: (p[0].time, p[0].path.name)):
             _place(f, t, open_, rule)
+            if len(open_) > rule.open_sessions:    # never compared again: closed
+                open_.sort(key=lambda s: s.end)
+                built += open_[:-rule.open_sessions]
+                del open_[:-rule.open_sessions]
         built += open_
     return _sessions(built)
 
