@@ -176,12 +176,27 @@ _ADDRESS = re.compile(r"^(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9a-fA-F:]+\]|[^\s
 
 
 def _scheduler_address(text: str) -> str:
-    """``serial`` or a Dask scheduler address with a port (``tcp://host:8786``)."""
+    """``serial``, a Dask scheduler address with a port (``tcp://host:8786``), or a
+    scheduler file (``dask scheduler --scheduler-file F``: JSON with its address)."""
+    import json
+
     if text == "serial" or _ADDRESS.match(text.strip()):
         return text.strip()
+    path = Path(text)
+    if path.suffix.lower() == ".json" or path.is_file():
+        try:
+            address = json.loads(path.read_text())["address"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            why = "no such file" if isinstance(exc, FileNotFoundError) else \
+                f"not a Dask scheduler file: {type(exc).__name__}: {exc}"
+            raise argparse.ArgumentTypeError(f"{path}: {why}") from None
+        if isinstance(address, str) and _ADDRESS.match(address):
+            return address
+        raise argparse.ArgumentTypeError(f"{path}: its address {address!r} is not a Dask "
+                                         "scheduler address")
     raise argparse.ArgumentTypeError(
-        f"not a Dask scheduler address: {text!r} (give one like tcp://host:8786, or "
-        "'serial' to run without Dask)")
+        f"not a Dask scheduler address: {text!r} (give one like tcp://host:8786, a "
+        "scheduler file, or 'serial' to run without Dask)")
 
 
 def _positive_seconds(text: str) -> float:
@@ -215,8 +230,9 @@ def register(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
                    help="the batch folder (created if missing)")
     p.add_argument("--scheduler", metavar="ADDRESS", type=_scheduler_address,
-                   help="an existing Dask scheduler (tcp://host:port); 'serial' runs "
-                        "without Dask in this process (default: a local cluster)")
+                   help="an existing Dask scheduler (tcp://host:port, or the JSON file "
+                        "of dask scheduler --scheduler-file); 'serial' runs without Dask "
+                        "in this process (default: a local cluster)")
     p.add_argument("--workers", type=int_range(1, 1024, "--workers"), metavar="N",
                    help="local cluster workers, one thread each (default: the cores)")
     p.add_argument("--memory-limit", default="auto", metavar="LIMIT",

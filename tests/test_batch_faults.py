@@ -224,9 +224,10 @@ def test_an_unwritable_output_and_a_corrupt_frame_fail_their_sessions_only(card,
     blocked = out / "sessions" / sessions[-1].id
     blocked.parent.mkdir(parents=True)
     blocked.write_text("a file where the session's folder goes")
-    code = _wait(_batch(card.root, out, cluster.address))
+    code = _wait(_batch(card.root, out, str(cluster.file)))      # the scheduler file
     text = _text(out)
     assert code == 6, text
+    assert cluster.address in text
     assert "Traceback" not in text
     rows = _manifest(out)
     assert len(rows) == len(card.sessions)

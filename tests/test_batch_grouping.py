@@ -149,13 +149,15 @@ def test_dry_run_prints_the_sessions_and_writes_nothing(tmp_path, capsys):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("address", ["notanaddress", "foo://x", "tcp://host", "http//x:1"])
+@pytest.mark.parametrize("address", ["notanaddress", "foo://x", "tcp://host", "http//x:1",
+                                     "missing-scheduler.json"])
 def test_a_bad_scheduler_address_is_a_usage_error(tmp_path, capsys, address):
     with pytest.raises(SystemExit) as info:
         main(["batch", str(tmp_path), "-o", str(tmp_path / "out"), "--scheduler", address])
     err = capsys.readouterr().err
     assert info.value.code == 2
-    assert "not a Dask scheduler address" in err and repr(address) in err
+    assert ("not a Dask scheduler address" in err and repr(address) in err
+            or address.endswith(".json") and f"{address}: no such file" in err)
     assert "Traceback" not in err
 
 
