@@ -172,6 +172,7 @@ def test_a_worker_killed_mid_run_its_sessions_run_elsewhere(card, cluster, tmp_p
     rows = _manifest(out)
     assert len(rows) == len(card.sessions) == 10
     assert {r["status"] for r in rows.values()} == {"ok"}
+    assert not any(r["worker"].endswith(f":{proc.pid}") for r in rows.values())
     survivor = pids[sorted(pids)[1]]
     late = [r for r in rows.values() if r["worker"].endswith(f":{survivor}")]
     assert late, "the surviving worker finished sessions"

@@ -1,9 +1,9 @@
 """Many sessions at once: a photo library to radiance maps, one response per camera body.
 
 ``run_batch(roots, out_dir, scheduler=None, ...)`` walks the folders, finds the bracketed
-sessions in the frames' EXIF (:mod:`.discover`), fits one response curve per camera body
-from samples pooled across its sessions (:mod:`.pooled`, on the Eq. 7-8 solver of Lin et
-al., ICCV 2011, §5), merges every session into an HDR radiance map with a preview
+sessions by what the frames show and their EXIF (:mod:`.discover`, :mod:`.grouping`),
+fits one response curve per camera body from samples pooled across its sessions
+(:mod:`.pooled`, on the Eq. 7-8 solver of [Lin2011], §5), merges every session into an HDR radiance map with a preview
 (:mod:`.run`), and writes a manifest; the work runs on Dask distributed
 (:mod:`.cluster`; ``pip install "selfcal[batch]"``).  Importing this package does not
 import Dask.
@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from .cluster import BatchResult, ClusterError, require_dask, run_batch
 from .discover import FrameInfo, Library, Session, discover, group_sessions, read_frame_info
+from .grouping import GroupingRule, group_by_content
 from .pooled import (PooledCalibration, SessionSamples, fit_shared_response,
                      pooled_calibration, session_samples, shared_model)
 from .run import BatchOptions
@@ -31,6 +32,8 @@ __all__ = [
     "require_dask",
     "discover",
     "group_sessions",
+    "group_by_content",
+    "GroupingRule",
     "read_frame_info",
     "FrameInfo",
     "Library",
