@@ -3,7 +3,8 @@
 The cluster: a scheduler and two single-threaded workers started as separate processes
 with Dask's own command-line tools (``python -m distributed.cli.dask_scheduler`` and
 ``dask_worker``, what ``dask scheduler`` / ``dask worker`` run), without nannies so
-that a SIGKILL takes a worker away for good.  The batch: ``selfcal batch --scheduler
+that a SIGKILL takes a worker away for good; the tests share it, and the SIGKILL test
+adds a third worker and kills that one.  The batch: ``selfcal batch --scheduler
 tcp://...`` in its own process.  Tasks carry paths; the workers read the frames
 themselves.  The card: simulated, tiny frames (48 x 72), so that each test takes
 seconds.
@@ -95,14 +96,15 @@ class Cluster:
                 p.terminate()
         for p in self.procs:
             try:
-                p.wait(timeout=5)
+                p.wait(timeout=3)
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
+    """Shared by the tests; the SIGKILL test kills a worker of its own."""
     c = Cluster(tmp_path_factory.mktemp("cluster"))
     yield c
     c.close()
@@ -140,9 +142,10 @@ def _no_partial_output(out, rows) -> None:
 
 
 @pytest.fixture
-def card(tmp_path):
-    lib = write_library(tmp_path / "card", sessions_per_body=5, **SIZE)
-    return lib
+def card(tmp_path, request):
+    """Ten sessions of two bodies (six with ``@pytest.mark.parametrize("card", [3])``)."""
+    per_body = getattr(request, "param", 5)
+    return write_library(tmp_path / "card", sessions_per_body=per_body, **SIZE)
 
 
 def _wait(proc, timeout=240):
@@ -154,16 +157,20 @@ def _wait(proc, timeout=240):
 
 
 def test_a_worker_killed_mid_run_its_sessions_run_elsewhere(card, cluster, tmp_path):
+    before = set(cluster.pids())
+    killed = cluster.add_worker("victim")
+    cluster.client.wait_for_workers(len(before) + 1, timeout=90)
+    pids = cluster.pids()
+    victim = next(a for a in pids if a not in before)
+    assert pids[victim] == killed.pid
     out = tmp_path / "out"
     proc = _batch(card.root, out, cluster.address)
-    pids = cluster.pids()
-    victim = sorted(pids)[0]
     deadline = time.time() + 120
     while not cluster.client.processing().get(victim):
         assert proc.poll() is None and time.time() < deadline, _text(out)
         time.sleep(0.05)
     held = list(cluster.client.processing()[victim])
-    os.kill(pids[victim], signal.SIGKILL)
+    killed.send_signal(signal.SIGKILL)
     code = _wait(proc)
     text = _text(out)
     assert code == 0, text
@@ -171,11 +178,13 @@ def test_a_worker_killed_mid_run_its_sessions_run_elsewhere(card, cluster, tmp_p
     assert held, "the killed worker held a task"
     rows = _manifest(out)
     assert len(rows) == len(card.sessions) == 10
+    assert set(cluster.pids()) == before          # the others still serve
     assert {r["status"] for r in rows.values()} == {"ok"}
     assert not any(r["worker"].endswith(f":{proc.pid}") for r in rows.values())
-    survivor = pids[sorted(pids)[1]]
-    late = [r for r in rows.values() if r["worker"].endswith(f":{survivor}")]
-    assert late, "the surviving worker finished sessions"
+    survivors = {pids[a] for a in before}
+    late = [r for r in rows.values() if int(r["worker"].rsplit(":", 1)[1]) in survivors]
+    assert late, "the surviving workers finished sessions"
+    assert killed.wait(timeout=10) == -signal.SIGKILL
     _no_partial_output(out, rows)
 
 
@@ -215,6 +224,7 @@ def test_client_sigterm_keeps_what_is_done_and_the_rerun_does_the_rest(card, clu
     _no_partial_output(out, rows)
 
 
+@pytest.mark.parametrize("card", [3], indirect=True)
 def test_an_unwritable_output_and_a_corrupt_frame_fail_their_sessions_only(card, cluster,
                                                                             tmp_path):
     out = tmp_path / "out"
