@@ -3,8 +3,9 @@
 ``run_batch(roots, out_dir, scheduler=None, ...)`` walks the folders, finds the bracketed
 sessions by what the frames show and their EXIF (:mod:`.discover`, :mod:`.grouping`),
 fits one response curve per camera body from samples pooled across its sessions
-(:mod:`.pooled`, on the Eq. 7-8 solver of [Lin2011], §5), merges every session into an HDR radiance map with a preview
-(:mod:`.run`), and writes a manifest; the work runs on Dask distributed
+(:mod:`.pooled`, on the Eq. 7-8 solver of [Lin2011], §5), merges every session into an
+HDR radiance map with a preview (:mod:`.run`), and writes a manifest and a plot per
+camera (:mod:`.camera_plot`); the work runs on Dask distributed
 (:mod:`.cluster`; ``pip install "selfcal[batch]"``).  Importing this package does not
 import Dask.
 
