@@ -85,15 +85,21 @@ def time_discovery(root: Path, workers: int | None):
     from selfcal.batch.discover import _pair_raws, _walk
     from selfcal.batch.grouping import GroupingRule, group_by_content, read_frames
 
-    t0 = time.perf_counter()
+    def cpu():
+        me = resource.getrusage(resource.RUSAGE_SELF)
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+    t0, c0 = time.perf_counter(), cpu()
     pairs = _pair_raws(_walk([root], ()), [])
     t1 = time.perf_counter()
     read = read_frames(pairs, workers=workers)
-    t2 = time.perf_counter()
+    t2, c2 = time.perf_counter(), cpu()
     infos = [i for i, _ in read]
     sessions, loose = group_by_content(infos, [t for _, t in read], GroupingRule())
-    t3 = time.perf_counter()
+    t3, c3 = time.perf_counter(), cpu()
     return {"walk": t1 - t0, "read": t2 - t1, "group": t3 - t2, "total": t3 - t0,
+            "cpu_read": c2 - c0, "cpu_group": c3 - c2,
             "files": len(pairs), "sessions": sessions, "loose": loose}
 
 
@@ -144,9 +150,10 @@ def time_overhead(plans, cameras, workers: int, out: Path):
                                               dashboard_address=None,
                                               silence_logs=logging.ERROR)
                 ex = cluster.DaskExecutor(client=distributed.Client(lc))
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             cluster._drive(ex, plans, cameras, {}, options, rows, len(plans), None)
             result[name] = time.perf_counter() - t0
+            result[name + "_cpu"] = time.process_time() - c0
             journal.close()
             assert len(rows) == len(plans) and all(r["status"] == "ok" for r in rows)
             if name == "cluster":
@@ -220,7 +227,9 @@ def main(argv=None) -> None:
         print(f"discovery, {'1 thread' if threads else 'default threads'}: {d['files']} "
               f"files in {d['total']:.1f} s ({d['files'] / d['total']:.0f} files/s; walk "
               f"{d['walk']:.1f} s, EXIF + thumbnails {d['read']:.1f} s, grouping "
-              f"{d['group']:.1f} s); {len(d['sessions'])} sessions, {exact} of "
+              f"{d['group']:.1f} s; CPU: walk + read {1e3 * d['cpu_read'] / d['files']:.2f} "
+              f"ms per file, grouping {1e3 * d['cpu_group'] / d['files']:.2f} ms per "
+              f"frame); {len(d['sessions'])} sessions, {exact} of "
               f"{FRAMES} frames, {len(d['loose'])} loose; load {_load()}")
     sessions = d["sessions"][: args.run_sessions]
     lib = Library(sessions=sessions, roots=[root])
@@ -230,7 +239,8 @@ def main(argv=None) -> None:
     print(f"scheduler overhead, {n} sessions ({2 * n + len(cameras)} tasks) of no-op "
           f"tasks: LocalCluster of {args.workers} workers {o['cluster']:.1f} s = "
           f"{1e3 * o['cluster'] / n:.2f} ms per session; in process (no Dask) "
-          f"{o['serial']:.1f} s = {1e3 * o['serial'] / n:.2f} ms per session; driver peak "
+          f"{o['serial']:.1f} s = {1e3 * o['serial'] / n:.2f} ms per session; driver CPU "
+          f"{1e3 * o['cluster_cpu'] / n:.2f} ms per session on the cluster; driver peak "
           f"RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB; "
           f"load {_load()}")
     append, final = time_manifest(o["rows"], cameras, work / "manifest")

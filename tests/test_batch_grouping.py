@@ -225,3 +225,23 @@ def test_the_real_card_is_six_sessions_with_no_frame_left_out(tmp_path):
     assert len(found.cameras) == 2
     timed = discover([tmp_path], by_content=False)        # the clock alone: 13 and 13
     assert len(timed.sessions) > 6 and timed.unassigned
+
+
+def test_an_unreachable_scheduler_writes_nothing(tmp_path, capsys, monkeypatch):
+    pytest.importorskip("distributed")
+    import socket
+
+    lib = write_mixed_card(tmp_path / "card", seed=REPORTING_SEED, events_per_body=1)
+    with socket.socket() as s:                 # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "out"
+    from selfcal.batch import cluster
+
+    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", "2s")
+    code = main(["batch", str(lib.root), "-o", str(out), "--scheduler",
+                 f"tcp://127.0.0.1:{port}"])
+    err = capsys.readouterr().err
+    assert code == 7 and "cannot reach the Dask scheduler" in err
+    assert "Traceback" not in err
+    assert not out.exists()

@@ -44,6 +44,8 @@ from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_
 DASK_MISSING = ('selfcal batch runs on Dask distributed, which is not installed: '
                 'pip install "selfcal[batch]"')
 
+#: How long to try reaching a scheduler given by its address.
+CONNECT_TIMEOUT = "20s"
 #: The Dask setting unset for the local cluster's workers (see DaskExecutor).
 NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 
@@ -136,7 +138,7 @@ class DaskExecutor:
             self.client = client
         elif scheduler:
             try:
-                self.client = distributed.Client(scheduler, timeout="20s")
+                self.client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError) as exc:
                 raise ClusterError(f"cannot reach the Dask scheduler at {scheduler} "
                                    f"({exc})") from None

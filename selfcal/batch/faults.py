@@ -37,22 +37,25 @@ class Journal:
     Parameters
     ----------
     out_dir : path
-        The batch folder (created if missing).
+        The batch folder (created, with the journal, at the first row: a run that fails
+        before any session finishes -- the cluster unreachable -- writes nothing).
     """
 
     def __init__(self, out_dir):
         self.path = Path(out_dir) / JOURNAL
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "a", encoding="utf-8")
+        self._fh = None
 
     def add(self, row: dict) -> None:
         """Append one row (one line) and flush it to the operating system."""
+        if self._fh is None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._fh = open(self.path, "a", encoding="utf-8")
         self._fh.write(json.dumps(jsonable(row), allow_nan=False, default=str) + "\n")
         self._fh.flush()
 
     def close(self, *, remove: bool = False) -> None:
         """Close; ``remove`` deletes the journal (the full manifest is written)."""
-        if not self._fh.closed:
+        if self._fh is not None and not self._fh.closed:
             self._fh.close()
         if remove:
             try:
