@@ -208,6 +208,8 @@ def main(argv=None) -> None:
     ap.add_argument("--width", type=int, default=48)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--keep", metavar="DIR", help="write the card here (reused if there)")
+    ap.add_argument("--discovery", choices=("both", "parallel"), default="both",
+                    help="time discovery with 1 thread and in parallel, or in parallel only")
     args = ap.parse_args(argv)
     from selfcal.batch.run import plan_batch, BatchOptions
     from selfcal.batch.discover import Library
@@ -221,7 +223,7 @@ def main(argv=None) -> None:
     print(f"card: {args.files} files of {args.width}x{args.height} in "
           f"{args.files // FRAMES} sessions, written in {time.perf_counter() - t0:.0f} s "
           f"-> {root}")
-    for threads in (1, None):
+    for threads in ((1, None) if args.discovery == "both" else (None,)):
         d = time_discovery(root, threads)
         exact = sum(len(s.frames) == FRAMES for s in d["sessions"])
         print(f"discovery, {'1 thread' if threads else 'default threads'}: {d['files']} "

@@ -49,6 +49,11 @@ CONNECT_TIMEOUT = "20s"
 #: The Dask setting unset for the local cluster's workers (see DaskExecutor).
 NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 
+#: Sessions under way at most (prepared or being prepared, not finished): bounds the
+#: tasks the scheduler and the driver hold (10⁴ submitted at once starved a loaded
+#: scheduler's connection to the driver in ``bench/bench_batch_scale.py``).
+MAX_IN_FLIGHT = 1000
+
 # task priorities (higher first)
 _PRIORITY = {"candidate": 30, "camera": 40, "finish": 20, "prepare": 10}
 
@@ -387,24 +392,36 @@ def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
 def _drive(executor, todo, cameras, fits, options, rows, total, progress):
     """Submit the tasks of the sessions to do and collect their rows as they finish.
 
-    Every session's ``prepare`` is submitted at once (the pool candidates' first); a
-    camera's fit when the last of its candidates is prepared, together with the
-    ``finish`` of all its sessions; a session without a fit to wait for is finished as
-    soon as it is prepared.
+    The pool candidates' ``prepare`` are submitted first, all of them (a camera's fit
+    waits for its last candidate); beyond them, at most :data:`MAX_IN_FLIGHT` sessions
+    are under way at a time (``prepare`` submitted, ``finish`` not done); each finished
+    session lets the next one in, so the scheduler and this process hold a bounded
+    number of tasks however large the library.  A camera's fit is submitted when the
+    last of its candidates is prepared, with the ``finish`` of its sessions under way;
+    a session without a fit to wait for is finished as soon as it is prepared.
     """
     by_id = {p.id: p for p in todo}
     waiting = {cam: {p.id for p in todo if p.camera == cam and p.pool_candidate}
                for cam in cameras if cam not in fits}
-    tags, prep_f, camera_f = {}, {}, {}
-    for p in sorted(todo, key=lambda p: not (p.camera in waiting and p.pool_candidate)):
+    tags, prep_f, camera_f, finishing = {}, {}, {}, set()
+    queue = deque(sorted(todo, key=lambda p: not (p.camera in waiting
+                                                  and p.pool_candidate)))
+
+    def prepare():
+        p = queue.popleft()
         kind = "candidate" if p.camera in waiting and p.pool_candidate else "prepare"
         fut = executor.submit(prepare_session, p, options, key=f"prepare-{p.id}",
                               priority=_PRIORITY[kind])
         prep_f[p.id] = fut
         tags[fut] = ("prepare", p.id)
-    completed = executor.as_completed(list(prep_f.values()))
+        return fut
+
+    n_candidates = sum(p.camera in waiting and p.pool_candidate for p in queue)
+    first = min(len(queue), n_candidates + MAX_IN_FLIGHT)   # every candidate at once:
+    completed = executor.as_completed([prepare() for _ in range(first)])  # fits can't stall
 
     def finish(p, camera):
+        finishing.add(p.id)
         fut = executor.submit(finish_session, p, options, prep_f[p.id], camera,
                               key=f"finish-{p.id}", priority=_PRIORITY["finish"])
         tags[fut] = ("finish", p.id)
@@ -421,10 +438,10 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress):
                     camera_f[cam] = _submit_camera(executor, cam, cameras[cam], todo,
                                                    prep_f, options, tags, completed)
                     for q in todo:
-                        if q.camera == cam:
+                        if q.camera == cam and q.id in prep_f and q.id not in finishing:
                             finish(q, camera_f[cam])
-            elif cam not in camera_f:
-                finish(by_id[name], fits.get(cam))
+            elif name not in finishing:
+                finish(by_id[name], camera_f.get(cam, fits.get(cam)))
         elif kind == "camera":
             fits[name] = _result_or(fut, None) or fits.get(name)
         else:
@@ -432,6 +449,8 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress):
             prep_f.pop(name)       # the scheduler may forget the preparation now
             if progress is not None:
                 progress("sessions", len(rows), total, name)
+            if queue:
+                completed.add(prepare())
 
 
 def _submit_camera(executor, cam, plan, todo, prep_f, options, tags, completed):
