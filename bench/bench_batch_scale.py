@@ -82,7 +82,7 @@ def write_card(root: Path, files: int, height: int, width: int) -> int:
 
 
 def time_discovery(root: Path, workers: int | None):
-    from selfcal.batch.discover import _pair_raws, _walk
+    from selfcal.batch.discover import _pair_raws, _walk, read_frame, sessions_from_groups
     from selfcal.batch.grouping import GroupingRule, group_by_content, read_frames
 
     def cpu():
@@ -93,10 +93,11 @@ def time_discovery(root: Path, workers: int | None):
     t0, c0 = time.perf_counter(), cpu()
     pairs = _pair_raws(_walk([root], ()), [])
     t1 = time.perf_counter()
-    read = read_frames(pairs, workers=workers)
+    read = read_frames(pairs, read_frame, workers=workers)
     t2, c2 = time.perf_counter(), cpu()
     infos = [i for i, _ in read]
-    sessions, loose = group_by_content(infos, [t for _, t in read], GroupingRule())
+    groups, loose = group_by_content(infos, [t for _, t in read], GroupingRule())
+    sessions = sessions_from_groups(groups)
     t3, c3 = time.perf_counter(), cpu()
     return {"walk": t1 - t0, "read": t2 - t1, "group": t3 - t2, "total": t3 - t0,
             "cpu_read": c2 - c0, "cpu_group": c3 - c2,

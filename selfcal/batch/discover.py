@@ -25,13 +25,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io import IMAGE_SUFFIXES, effective_exposure_times
 from ..raw import RAW_SUFFIXES
-
-#: A new session starts when a frame begins more than this many seconds after the
-#: previous frame of the same camera ended (start + exposure time).
-DEFAULT_MAX_GAP = 10.0
-#: Two exposures closer than this factor are the same exposure (``selfcal.calibrate``
-#: counts exposures as distinct above 5 % too).
-SAME_EXPOSURE = 1.05
+from .grouping import DEFAULT_MAX_GAP, SAME_EXPOSURE  # defined with the content grouping
 
 # EXIF 2.32 tags (IFD0 and the EXIF sub-IFD)
 _EXIF_IFD = 0x8769
@@ -413,8 +407,8 @@ def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP,
     unassigned: list = []
     infos, thumbs = [], []
     pairs = _pair_raws(_walk(roots, exclude), unassigned)
-    for (path, _), (info, thumb) in zip(pairs, read_frames(pairs, workers=workers,
-                                                               thumbnails=by_content)):
+    read = read_frames(pairs, read_frame, workers=workers, thumbnails=by_content)
+    for (path, _), (info, thumb) in zip(pairs, read):
         if isinstance(info, InputError):
             unassigned.append((path, info.reason))
             continue
@@ -426,7 +420,8 @@ def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP,
         thumbs.append(thumb)
     if by_content:
         rule = replace(rule or GroupingRule(), max_gap=max_gap)
-        sessions, loose = group_by_content(infos, thumbs, rule)
+        groups, loose = group_by_content(infos, thumbs, rule)
+        sessions = sessions_from_groups(groups)
     else:
         sessions, loose = group_sessions(infos, max_gap=max_gap)
     unassigned += loose
@@ -485,3 +480,21 @@ def group_sessions(frames, *, max_gap: float = DEFAULT_MAX_GAP):
         if ids.count(s.id) > 1:      # same camera, same second, same first name
             s.id += "-" + hashlib.sha1(str(s.frames[0].path).encode()).hexdigest()[:6]
     return sessions, loose
+
+
+def sessions_from_groups(groups) -> list:
+    """:class:`Session` objects for :class:`.grouping.ContentGroup` objects: ids as
+    :func:`group_sessions` makes them (``camera-YYYYmmdd-HHMMSS-firststem``, a short
+    hash added where two would be the same), reasons and doubt kept."""
+    sessions = []
+    for g in groups:
+        f0 = g.frames[0]
+        stamp = _iso(f0.time)[:19].replace("-", "").replace(":", "").replace("T", "-")
+        sessions.append(Session(id=f"{f0.camera}-{stamp}-{_slug(f0.path.stem)}",
+                                camera=f0.camera, frames=list(g.frames),
+                                reasons=list(g.reasons), unsure=bool(g.unsure)))
+    ids = [s.id for s in sessions]
+    for s in sessions:
+        if ids.count(s.id) > 1:
+            s.id += "-" + hashlib.sha1(str(s.frames[0].path).encode()).hexdigest()[:6]
+    return sessions

@@ -18,7 +18,8 @@ are grouped by what they show, with time as a hint (:func:`group_by_content`):
   and two open sessions that a frame agrees with both are one (a pause mid-bracket left
   a frame that no neighbour in exposure could vouch for).
 
-Every decision is written down (:attr:`.discover.Session.reasons`), and a session any of
+Every decision is written down (:attr:`ContentGroup.reasons`, then
+:attr:`.discover.Session.reasons`), and a session any of
 whose decisions was by time alone or near the thresholds is ``unsure``.  All of this is
 ours; the thresholds were chosen on a simulated tuning card
 (:func:`.simulate.write_mixed_card`, seed 11) and are reported on another (seed 23) and
@@ -27,14 +28,19 @@ on a real card in ``bench/BENCHMARKS.md``.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .discover import DEFAULT_MAX_GAP, SAME_EXPOSURE, Session, _iso, _slug
+#: Frames whose thumbnails cannot be compared are one session when one begins within this
+#: many seconds of the previous one's end (start + exposure time); with ``--by-time``
+#: (:func:`.discover.group_sessions`), a larger gap starts a new session.
+DEFAULT_MAX_GAP = 10.0
+#: Two exposures closer than this factor are the same exposure (``selfcal.calibrate``
+#: counts exposures as distinct above 5 % too).
+SAME_EXPOSURE = 1.05
 
 #: Thumbnail width in pixels (height keeps the aspect ratio).
 THUMB_WIDTH = 64
@@ -113,32 +119,34 @@ def _thumbnail_of(im, width: int = THUMB_WIDTH):
         return None
 
 
-def _read_one(pair, thumbnails=True):
-    """EXIF and thumbnail of one frame from one opening of the file."""
+def _read_one(pair, reader, thumbnails=True):
+    """EXIF and thumbnail of one frame from one opening of the file (``reader`` is
+    :func:`.discover.read_frame`)."""
     from ..errors import InputError
-    from .discover import read_frame
 
     try:
-        info, thumb = read_frame(*pair, also=_thumbnail_of if thumbnails else None)
+        info, thumb = reader(*pair, also=_thumbnail_of if thumbnails else None)
     except InputError as exc:
         return exc, None
     return info, (thumb if info.exposure_time is not None else None)
 
 
-def _read_chunk(pairs, thumbnails):
-    return [_read_one(p, thumbnails) for p in pairs]
+def _read_chunk(pairs, reader, thumbnails):
+    return [_read_one(p, reader, thumbnails) for p in pairs]
 
 
 #: Frames from which :func:`read_frames` reads in worker processes rather than threads.
 PROCESS_THRESHOLD = 2000
 
 
-def read_frames(pairs, *, workers: int | None = None, thumbnails: bool = True):
+def read_frames(pairs, reader, *, workers: int | None = None, thumbnails: bool = True):
     """EXIF and thumbnail of each ``(rendered, raw)`` pair, each file read once, in
     parallel: threads for a few files, processes (``spawn``-safe, chunks of 500) from
     :data:`PROCESS_THRESHOLD` on -- Pillow's EXIF parsing holds the GIL.
 
-    Returns a list of ``(FrameInfo or InputError, thumbnail or None)`` in input order.
+    ``reader`` is :func:`.discover.read_frame` (passed in: this module does not import
+    the discovery).  Returns a list of ``(FrameInfo or InputError, thumbnail or None)``
+    in input order.
     """
     import multiprocessing
     import os
@@ -148,14 +156,15 @@ def read_frames(pairs, *, workers: int | None = None, thumbnails: bool = True):
     pairs = list(pairs)
     n = int(workers or min(8, os.cpu_count() or 1))
     if n <= 1 or len(pairs) < 8:
-        return [_read_one(p, thumbnails) for p in pairs]
+        return [_read_one(p, reader, thumbnails) for p in pairs]
     if len(pairs) < PROCESS_THRESHOLD:
         with ThreadPoolExecutor(max_workers=n) as pool:
-            return list(pool.map(partial(_read_one, thumbnails=thumbnails), pairs))
+            return list(pool.map(partial(_read_one, reader=reader, thumbnails=thumbnails),
+                                 pairs))
     chunks = [pairs[i:i + 500] for i in range(0, len(pairs), 500)]
     spawn = multiprocessing.get_context("spawn")     # no fork of a threaded process
     with ProcessPoolExecutor(max_workers=n, mp_context=spawn) as pool:
-        done = pool.map(partial(_read_chunk, thumbnails=thumbnails), chunks)
+        done = pool.map(partial(_read_chunk, reader=reader, thumbnails=thumbnails), chunks)
         return [x for chunk in done for x in chunk]
 
 
@@ -345,9 +354,8 @@ def group_by_content(frames, thumbs, rule: GroupingRule = GroupingRule()):
 
     Returns
     -------
-    sessions : list of Session
-        With :attr:`~.discover.Session.reasons` and ``unsure``; ordered by camera, then
-        time.
+    groups : list of ContentGroup
+        Ordered by camera, then time (:func:`.discover.sessions_from_groups` names them).
     unassigned : list of (pathlib.Path, str)
     """
     by_setup: dict = {}
@@ -363,26 +371,38 @@ def group_by_content(frames, thumbs, rule: GroupingRule = GroupingRule()):
                 built += open_[:-rule.open_sessions]
                 del open_[:-rule.open_sessions]
         built += open_
-    return _sessions(built)
+    return _groups(built)
 
 
-def _sessions(built):
-    sessions, loose = [], []
+@dataclass
+class ContentGroup:
+    """A session as :func:`group_by_content` finds it (named by
+    :func:`.discover.sessions_from_groups`).
+
+    Attributes
+    ----------
+    frames : list of FrameInfo
+        In capture order.
+    reasons : list of str
+        Why each frame is in it.
+    unsure : bool
+        Some decision was by time alone or near a threshold.
+    """
+
+    frames: list
+    reasons: list
+    unsure: bool = False
+
+
+def _groups(built):
+    groups, loose = [], []
     for s in built:
         if len(s.frames) < 2:
             loose.append((s.frames[0].path, "a single frame: no other frame of its camera "
                           "shows its scene at another exposure ("
                           + s.reasons[0].split("(", 1)[-1]))
             continue
-        f0 = s.frames[0]
-        stamp = _iso(f0.time)[:19].replace("-", "").replace(":", "").replace("T", "-")
-        sessions.append(Session(id=f"{f0.camera}-{stamp}-{_slug(f0.path.stem)}",
-                                camera=f0.camera, frames=list(s.frames),
-                                reasons=list(s.reasons),
-                                unsure=s.unsure_start or s.unsure_join))
-    sessions.sort(key=lambda s: (s.camera, s.frames[0].time, s.id))
-    ids = [s.id for s in sessions]
-    for s in sessions:
-        if ids.count(s.id) > 1:
-            s.id += "-" + hashlib.sha1(str(s.frames[0].path).encode()).hexdigest()[:6]
-    return sessions, loose
+        groups.append(ContentGroup(frames=list(s.frames), reasons=list(s.reasons),
+                                   unsure=s.unsure_start or s.unsure_join))
+    groups.sort(key=lambda g: (g.frames[0].camera, g.frames[0].time, g.frames[0].path.name))
+    return groups, loose

@@ -35,8 +35,8 @@ KINDS = ("aeb", "manual", "pair", "alternate")
 
 def mixed_scene(height: int, width: int, seed: int) -> np.ndarray:
     """A scene of its own layout: :func:`selfcal.synth.make_scene` in shuffled blocks,
-    flipped, rolled and lit by a smooth random field (±2 stops), 2 pixels larger each way than asked (for the
-    handheld shift)."""
+    flipped, rolled and lit by a smooth random field (±2 stops), 2 pixels larger each way
+    than asked (for the handheld shift)."""
     rng = np.random.default_rng(10_000 + seed)
     h, w = height + 4, width + 4
     bh, bw = -(-h // 3), -(-w // 4)
