@@ -116,7 +116,7 @@ def _load() -> str:
 def run_cluster(root: Path, out: Path, workers: int, trim: bool = False) -> dict:
     import distributed
 
-    from selfcal.batch import run_batch
+    from selfcal.batch import ClusterOptions, run_batch
 
     import dask
 
@@ -132,7 +132,7 @@ def run_cluster(root: Path, out: Path, workers: int, trim: bool = False) -> dict
     start = time.perf_counter() - t0
     cpu0, here0 = client.run(_cpu), _cpu()
     t0 = time.perf_counter()
-    result = run_batch([root], out, client=client)
+    result = run_batch([root], out, cluster=ClusterOptions(client=client))
     seconds = time.perf_counter() - t0
     cpu1, here1 = client.run(_cpu), _cpu()
 

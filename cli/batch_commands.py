@@ -7,7 +7,10 @@ is :func:`selfcal.batch.run_batch`).
 from __future__ import annotations
 
 import argparse
+import re
+import signal
 import sys
+import threading
 from collections import Counter
 from pathlib import Path
 
@@ -18,11 +21,31 @@ from .common import EPILOG, EXIT_OK, check_output_folder, int_range, say, warn
 EXIT_SESSIONS_FAILED = 6
 #: Dask is not installed, or the cluster cannot be reached or started.
 EXIT_CLUSTER = 7
+#: Interrupted by Ctrl-C (128 + SIGINT) or SIGTERM (128 + SIGTERM): finished sessions are
+#: kept, a rerun does the rest.
+EXIT_INTERRUPTED = 130
+EXIT_TERMINATED = 143
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that the batch stops as on Ctrl-C."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated()
+
+
+def _terminate_as_interrupt():
+    """Turn SIGTERM into :class:`Terminated` (main thread only); the previous handler."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 BATCH_EPILOG = EPILOG + """
 batch: 6 some sessions failed (named, with the error, on screen and in the manifest; the
 others are done and a rerun skips them), 7 Dask is missing (pip install "selfcal[batch]")
-or the scheduler cannot be reached."""
+or the scheduler cannot be reached, 130/143 interrupted by Ctrl-C/SIGTERM (finished
+sessions kept, none half written; the same command again does the rest)."""
 
 
 def _progress_bar():
@@ -60,42 +83,120 @@ def _say_summary(result) -> None:
             + (f", {flagged} flagged (fitted alone)" if flagged else "")
             + (f", {cam['alone_sessions']} fitted alone" if cam["alone_sessions"]
                and cam["alone_sessions"] != flagged else ""))
-    if result.unassigned:
-        reasons = Counter(why.split(" (")[0] for _, why in result.unassigned)
-        say(f"files in no session: {len(result.unassigned)} ("
-            + "; ".join(f"{n} {why}" for why, n in reasons.most_common()) + ")")
+    _say_unassigned(result.unassigned)
+    unsure = sum(bool(r.get("grouping_unsure")) for r in result.rows)
+    if unsure:
+        say(f"sessions grouped with doubt: {unsure} (grouping_unsure in the manifest, "
+            "with the reason of each decision; --dry-run shows them before any work)")
     for row in result.failed:
         say(f"failed: {row['session']}: {row['error']}")
     for path in result.files:
         say(f"wrote {path}")
 
 
+def _say_unassigned(unassigned) -> None:
+    if unassigned:
+        reasons = Counter(why.split(" (")[0] for _, why in unassigned)
+        say(f"files in no session: {len(unassigned)} ("
+            + "; ".join(f"{n} {why}" for why, n in reasons.most_common()) + ")")
+
+
+def _say_dry_run(library) -> None:
+    """The sessions ``selfcal batch`` would make, with the grouping's reasons."""
+    sessions = library.sessions
+    unsure = sum(s.unsure for s in sessions)
+    say(f"dry run: {len(sessions)} sessions, {len(library.cameras)} cameras, "
+        f"{sum(len(s.frames) for s in sessions)} frames in sessions, "
+        f"{len(library.unassigned)} files in none" + (f"; {unsure} unsure" if unsure else ""))
+    for s in sessions:
+        times = [f.exposure_time for f in s.frames]
+        say(f"  {s.id}: {len(s.frames)} frames, {min(times):.3g}-{max(times):.3g} s, "
+            f"{s.frames[0].path.name} .. {s.frames[-1].path.name}"
+            + ("  [unsure]" if s.unsure else ""))
+        for why in s.reasons:
+            if s.unsure or "starts" in why:
+                say(f"      {why}")
+    for path, why in library.unassigned:
+        say(f"  not in a session: {path}: {why}")
+
+
+def _nothing_to_do(unassigned, roots) -> int:
+    say(f"selfcal: nothing to do: no bracketed session under {', '.join(roots)} "
+        "(nothing written)")
+    _say_unassigned(unassigned)
+    return EXIT_OK
+
+
 def cmd_batch(args) -> int:
-    import selfcal
-    from selfcal.batch import ClusterError, run_batch
+    from selfcal.batch import BatchOptions, ClusterError, ClusterOptions, discover, run_batch
 
     out = Path(args.output)
     check_output_folder(out)
+    if args.dry_run:
+        library = discover([Path(r) for r in args.roots], exclude=[out],
+                           max_gap=args.max_gap, by_content=not args.by_time)
+        if not library.sessions:
+            return _nothing_to_do(library.unassigned, args.roots)
+        _say_dry_run(library)
+        return EXIT_OK
     if args.scheduler and args.workers:
         warn("--workers is for the local cluster; the scheduler's workers are used")
+    options = BatchOptions(linearize=args.linearize, pool=not args.no_pool,
+                           force=args.force, by_content=not args.by_time,
+                           max_gap=args.max_gap)
+    previous = _terminate_as_interrupt()
     try:
         result = run_batch(
             [Path(r) for r in args.roots], out, scheduler=args.scheduler,
-            workers=args.workers, memory_limit=args.memory_limit,
-            linearize=args.linearize, pool=not args.no_pool, force=args.force,
-            redo=args.redo, max_gap=args.max_gap, progress=_progress_bar())
+            cluster=ClusterOptions(workers=args.workers, memory_limit=args.memory_limit),
+            options=options, redo=args.redo, progress=_progress_bar())
     except ClusterError as exc:
         say(f"selfcal: error: {exc}")
         return EXIT_CLUSTER
+    except KeyboardInterrupt as exc:
+        say(f"selfcal: interrupted: the sessions finished so far are kept, none is half "
+            f"written ({out / 'manifest.csv'} names every session); the same command "
+            "again does the rest")
+        return EXIT_TERMINATED if isinstance(exc, Terminated) else EXIT_INTERRUPTED
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    if not result.rows:
+        return _nothing_to_do(result.unassigned, args.roots)
     _say_summary(result)
     if result.failed:
         say(f"selfcal: {len(result.failed)} of {len(result.rows)} sessions failed (see "
             f"{result.out_dir / 'manifest.csv'})")
         return EXIT_SESSIONS_FAILED
-    if not result.rows:
-        raise selfcal.InputError("no bracketed session found (see unassigned.csv for why "
-                                 "each file was left out)", ", ".join(args.roots))
     return EXIT_OK
+
+
+_ADDRESS = re.compile(r"^(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9a-fA-F:]+\]|[^\s:/\[\]]+)"
+                      r":\d{1,5}$")
+
+
+def _scheduler_address(text: str) -> str:
+    """``serial``, a Dask scheduler address with a port (``tcp://host:8786``), or a
+    scheduler file (``dask scheduler --scheduler-file F``: JSON with its address)."""
+    import json
+
+    if text == "serial" or _ADDRESS.match(text.strip()):
+        return text.strip()
+    path = Path(text)
+    if path.suffix.lower() == ".json" or path.is_file():
+        try:
+            address = json.loads(path.read_text())["address"]
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            why = "no such file" if isinstance(exc, FileNotFoundError) else \
+                f"not a Dask scheduler file: {type(exc).__name__}: {exc}"
+            raise argparse.ArgumentTypeError(f"{path}: {why}") from None
+        if isinstance(address, str) and _ADDRESS.match(address):
+            return address
+        raise argparse.ArgumentTypeError(f"{path}: its address {address!r} is not a Dask "
+                                         "scheduler address")
+    raise argparse.ArgumentTypeError(
+        f"not a Dask scheduler address: {text!r} (give one like tcp://host:8786, a "
+        "scheduler file, or 'serial' to run without Dask)")
 
 
 def _positive_seconds(text: str) -> float:
@@ -115,8 +216,8 @@ def register(sub) -> None:
 
     p = sub.add_parser(
         "batch", help="calibrate and merge every bracketed session of a photo library",
-        description="Find the bracketed sessions in folders of frames (card dumps: EXIF "
-                    "body, time and exposure), fit one response curve per camera body "
+        description="Find the bracketed sessions in folders of frames (card dumps: what the "
+                    "frames show, EXIF body, time and exposure), fit one curve per camera body "
                     "from samples pooled across its sessions (a session that disagrees "
                     "is flagged and fitted alone), and merge every session into an HDR "
                     "radiance map (EXR) with a preview. Writes a manifest (JSON Lines and "
@@ -128,9 +229,10 @@ def register(sub) -> None:
                    "recursively; hidden files and the output folder are skipped)")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR",
                    help="the batch folder (created if missing)")
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="an existing Dask scheduler (tcp://host:port); 'serial' runs "
-                        "without Dask in this process (default: a local cluster)")
+    p.add_argument("--scheduler", metavar="ADDRESS", type=_scheduler_address,
+                   help="an existing Dask scheduler (tcp://host:port, or the JSON file "
+                        "of dask scheduler --scheduler-file); 'serial' runs without Dask "
+                        "in this process (default: a local cluster)")
     p.add_argument("--workers", type=int_range(1, 1024, "--workers"), metavar="N",
                    help="local cluster workers, one thread each (default: the cores)")
     p.add_argument("--memory-limit", default="auto", metavar="LIMIT",
@@ -142,8 +244,16 @@ def register(sub) -> None:
     p.add_argument("--no-pool", action="store_true",
                    help="fit every session alone (no per-camera curve)")
     p.add_argument("--max-gap", type=_positive_seconds, default=DEFAULT_MAX_GAP,
-                   metavar="S", help="seconds between frames that start a new session "
-                                     "(default %(default)g)")
+                   metavar="S", help="seconds within which frames whose thumbnails cannot "
+                                     "be compared are one session; with --by-time, the "
+                                     "gap that starts a new session (default %(default)g)")
+    p.add_argument("--by-time", action="store_true",
+                   help="find sessions by the time gap alone (default: by what the frames "
+                        "show -- thumbnails that agree after exposure normalisation -- "
+                        "with time as a hint)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="print the sessions the batch would make, with the reason of each "
+                        "grouping decision, and stop (nothing written, no cluster)")
     p.add_argument("--redo", action="store_true",
                    help="run every session again, even those finished before")
     p.add_argument("--force", action="store_true",

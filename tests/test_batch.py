@@ -27,11 +27,10 @@ import numpy as np
 import pytest
 
 from selfcal import sim
-from selfcal.batch import discover, run_batch
+from selfcal.batch import ClusterOptions, discover, run_batch
 from selfcal.sim.cards import camera_exif, default_bodies, write_library
 from selfcal_cli.main import main
 
-distributed = pytest.importorskip("distributed", reason='needs pip install "selfcal[batch]"')
 
 BROKEN = "DSC_0008.JPG"     # the third frame of the second body's second session
 
@@ -64,6 +63,9 @@ def library(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def client():
+    """A real LocalCluster of two worker processes (only the tests that use it need Dask)."""
+    distributed = pytest.importorskip("distributed",
+                                      reason='needs pip install "selfcal[batch]"')
     cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                        dashboard_address=None, silence_logs=logging.ERROR)
     c = distributed.Client(cluster)
@@ -75,7 +77,7 @@ def client():
 @pytest.fixture(scope="module")
 def batch(library, client, tmp_path_factory):
     out = tmp_path_factory.mktemp("batch")
-    result = run_batch([library["root"]], out, client=client)
+    result = run_batch([library["root"]], out, cluster=ClusterOptions(client=client))
     return {"out": out, "result": result, "rows": {r["session"]: r for r in result.rows}}
 
 
@@ -125,7 +127,7 @@ def test_a_repeated_exposure_starts_the_next_bracket(library):
 def test_pooled_fit_of_one_session_is_the_single_session_solve(library):
     from selfcal.batch.pooled import fit_shared_response, session_samples
     from selfcal.response.basis import builtin_basis
-    from selfcal.response.solver import solve_exposure_equations
+    from selfcal.response.solver import SolverOptions, solve_exposure_equations
     from selfcal.stack.samples import SampleSet
 
     s = library["lib"].sessions[0]
@@ -135,7 +137,7 @@ def test_pooled_fit_of_one_session_is_the_single_session_solve(library):
         SampleSet(values=samples.values.astype(float), block_max=None, block_min=None,
                   flatness=None, locations=None, max_code=255, sources=samples.sources,
                   block=1, frame_shape=(1, 1)),
-        builtin_basis(), samples.log_times, n_components=5,
+        builtin_basis(), samples.log_times, options=SolverOptions(n_components=5),
         masks={"clipped": samples.clipped, "saturated": samples.saturated})
     assert np.array_equal(fit.coefficients, alone.coefficients)
 
@@ -224,7 +226,7 @@ def test_a_rerun_skips_finished_sessions_and_retries_the_failed(batch, library, 
     out = Path(batch["out"])
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()
               and p.parent.parent.name in ("sessions", "cameras")}
-    again = run_batch([library["root"]], out, client=client)
+    again = run_batch([library["root"]], out, cluster=ClusterOptions(client=client))
     status = {r["session"]: r["status"] for r in again.rows}
     broken = _session_of(batch["rows"], library["broken"])["session"]
     assert status.pop(broken) == "failed"
@@ -237,7 +239,7 @@ def test_a_rerun_skips_finished_sessions_and_retries_the_failed(batch, library, 
     later = time.time() + 2           # now, as a copy would be
     os.utime(touched, (later, later))
     try:
-        third = run_batch([library["root"]], out, client=client)
+        third = run_batch([library["root"]], out, cluster=ClusterOptions(client=client))
     finally:
         # the library is shared: a frame from the future would make the outputs of a
         # later test that copies it (mtimes kept) look older than their input
@@ -292,3 +294,36 @@ def test_cli_exit_code_says_some_sessions_failed(library, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 6
     assert "failed: simcam-s2-2002" in err and BROKEN in err and "truncated" in err
+
+
+def test_a_plot_per_camera_beside_cameras_csv(batch, library):
+    """Each session's own curve over the pooled one; the flagged session stands out."""
+    import csv
+
+    from PIL import Image
+
+    from selfcal.batch.camera_plot import CURVE_POINTS, _shared_curve
+
+    out = Path(batch["out"])
+    with open(out / "cameras.csv", newline="") as fh:
+        cams = list(csv.DictReader(fh))
+    for cam in cams:
+        plot = Path(cam["plot"])
+        assert plot.parent == out and plot.name == f"camera-{cam['camera']}.png"
+        with Image.open(plot) as im:
+            assert im.format == "PNG" and im.size[0] > 400
+    rows = batch["rows"]
+    styled = _session_of(rows, library["lib"].sessions[4].frames[0])
+    shared = np.array(_shared_curve(styled["model"] if "model" in styled else
+                                    next(c["model_file"] for c in cams
+                                         if c["camera"] == styled["camera"])))
+
+    def off(row):
+        return float(np.abs(np.array(row["own_curve"]) - shared).max())
+
+    same = [r for r in rows.values() if r["camera"] == styled["camera"]
+            and r["status"] == "ok" and not r["flagged"]]
+    for r in same + [styled]:
+        curve = np.array(r["own_curve"])
+        assert curve.shape == (CURVE_POINTS,) and np.all(np.diff(curve) >= -1e-6)
+    assert off(styled) > 2 * max(off(r) for r in same)

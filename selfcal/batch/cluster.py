@@ -34,8 +34,9 @@ from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import OutputExistsError, SelfcalError
+from ..errors import OutputExistsError, SelfcalError, options_from_keywords
 from .discover import DEFAULT_MAX_GAP, discover
+from .faults import Journal, interrupted_rows, sweep_partial
 from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_row,
                   fit_camera, plan_batch, plan_row, prepare_session, reusable_camera_fit,
                   write_manifest)
@@ -43,8 +44,15 @@ from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_
 DASK_MISSING = ('selfcal batch runs on Dask distributed, which is not installed: '
                 'pip install "selfcal[batch]"')
 
+#: How long to try reaching a scheduler given by its address.
+CONNECT_TIMEOUT = "20s"
 #: The Dask setting unset for the local cluster's workers (see DaskExecutor).
 NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
+
+#: Sessions under way at most (prepared or being prepared, not finished): bounds the
+#: tasks the scheduler and the driver hold (10⁴ submitted at once starved a loaded
+#: scheduler's connection to the driver in ``bench/bench_batch_scale.py``).
+MAX_IN_FLIGHT = 1000
 
 # task priorities (higher first)
 _PRIORITY = {"candidate": 30, "camera": 40, "finish": 20, "prepare": 10}
@@ -135,10 +143,13 @@ class DaskExecutor:
             self.client = client
         elif scheduler:
             try:
-                self.client = distributed.Client(scheduler, timeout="20s")
+                self.client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError) as exc:
                 raise ClusterError(f"cannot reach the Dask scheduler at {scheduler} "
                                    f"({exc})") from None
+            except (ValueError, TypeError) as exc:
+                raise ClusterError(f"{scheduler!r} is not a Dask scheduler address "
+                                   f"({exc}); give one like tcp://host:8786") from None
             self._own.append(self.client)
         else:
             import dask
@@ -233,11 +244,32 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
     check_output_path(out_dir / MANIFEST, force=True, create_folder=True)
 
 
-def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="auto",
-              processes: bool = True, client=None, linearize: bool = False,
-              pool: bool = True, force: bool = False, redo: bool = False,
-              max_gap: float = DEFAULT_MAX_GAP, seed: int = 0, progress=None,
-              options: BatchOptions | None = None) -> BatchResult:
+@dataclass(frozen=True)
+class ClusterOptions:
+    """Where :func:`run_batch`'s tasks run when no scheduler address is given.
+
+    Attributes
+    ----------
+    workers : int, optional
+        LocalCluster workers (default: the number of cores); one thread each.
+    memory_limit : str or int
+        Per LocalCluster worker (Dask's ``memory_limit``: ``"auto"`` shares the machine's
+        memory among the workers, ``"4GB"``, bytes, or 0 for none).
+    processes : bool
+        LocalCluster workers as processes (True) or threads of this process.
+    client : distributed.Client, optional
+        Use this client (and its cluster) instead of starting one.
+    """
+
+    workers: int | None = None
+    memory_limit: object = "auto"
+    processes: bool = True
+    client: object = None
+
+
+def run_batch(roots, out_dir, *, scheduler=None, cluster: ClusterOptions | None = None,
+              options: BatchOptions | None = None, redo: bool = False, progress=None,
+              **old_keywords) -> BatchResult:
     """Calibrate and merge every bracketed session under ``roots``, one curve per camera.
 
     Parameters
@@ -247,37 +279,28 @@ def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="aut
     out_dir : path
         The batch folder (layout in :mod:`selfcal.batch.run`); created if missing.
     scheduler : str, optional
-        ``None``: a new LocalCluster; ``"tcp://host:port"``: an existing Dask scheduler;
-        ``"serial"``: no Dask, every task in this process.
-    workers : int, optional
-        LocalCluster workers (default: the number of cores); one thread each.
-    memory_limit : str or int
-        Per LocalCluster worker (Dask's ``memory_limit``: ``"auto"`` shares the machine's
-        memory among the workers, ``"4GB"``, bytes, or 0 for none).
-    processes : bool
-        LocalCluster workers as processes (True) or threads of this process.
-    client : distributed.Client, optional
-        Use this client (and its cluster) instead.
-    linearize : bool
-        Also write every frame linearised (16-bit TIFF).
-    pool : bool
-        One curve per camera (else every session alone).
-    force : bool
-        Use models whose verdict is unusable; write into a non-empty folder that is no
-        batch folder.
+        ``None``: a new LocalCluster (or ``cluster.client``); ``"tcp://host:port"`` or a
+        scheduler file: an existing Dask scheduler; ``"serial"``: no Dask, every task in
+        this process.
+    cluster : ClusterOptions, optional
+        The local cluster's workers and memory, or a client to use.
+    options : BatchOptions, optional
+        What every session does: linearised frames, pooling, ``force``, seed, how sessions
+        are found (content or time gap, ``max_gap``).
     redo : bool
         Run every session again, finished or not.
-    max_gap : float
-        Seconds between frames that start a new session (:func:`.discover.group_sessions`).
-    seed : int
     progress : callable, optional
         ``progress("sessions", done, total, session)`` after each session.
-    options : BatchOptions, optional
-        Overrides ``linearize``, ``pool``, ``force`` and ``seed``.
+    **old_keywords
+        ``workers=``, ``memory_limit=``, ``processes=``, ``client=`` (now
+        :class:`ClusterOptions` fields) and ``linearize=``, ``pool=``, ``force=``,
+        ``seed=``, ``max_gap=`` (now :class:`.run.BatchOptions` fields), still accepted
+        with a ``DeprecationWarning``.
 
     Returns
     -------
     BatchResult
+        Without rows and with no file written when no session was found.
 
     Raises
     ------
@@ -288,35 +311,78 @@ def run_batch(roots, out_dir, *, scheduler=None, workers=None, memory_limit="aut
     OutputExistsError, OutputWriteError
         The batch folder cannot be used.
     """
+    cluster_names = set(ClusterOptions.__dataclass_fields__)
+    cluster = options_from_keywords(
+        ClusterOptions, cluster, {k: v for k, v in old_keywords.items() if k in cluster_names},
+        "run_batch")
+    options = options_from_keywords(
+        BatchOptions, options,
+        {k: v for k, v in old_keywords.items() if k not in cluster_names}, "run_batch")
     out_dir = Path(out_dir).resolve()
-    _check_out_dir(out_dir, force)
-    options = options or BatchOptions(linearize=linearize, pool=pool, force=force, seed=seed)
-    library = discover(roots, exclude=[out_dir], max_gap=max_gap)
+    _check_out_dir(out_dir, options.force)
+    library = discover(roots, exclude=[out_dir], max_gap=options.max_gap,
+                       by_content=options.by_content)
     plans, cameras = plan_batch(library, out_dir, options)
+    if not plans:              # nothing to do: nothing written, nothing started
+        return BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     fits, rows, todo = _earlier_work(plans, cameras, options, redo)
     result = BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     if progress is not None:
         progress("sessions", len(rows), len(plans), "")
-    executor = None
-    if todo:
-        executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(
-            scheduler=scheduler, workers=workers, memory_limit=memory_limit,
-            processes=processes, client=client))
+    sweep_partial(out_dir)
+    journal = Journal(out_dir)
+    rows = _Journaled(rows, journal)
+    cluster = {"scheduler": scheduler, "workers": cluster.workers,
+               "memory_limit": cluster.memory_limit, "processes": cluster.processes,
+               "client": cluster.client}
     try:
-        if executor is not None:
-            result.executor = executor.name
-            _drive(executor, todo, cameras, fits, options, rows, len(plans), progress)
-            if client is None and scheduler is None:
-                result.worker_memory = executor.worker_memory()
+        _execute(result, cluster, todo, cameras, fits, options, rows, len(plans), progress)
+    except KeyboardInterrupt:        # Ctrl-C, or SIGTERM as the CLI turns it
+        rows += interrupted_rows(todo, rows)
+        _conclude(result, list(rows), cameras, fits, plans, library)
+        journal.close(remove=True)
+        raise
+    journal.close()
+    sweep_partial(out_dir)           # what a killed worker left half-written
+    _conclude(result, list(rows), cameras, fits, plans, library)
+    journal.close(remove=True)
+    return result
+
+
+class _Journaled(list):
+    """The rows, each also appended to the journal as it comes."""
+
+    def __init__(self, rows, journal):
+        super().__init__(rows)
+        self.journal = journal
+
+    def append(self, row):
+        super().append(row)
+        self.journal.add(row)
+
+
+def _execute(result, cluster, todo, cameras, fits, options, rows, total, progress):
+    """Start the executor (when there is work), drive the tasks, close it."""
+    if not todo:
+        return
+    scheduler, client = cluster["scheduler"], cluster["client"]
+    executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(**cluster))
+    try:
+        result.executor = executor.name
+        _drive(executor, todo, cameras, fits, options, rows, total, progress)
+        if client is None and scheduler is None:
+            result.worker_memory = executor.worker_memory()
     finally:
-        if executor is not None:
-            executor.close()
+        executor.close()
+
+
+def _conclude(result, rows, cameras, fits, plans, library):
+    """The sorted manifest, camera summary and unassigned list, written together."""
     result.rows = sorted(rows, key=lambda r: r["session"])
     result.cameras = camera_rows(cameras, fits, result.rows)
     inputs = [f for p in plans for f in p.frames]
-    result.files = write_manifest(out_dir, result.rows, result.cameras, library.unassigned,
-                                  inputs=inputs)
-    return result
+    result.files = write_manifest(result.out_dir, result.rows, result.cameras,
+                                  library.unassigned, inputs=inputs)
 
 
 def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
@@ -344,24 +410,36 @@ def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
 def _drive(executor, todo, cameras, fits, options, rows, total, progress):
     """Submit the tasks of the sessions to do and collect their rows as they finish.
 
-    Every session's ``prepare`` is submitted at once (the pool candidates' first); a
-    camera's fit when the last of its candidates is prepared, together with the
-    ``finish`` of all its sessions; a session without a fit to wait for is finished as
-    soon as it is prepared.
+    The pool candidates' ``prepare`` are submitted first, all of them (a camera's fit
+    waits for its last candidate); beyond them, at most :data:`MAX_IN_FLIGHT` sessions
+    are under way at a time (``prepare`` submitted, ``finish`` not done); each finished
+    session lets the next one in, so the scheduler and this process hold a bounded
+    number of tasks however large the library.  A camera's fit is submitted when the
+    last of its candidates is prepared, with the ``finish`` of its sessions under way;
+    a session without a fit to wait for is finished as soon as it is prepared.
     """
     by_id = {p.id: p for p in todo}
     waiting = {cam: {p.id for p in todo if p.camera == cam and p.pool_candidate}
                for cam in cameras if cam not in fits}
-    tags, prep_f, camera_f = {}, {}, {}
-    for p in sorted(todo, key=lambda p: not (p.camera in waiting and p.pool_candidate)):
+    tags, prep_f, camera_f, finishing = {}, {}, {}, set()
+    queue = deque(sorted(todo, key=lambda p: not (p.camera in waiting
+                                                  and p.pool_candidate)))
+
+    def prepare():
+        p = queue.popleft()
         kind = "candidate" if p.camera in waiting and p.pool_candidate else "prepare"
         fut = executor.submit(prepare_session, p, options, key=f"prepare-{p.id}",
                               priority=_PRIORITY[kind])
         prep_f[p.id] = fut
         tags[fut] = ("prepare", p.id)
-    completed = executor.as_completed(list(prep_f.values()))
+        return fut
+
+    n_candidates = sum(p.camera in waiting and p.pool_candidate for p in queue)
+    first = min(len(queue), n_candidates + MAX_IN_FLIGHT)   # every candidate at once:
+    completed = executor.as_completed([prepare() for _ in range(first)])  # fits can't stall
 
     def finish(p, camera):
+        finishing.add(p.id)
         fut = executor.submit(finish_session, p, options, prep_f[p.id], camera,
                               key=f"finish-{p.id}", priority=_PRIORITY["finish"])
         tags[fut] = ("finish", p.id)
@@ -378,10 +456,10 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress):
                     camera_f[cam] = _submit_camera(executor, cam, cameras[cam], todo,
                                                    prep_f, options, tags, completed)
                     for q in todo:
-                        if q.camera == cam:
+                        if q.camera == cam and q.id in prep_f and q.id not in finishing:
                             finish(q, camera_f[cam])
-            elif cam not in camera_f:
-                finish(by_id[name], fits.get(cam))
+            elif name not in finishing:
+                finish(by_id[name], camera_f.get(cam, fits.get(cam)))
         elif kind == "camera":
             fits[name] = _result_or(fut, None) or fits.get(name)
         else:
@@ -389,6 +467,8 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress):
             prep_f.pop(name)       # the scheduler may forget the preparation now
             if progress is not None:
                 progress("sessions", len(rows), total, name)
+            if queue:
+                completed.add(prepare())
 
 
 def _submit_camera(executor, cam, plan, todo, prep_f, options, tags, completed):

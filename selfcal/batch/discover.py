@@ -25,13 +25,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..io.images import IMAGE_SUFFIXES, effective_exposure_times
 from ..io.raw import RAW_SUFFIXES
-
-#: A new session starts when a frame begins more than this many seconds after the
-#: previous frame of the same camera ended (start + exposure time).
-DEFAULT_MAX_GAP = 10.0
-#: Two exposures closer than this factor are the same exposure (``selfcal.calibrate``
-#: counts exposures as distinct above 5 % too).
-SAME_EXPOSURE = 1.05
+from .grouping import DEFAULT_MAX_GAP, SAME_EXPOSURE  # defined with the content grouping
 
 # EXIF 2.32 tags (IFD0 and the EXIF sub-IFD)
 _EXIF_IFD = 0x8769
@@ -42,7 +36,7 @@ _TAGS = {
     "exposure_bias": 0x9204, "shutter_apex": 0x9201,
     "custom_rendered": 0xA401, "exposure_mode": 0xA402, "white_balance": 0xA403,
     "contrast": 0xA408, "saturation": 0xA409, "sharpness": 0xA40A,
-    "body_serial": 0xA431, "lens_make": 0xA433, "lens_model": 0xA434,
+    "focal_length": 0x920A, "body_serial": 0xA431, "lens_make": 0xA433, "lens_model": 0xA434,
 }
 #: Picture settings that change the rendering (and so the response) when EXIF has them.
 PICTURE_SETTINGS = ("custom_rendered", "contrast", "saturation", "sharpness")
@@ -73,6 +67,8 @@ class FrameInfo:
         ``(name, value)`` of the :data:`PICTURE_SETTINGS` EXIF gives.
     bracketing : bool
         EXIF ExposureMode says auto bracket.
+    focal_length : float or None
+        Millimetres (EXIF FocalLength).
     """
 
     path: Path
@@ -91,6 +87,7 @@ class FrameInfo:
     kind: str
     settings: tuple = ()
     bracketing: bool = False
+    focal_length: float | None = None
 
     @property
     def relative_exposure(self) -> float | None:
@@ -161,9 +158,21 @@ def read_frame_info(path, raw=None) -> FrameInfo:
     InputError
         When the file cannot be opened as an image (the message names it).
     """
+    return read_frame(path, raw)[0]
+
+
+def read_frame(path, raw=None, also=None):
+    """:func:`read_frame_info`, and ``also(image)`` on the same open image (the file
+    opened and its EXIF parsed once; :mod:`.grouping` takes its thumbnail so).
+
+    Returns
+    -------
+    (FrameInfo, what ``also`` returned or None)
+    """
     from PIL import Image
 
     path = Path(path)
+    extra = None
     try:
         with Image.open(path) as im:
             size = im.size
@@ -171,6 +180,8 @@ def read_frame_info(path, raw=None) -> FrameInfo:
             ifd0 = im.getexif()
             sub = dict(ifd0.get_ifd(_EXIF_IFD))
             ifd0 = dict(ifd0)
+            if also is not None:
+                extra = also(im)
     except FileNotFoundError:
         raise InputError("no such file", path) from None
     except Exception as exc:  # Pillow raises several types for bad headers
@@ -194,7 +205,7 @@ def read_frame_info(path, raw=None) -> FrameInfo:
                      if (v := _number(tag(k))) is not None)
     kind = {"JPEG": "jpeg", "PNG": "png", "TIFF": "tiff", "MPO": "jpeg"}.get(fmt, fmt.lower())
     positive = [_number(tag(k)) for k in ("f_number", "iso")]
-    return FrameInfo(
+    info = FrameInfo(
         path=path, raw=None if raw is None else Path(raw),
         make=_text(tag("make")), model=_text(tag("model")), serial=_text(tag("body_serial")),
         lens=_text(tag("lens_model")), time=when, time_source=source,
@@ -202,7 +213,9 @@ def read_frame_info(path, raw=None) -> FrameInfo:
         f_number=positive[0] if positive[0] and positive[0] > 0 else None,
         iso=positive[1] if positive[1] and positive[1] > 0 else None,
         exposure_bias=_number(tag("exposure_bias")), size=tuple(size), kind=kind,
-        settings=settings, bracketing=_number(tag("exposure_mode")) == 2)
+        settings=settings, bracketing=_number(tag("exposure_mode")) == 2,
+        focal_length=_number(tag("focal_length")))
+    return info, extra
 
 
 def _slug(text: str) -> str:
@@ -237,11 +250,17 @@ class Session:
         :func:`camera_key` of its frames.
     frames : list of FrameInfo
         In capture order.
+    reasons : list of str
+        Why each frame is in it (:mod:`.grouping`), empty for the time rule.
+    unsure : bool
+        Some decision was by time alone or near a threshold (:mod:`.grouping`).
     """
 
     id: str
     camera: str
     frames: list
+    reasons: list = field(default_factory=list)
+    unsure: bool = False
 
     @property
     def paths(self) -> list:
@@ -349,7 +368,8 @@ def _pair_raws(files, unassigned):
     return [(f, raws.get(key)) for key, f in rendered.items()]
 
 
-def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP) -> Library:
+def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP,
+             by_content: bool = True, rule=None, workers: int | None = None) -> Library:
     """Find the bracketed sessions under ``roots``.
 
     Parameters
@@ -360,7 +380,15 @@ def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP) -> Library:
         Folders not to walk (the batch's output folder).
     max_gap : float
         Seconds between the end of one frame and the start of the next beyond which a new
-        session starts (:func:`group_sessions`).
+        session starts (:func:`group_sessions`); with ``by_content``, the gap within
+        which time decides when thumbnails cannot be compared.
+    by_content : bool
+        Group by what the frames show, time as a hint (:func:`.grouping.group_by_content`);
+        False: by time alone (:func:`group_sessions`).
+    rule : GroupingRule, optional
+        The content grouping's thresholds (``max_gap`` replaces its ``max_gap``).
+    workers : int, optional
+        Threads reading EXIF and thumbnails (default: up to 8, one per core).
 
     Returns
     -------
@@ -371,21 +399,31 @@ def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP) -> Library:
     InputError
         A root that does not exist (named).
     """
+    from dataclasses import replace
+
+    from .grouping import GroupingRule, group_by_content, read_frames
+
     roots = [Path(r) for r in roots]
     unassigned: list = []
-    infos = []
-    for path, raw in _pair_raws(_walk(roots, exclude), unassigned):
-        try:
-            info = read_frame_info(path, raw)
-        except InputError as exc:
-            unassigned.append((path, exc.reason))
+    infos, thumbs = [], []
+    pairs = _pair_raws(_walk(roots, exclude), unassigned)
+    read = read_frames(pairs, read_frame, workers=workers, thumbnails=by_content)
+    for (path, _), (info, thumb) in zip(pairs, read):
+        if isinstance(info, InputError):
+            unassigned.append((path, info.reason))
             continue
         if info.exposure_time is None:
             unassigned.append((path, "no exposure time in EXIF (sessions are found by "
                                      "their exposures)"))
             continue
         infos.append(info)
-    sessions, loose = group_sessions(infos, max_gap=max_gap)
+        thumbs.append(thumb)
+    if by_content:
+        rule = replace(rule or GroupingRule(), max_gap=max_gap)
+        groups, loose = group_by_content(infos, thumbs, rule)
+        sessions = sessions_from_groups(groups)
+    else:
+        sessions, loose = group_sessions(infos, max_gap=max_gap)
     unassigned += loose
     unassigned.sort(key=lambda x: str(x[0]))
     return Library(sessions=sessions, unassigned=unassigned, roots=roots)
@@ -442,3 +480,21 @@ def group_sessions(frames, *, max_gap: float = DEFAULT_MAX_GAP):
         if ids.count(s.id) > 1:      # same camera, same second, same first name
             s.id += "-" + hashlib.sha1(str(s.frames[0].path).encode()).hexdigest()[:6]
     return sessions, loose
+
+
+def sessions_from_groups(groups) -> list:
+    """:class:`Session` objects for :class:`.grouping.ContentGroup` objects: ids as
+    :func:`group_sessions` makes them (``camera-YYYYmmdd-HHMMSS-firststem``, a short
+    hash added where two would be the same), reasons and doubt kept."""
+    sessions = []
+    for g in groups:
+        f0 = g.frames[0]
+        stamp = _iso(f0.time)[:19].replace("-", "").replace(":", "").replace("T", "-")
+        sessions.append(Session(id=f"{f0.camera}-{stamp}-{_slug(f0.path.stem)}",
+                                camera=f0.camera, frames=list(g.frames),
+                                reasons=list(g.reasons), unsure=bool(g.unsure)))
+    ids = [s.id for s in sessions]
+    for s in sessions:
+        if ids.count(s.id) > 1:
+            s.id += "-" + hashlib.sha1(str(s.frames[0].path).encode()).hexdigest()[:6]
+    return sessions

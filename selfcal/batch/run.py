@@ -42,6 +42,8 @@ from pathlib import Path
 
 from ..errors import CalibrationError, SelfcalError, SelfcalWarning
 from ..io.model_file import jsonable
+from .camera_plot import camera_plot_writers, own_curve
+from .grouping import DEFAULT_MAX_GAP
 from .pooled import (POOL_SAMPLES, POOL_SESSIONS, agreement_with, disagrees,
                      pooled_calibration, session_samples, shared_model)
 
@@ -71,6 +73,12 @@ class BatchOptions:
     force : bool
         Use a model whose verdict is ``unusable`` (as ``--force`` of the CLI).
     seed : int
+    by_content : bool
+        Find sessions by what the frames show, time as a hint (:mod:`.grouping`); False:
+        by the time gap alone (:func:`.discover.group_sessions`).
+    max_gap : float
+        Seconds between frames that start a new session (the time rule, and the hint of
+        the content grouping).
     """
 
     linearize: bool = False
@@ -79,6 +87,8 @@ class BatchOptions:
     pool_samples: int = POOL_SAMPLES
     force: bool = False
     seed: int = 0
+    by_content: bool = True
+    max_gap: float = DEFAULT_MAX_GAP
 
 
 @dataclass(frozen=True)
@@ -99,6 +109,8 @@ class SessionPlan:
     out_dir: str
     pool_candidate: bool = False
     alone_reason: str = ""
+    grouping: tuple = ()
+    grouping_unsure: bool = False
 
     @property
     def folder(self) -> Path:
@@ -220,7 +232,8 @@ def plan_batch(library, out_dir, options: BatchOptions):
                 exposure_bias=tuple(x.exposure_bias for x in f),
                 iso=tuple(x.iso for x in f), f_number=tuple(x.f_number for x in f),
                 lens=f[0].lens, start=s.start, out_dir=out_dir,
-                pool_candidate=s.id in candidates, alone_reason=reason))
+                pool_candidate=s.id in candidates, alone_reason=reason,
+                grouping=tuple(s.reasons), grouping_unsure=bool(s.unsure)))
     return plans, cameras
 
 
@@ -361,6 +374,7 @@ def finish_session(plan: SessionPlan, options: BatchOptions, prep: SessionPrep,
             _warnings.simplefilter("always")
             choice = _choose_model(plan, prep, camera)
             row.update(choice)
+            row["own_curve"] = own_curve(prep.model)
             written = _merge_and_write(plan, options, prep, row)
         row["warnings"] = list(dict.fromkeys(
             prep.warnings + row.get("warnings", []) + [str(w.message) for w in caught
@@ -485,7 +499,8 @@ def plan_row(plan: SessionPlan) -> dict:
             "model_reason": "", "verdict": None, "pooled": False, "flagged": False,
             "agreement_shared": None, "agreement_own": None, "outputs": [], "warnings": [],
             "unmeasured_fraction": None, "prepare_seconds": None, "merge_seconds": None,
-            "seconds": None, "worker": "", "prepare_worker": ""}
+            "seconds": None, "worker": "", "prepare_worker": "",
+            "grouping_unsure": plan.grouping_unsure, "grouping": list(plan.grouping)}
 
 
 # ------------------------------------------------------------------------ rerun
@@ -573,16 +588,17 @@ MANIFEST_COLUMNS = ["session", "status", "error", "camera", "camera_label", "len
                     "f_number", "model_kind", "model_file", "model_reason", "verdict",
                     "pooled", "flagged", "agreement_shared", "agreement_own", "outputs",
                     "warnings", "unmeasured_fraction", "prepare_seconds", "merge_seconds",
-                    "seconds", "worker"]
+                    "seconds", "worker", "grouping_unsure", "grouping"]
 CAMERA_COLUMNS = ["camera", "camera_label", "lenses", "sessions", "ok", "skipped", "failed",
                   "pooled_fit", "model_file", "pooled_sessions", "flagged_sessions",
                   "alone_sessions", "residual_rms_log", "fit_error", "fit_seconds",
-                  "fit_reused"]
+                  "fit_reused", "plot"]
 
 
 def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:
-    """Write the manifest (JSON Lines and CSV), the camera summary and the unassigned
-    files, together (:class:`selfcal.io.StagedOutputs`); returns the paths written.
+    """Write the manifest (JSON Lines and CSV), the camera summary, a plot per camera
+    (:mod:`.camera_plot`) and the unassigned files, together
+    (:class:`selfcal.io.StagedOutputs`); returns the paths written.
 
     JSON Lines keeps lists as lists (``pandas.read_json(path, lines=True)`` reads it);
     the CSV joins them with ``;`` for spreadsheets.
@@ -602,7 +618,12 @@ def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:
         UNASSIGNED_CSV: _csv_text([{"path": str(p), "reason": why} for p, why in unassigned],
                                   ["path", "reason"]),
     }
+    plots = camera_plot_writers(out_dir, cameras, rows)     # sets cameras' "plot"
+    files[CAMERAS] = lines(cameras)
+    files[CAMERAS_CSV] = _csv_text(cameras, CAMERA_COLUMNS)
     with StagedOutputs(force=True, inputs=inputs) as staged:
         for name, text in files.items():
             staged.write(out_dir / name, lambda t, text=text: Path(t).write_text(text))
+        for path, writer in plots.items():
+            staged.write(path, writer)
     return staged.written
