@@ -206,16 +206,22 @@ def colour_hdri_merges(frames, times, meta, halves):
 # one stack
 # --------------------------------------------------------------------------------------
 
-def run_stack(name, paths, times, reduce: int):
+def sorted_frames(name, paths, times, reduce: int):
+    """The stack's frames decoded (ntu reduced at least ``NTU_REDUCE``), paths and times,
+    in increasing exposure."""
     from selfcal.io import read_image
 
-    t0 = time.perf_counter()
     if name == "ntu":
         reduce = max(reduce, NTU_REDUCE)
     order = np.argsort(np.asarray(times, float), kind="stable")
     paths = [paths[k] for k in order]
     times = [float(times[k]) for k in order]
-    frames = [read_image(p, reduce=reduce) for p in paths]
+    return [read_image(p, reduce=reduce) for p in paths], paths, times
+
+
+def run_stack(name, paths, times, reduce: int):
+    t0 = time.perf_counter()
+    frames, paths, times = sorted_frames(name, paths, times, reduce)
     if any(f.dtype != np.uint8 for f in frames):
         sys.exit(f"{name}: 8-bit frames expected")
     meta = exposure_meta(paths)

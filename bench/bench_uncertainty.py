@@ -209,16 +209,10 @@ def real_task(task):
     from dataclasses import replace
 
     import selfcal
-    from bench_hdr_oddeven import NTU_REDUCE, measured
+    from bench_hdr_oddeven import measured, sorted_frames
     from selfcal.hdr import MergeOptions
-    from selfcal.io import read_image
 
-    if name == "ntu":
-        reduce = max(reduce, NTU_REDUCE)
-    order = np.argsort(np.asarray(times, float), kind="stable")
-    paths = [paths[k] for k in order]
-    times = [float(times[k]) for k in order]
-    frames = [read_image(p, reduce=reduce) for p in paths]
+    frames, paths, times = sorted_frames(name, paths, times, reduce)
     n = len(frames)
     halves = (tuple(range(1, n, 2)), tuple(range(0, n, 2)))
     mask = measured([frames[k] for k in halves[0]]) & measured([frames[k] for k in halves[1]])

@@ -41,3 +41,18 @@ def rmse_vs_truth(model, stack, codes: slice = slice(1, -1)) -> float:
     truth = stack.inverse_response()
     est = model.inverse_response(np.arange(stack.max_code + 1))
     return float(np.sqrt(np.mean((est[codes] - truth[codes]) ** 2)))
+
+
+def dim_training_pixels():
+    """A simulated RAW+JPEG pair and 1,200 of its pixels that are dim and weakly coloured:
+    ``(raw, jpg, pick)`` with ``raw`` float64 and ``jpg`` uint8 codes, both ``(n, 3)``.
+    A model fitted to them has bright saturated colours outside its training colours."""
+    from selfcal import sim
+
+    p = sim.simulate_raw_jpeg_pair(
+        sim.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
+    raw = p["raw"].reshape(-1, 3).astype(np.float64)
+    jpg = p["rendered"].reshape(-1, 3)
+    sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
+    pick = np.flatnonzero((raw.max(1) < 0.35) & (raw.max(1) > 0.01) & (sat < 0.6))
+    return raw, jpg, np.random.default_rng(0).choice(pick, 1200, replace=False)

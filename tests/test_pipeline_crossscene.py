@@ -16,6 +16,7 @@ from selfcal.pipeline import (LatticeOptions, PipelineOptions, fit_pipeline,
                               lattice_regression_lut, monotone_tone_curves)
 from selfcal.pipeline.rbf import rbf_inverse_colour_mapping, rbf_leave_one_out
 from selfcal.pipeline.trust import TRUST_RADIUS, TrainingColours
+from conftest import dim_training_pixels
 
 
 def _rmse(a, b) -> float:
@@ -25,13 +26,7 @@ def _rmse(a, b) -> float:
 @pytest.fixture(scope="module")
 def scene_pair():
     """A simulated pair whose training half holds only dim, weakly coloured pixels."""
-    p = sim.simulate_raw_jpeg_pair(
-        sim.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
-    raw = p["raw"].reshape(-1, 3).astype(np.float64)
-    jpg = p["rendered"].reshape(-1, 3)
-    sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
-    pick = np.flatnonzero((raw.max(1) < 0.35) & (raw.max(1) > 0.01) & (sat < 0.6))
-    pick = np.random.default_rng(0).choice(pick, 1200, replace=False)
+    raw, jpg, pick = dim_training_pixels()
     model = fit_pipeline(raw[pick], jpg[pick] / 255.0, PipelineOptions(n_sets=3, backward="lut"),
                          seed=0)
     return {"raw": raw, "jpg": jpg, "pick": pick, "model": model}

@@ -9,12 +9,12 @@ import re
 import numpy as np
 import pytest
 
-from selfcal import sim
 from selfcal.io import read_image, write_image
 from selfcal.pipeline import PipelineOptions, fit_pipeline
 from selfcal.io.raw import read_raw_linear
 from selfcal_cli.main import main
 from selfcal_cli.pipeline_commands import WARN_OUTSIDE
+from conftest import dim_training_pixels
 
 WARNING = re.compile(r"warning: (.+): ([0-9.]+) % of its pixels have (raw|rendered) colours "
                      r"outside those the model was trained on")
@@ -25,13 +25,7 @@ def trained(tmp_path_factory):
     """A model fitted to the dim, weakly coloured half of a simulated pair, saved; the
     training pixels themselves, and bright saturated colours it never saw."""
     folder = tmp_path_factory.mktemp("trust")
-    p = sim.simulate_raw_jpeg_pair(
-        sim.make_scene(96, 144, dynamic_range_stops=8.0, saturation=0.6, seed=3), seed=3)
-    raw = p["raw"].reshape(-1, 3).astype(np.float64)
-    jpg = p["rendered"].reshape(-1, 3)
-    sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
-    pick = np.flatnonzero((raw.max(1) < 0.35) & (raw.max(1) > 0.01) & (sat < 0.6))
-    pick = np.random.default_rng(0).choice(pick, 1200, replace=False)
+    raw, jpg, pick = dim_training_pixels()
     model = fit_pipeline(raw[pick], jpg[pick] / 255.0,
                          PipelineOptions(n_sets=2, backward="lut", bake_size=17), seed=0)
     path = model.save(folder / "camera.json")
