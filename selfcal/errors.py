@@ -47,12 +47,14 @@ class SelfcalWarning(UserWarning):
     """Something the user should know, that does not stop the work."""
 
 
-def options_from_keywords(options_class, options, keywords: dict, function: str):
+def options_from_keywords(options_class, options, keywords: dict, function: str, *,
+                          argument: str = "options"):
     """``options`` (default ``options_class()``) with old keyword arguments folded in.
 
     Functions whose finer settings moved into a frozen options dataclass accept the old
     keywords for a while: each gives a :class:`DeprecationWarning` naming the field to set
-    instead, never silently.  An unknown keyword is a :class:`TypeError`, as Python's own.
+    instead (in the options passed as ``argument``), never silently.  An unknown keyword is
+    a :class:`TypeError`, as Python's own.
 
     >>> import warnings
     >>> from dataclasses import dataclass
@@ -64,6 +66,8 @@ def options_from_keywords(options_class, options, keywords: dict, function: str)
     ...     opts = options_from_keywords(Opts, None, {"margin": 5.0}, "f")
     >>> opts.margin, caught[0].category.__name__
     (5.0, 'DeprecationWarning')
+    >>> print(caught[0].message)
+    f(margin=...) is deprecated: pass options=Opts(margin=...)
     """
     options = options_class() if options is None else options
     if not keywords:
@@ -72,8 +76,8 @@ def options_from_keywords(options_class, options, keywords: dict, function: str)
     unknown = sorted(set(keywords) - names)
     if unknown:
         raise TypeError(f"{function}() got an unexpected keyword argument {unknown[0]!r}")
-    given = ", ".join(f"{k}=..." for k in sorted(keywords))
-    warnings.warn(f"{function}({given}) is deprecated: pass "
-                  f"options={options_class.__name__}({given}) instead",
-                  DeprecationWarning, stacklevel=3)
+    for key in keywords:
+        warnings.warn(f"{function}({key}=...) is deprecated: pass "
+                      f"{argument}={options_class.__name__}({key}=...)",
+                      DeprecationWarning, stacklevel=3)
     return dataclasses.replace(options, **keywords)

@@ -13,7 +13,7 @@ Examples
 >>> from selfcal.pipeline import PipelineOptions, fit_pipeline
 >>> pair = sim.simulate_raw_jpeg_pair(seed=0)
 >>> model = fit_pipeline(pair["raw"].reshape(-1, 3), pair["rendered"].reshape(-1, 3) / 255,
-...                      PipelineOptions(n_sets=5), n_train=1500)
+...                      PipelineOptions(n_sets=2), n_train=800)
 >>> rendered = model.render(pair["raw"])          # float32 HxWx3 in [0, 1]
 >>> raw = model.to_raw(pair["rendered"])          # float32 linear raw
 >>> raw, outside = model.to_raw(pair["rendered"], return_mask=True)  # far from training

@@ -10,13 +10,12 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError
+from ..errors import CalibrationError, InputError, options_from_keywords
 from ..stack.samples import hsv_saturation
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
 from .model import BAKE_SIZE, BACKWARD_VARIANTS, BackwardStages, ForwardStages, PipelineModel
-from .options import with_legacy_keywords
 from .rbf import N_CONTROL_POINTS, rbf_inverse_colour_mapping
 from .tone import SMOOTHNESS, monotone_tone_curves
 from .trust import TrainingColours
@@ -578,7 +577,7 @@ def fit_pipeline(raw_samples, rendered_samples, options: PipelineOptions | None 
     >>> from selfcal.pipeline import PipelineOptions, fit_pipeline
     >>> pair = sim.simulate_raw_jpeg_pair(seed=0)
     >>> raw = pair["raw"].reshape(-1, 3); jpg = pair["rendered"].reshape(-1, 3) / 255
-    >>> model = fit_pipeline(raw, jpg, PipelineOptions(n_sets=5), n_train=1500)
+    >>> model = fit_pipeline(raw, jpg, PipelineOptions(n_sets=2), n_train=800)
     >>> model.diagnostics["forward_train_rmse"] < 4       # 0-255 scale
     True
     """
@@ -586,7 +585,7 @@ def fit_pipeline(raw_samples, rendered_samples, options: PipelineOptions | None 
     options = PipelineOptions() if options is None else options
     if not isinstance(options, PipelineOptions):
         raise TypeError(f"options must be a PipelineOptions, got {type(options).__name__}")
-    options = with_legacy_keywords(options, legacy, "fit_pipeline")
+    options = options_from_keywords(PipelineOptions, options, legacy, "fit_pipeline")
     seeds = np.random.SeedSequence(seed).spawn(3)   # subset, matrix sets, RBF centres
     raw, rendered, n_given, groups = _training_samples(raw_samples, rendered_samples,
                                                        n_train, seeds[0], groups)

@@ -39,8 +39,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
-from ..errors import CalibrationError, InputError
-from .options import with_legacy_keywords
+from ..errors import CalibrationError, InputError, options_from_keywords
 
 #: Lattice size per axis ([Gong2018] §3.4: 5×5×5).
 LATTICE_SIZE = 5
@@ -319,8 +318,7 @@ def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=
     >>> float(np.sqrt(np.mean((x + lut.residual(x) - y) ** 2))) < 0.003
     True
     """
-    options = with_legacy_keywords(LatticeOptions() if options is None else options, legacy,
-                                   "lattice_regression_lut")
+    options = options_from_keywords(LatticeOptions, options, legacy, "lattice_regression_lut")
     size, gamma, affine = options.size, options.gamma, options.affine
     smoothness_grid = options.smoothness_grid
     x = np.asarray(x, dtype=np.float64)

@@ -24,11 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, options_from_keywords
 from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image, read_image_size
 from ..io.raw import read_raw_linear
 from ..stack.exposure_ratios import check_linear_raw, split_thumbnails
-from .options import with_legacy_keywords
 from .registration import (Registration, _as_float_rendered, _inside_mask, _warp,
                            register_raw_jpeg)
 
@@ -218,8 +217,8 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     -------
     PairSamples
     """
-    rejection = with_legacy_keywords(BlockRejection() if rejection is None else rejection,
-                                     legacy, "pair_samples", "rejection")
+    rejection = options_from_keywords(BlockRejection, rejection, legacy, "pair_samples",
+                                      argument="rejection")
     raw_clip, keep_clipped = rejection.raw_clip, rejection.keep_clipped
     rendered_low, rendered_high = rejection.rendered_low, rejection.rendered_high
     cv2 = import_cv2()
