@@ -78,3 +78,22 @@ def test_the_sweep_removes_only_temporaries_and_folders_they_alone_held(tmp_path
     assert not (s / "killed").exists() and not (tmp_path / "cameras" / "cam").exists()
     assert sorted(p.name for p in Path(tmp_path).rglob("*") if p.is_file()) == [
         "radiance.exr", "user-file"]
+
+
+def test_old_keywords_of_run_batch_warn_and_still_work(tmp_path):
+    """``workers=`` (now ClusterOptions) and ``max_gap=`` (now BatchOptions) still work,
+    each with a DeprecationWarning naming the options class; a card without a bracket is
+    nothing to do either way."""
+    card = tmp_path / "card"
+    card.mkdir()
+    with pytest.warns(DeprecationWarning) as caught:
+        result = run_batch([card], tmp_path / "out", scheduler="serial", workers=2,
+                           max_gap=30.0)
+    messages = {str(w.message) for w in caught}
+    assert "run_batch(workers=...) is deprecated: pass cluster=ClusterOptions(workers=...)" \
+        in messages
+    assert "run_batch(max_gap=...) is deprecated: pass options=BatchOptions(max_gap=...)" \
+        in messages
+    assert result.rows == [] and not (tmp_path / "out").exists()
+    with pytest.raises(TypeError, match="wokers"):
+        run_batch([card], tmp_path / "out", scheduler="serial", wokers=2)

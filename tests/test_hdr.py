@@ -167,6 +167,13 @@ def test_clipped_channel_gives_zero_weight():
     assert not np.allclose(mixed, only_short)
     assert result.frame_count[0, 0] == 2
     assert not result.unmeasured.any()
+    # the old keyword still works, with a DeprecationWarning naming the option field
+    with pytest.warns(DeprecationWarning, match=r"merge_hdr\(lossy=\.\.\.\) is deprecated: "
+                      r"pass options=MergeOptions\(lossy=\.\.\.\)"):
+        old = merge_hdr([short, long], [1.0, 4.0], model, lossy=False)
+    np.testing.assert_array_equal(old.radiance, result.radiance)
+    with pytest.raises(TypeError, match="losy"):
+        merge_hdr([short, long], [1.0, 4.0], model, losy=False)
 
 
 def test_unmeasured_region_flagged_and_filled():

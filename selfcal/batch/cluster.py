@@ -314,7 +314,7 @@ def run_batch(roots, out_dir, *, scheduler=None, cluster: ClusterOptions | None 
     cluster_names = set(ClusterOptions.__dataclass_fields__)
     cluster = options_from_keywords(
         ClusterOptions, cluster, {k: v for k, v in old_keywords.items() if k in cluster_names},
-        "run_batch")
+        "run_batch", argument="cluster")
     options = options_from_keywords(
         BatchOptions, options,
         {k: v for k, v in old_keywords.items() if k not in cluster_names}, "run_batch")
