@@ -1,4 +1,4 @@
-"""Bad input over the command line (issue 14): every case a clear answer, nothing half-written.
+"""Bad input over the command line: every case a clear answer, nothing half-written.
 
 Each case runs ``selfcal`` (in process; a few through a real subprocess) on real tiny files
 built here (a 48x64 simulated bracket, response and pipeline models, broken copies) and

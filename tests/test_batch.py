@@ -1,4 +1,4 @@
-"""``selfcal batch`` on a real Dask LocalCluster over a simulated photo library (issue 17).
+"""``selfcal batch`` on a real Dask LocalCluster over a simulated photo library.
 
 The library (:func:`selfcal.sim.cards.write_library`): two camera bodies with
 different responses, three bracketed sessions each, EXIF as cameras write it, every

@@ -206,7 +206,7 @@ def test_calibrate_align_handheld_files(capsys, tmp_path):
     assert moves == pytest.approx([-4, 0, 5])
 
 
-# ------------------------------------------------------------------ issue 14
+# ------------------------------------------------------------------ clear answers, nothing lost
 
 def _bracket(folder, times, *, seed=1, size=(48, 64)):
     """A simulated JPEG bracket with EXIF times (the simulator's default camera)."""
@@ -381,7 +381,7 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     assert "raw_0.tif, raw_1.tif, raw_2.tif are linear data" in text
     assert "selfcal merge" in text
     assert not (tmp_path / "m.json").exists()
-    # merge recognises them and merges them as they are (issue 18)
+    # merge recognises them and merges them as they are
     code, text = run(["merge", *paths, "-o", tmp_path / "auto.exr"], capsys)
     assert code == 0, text
     assert "are linear data" in text and "no response fitted" in text

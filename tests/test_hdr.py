@@ -640,7 +640,7 @@ def test_calibrate_response_aligns_handheld_frames_first():
         selfcal.calibrate_response(frames, times, align="sift")
 
 
-# ------------------------------------------------------------------ right by default (issue 13)
+# ------------------------------------------------------------------ right by default
 
 FLOOR = np.array([14, 18, 16], np.uint8)       # per-channel black pedestal, as memorial's
 LONG_TIMES = [1 / 4096, 1 / 1024, 1 / 256, 1 / 64, 1 / 16, 1 / 4, 1]
@@ -660,7 +660,7 @@ def test_black_floor_detected_and_given_zero_weight(floored):
     """Default weights (inverse variance, floors at zero) beat the hat on a floored stack.
 
     The hat merge as it was (no floor: ``stuck_codes=False``) lets f⁻¹(floor)/e of the
-    short frames into the shadows, as on memorial (issue 13).
+    short frames into the shadows, as on memorial.
     """
     truth = truth_radiance(floored)
     model = true_model(floored)

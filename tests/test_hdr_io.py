@@ -1,4 +1,4 @@
-"""Half-float radiance outputs never hold inf or NaN (issue 13, "Output range").
+"""Half-float radiance outputs never hold inf or NaN.
 
 A radiance in EXIF units (t·ISO/100/N²) of a daylight bracket (f/16, ISO 100, 1/4000 s)
 reaches ~1e7, far beyond half-float's 65,504: ``write_radiance(half=True)`` stores it

@@ -1,5 +1,5 @@
 """``selfcal show``: what it prints agrees with the model's own values, the plot is a PNG of
-the requested file, and a damaged model file is a clear error (issue 18)."""
+the requested file, and a damaged model file is a clear error."""
 
 from __future__ import annotations
 

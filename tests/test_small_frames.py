@@ -1,4 +1,4 @@
-"""Issue 15, Build 4: a frame's block grid and sample plan stay bounded, and blocks sit
+"""Small frames: a frame's block grid and sample plan stay bounded, and blocks sit
 where they say they do (also when the JPEG is decoded at half size by DCT scaling).
 
 Synthetic stacks only (:mod:`selfcal.sim`); no shared data.
