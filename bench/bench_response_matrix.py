@@ -7,6 +7,9 @@ matrix with white balance and highlight clip; the smooth or the clip gamut map; 
 curve for all channels or different ones per channel; in-camera sharpening or not; shot
 and read noise; six shots 1/250 … 1/8 s with ±3 % shutter jitter; OpenCV JPEG 4:2:0 or
 4:4:4 at a quality drawn from the seed in 75 … 95.  Every method gets the nominal times.
+The ``exact/…`` cells (``selfcal.synth_exact``) have no colour matrix and no gamut map:
+the curves act per channel on the noisy sensor values of a Voronoi-patch scene over 12
+stops, JPEG q92 4:2:0, at 300x400 and at 1.5 MP (their own size, whatever ``--size``).
 
 Curves: the forward tables of ``../shared/data/dorf_emor/201_CRF_data.mat``.  Split:
 *tuning* = even-indexed curves and seeds < 1000; *held-out* = odd-indexed curves and
@@ -59,7 +62,12 @@ from common import (SHARED_DATA, colour_hdri_inverse_response, opencv_inverse_re
 
 from selfcal.metrics import best_scale_rmse, rmse  # noqa: E402
 from selfcal.synth import DEMO_EXPOSURE_TIMES  # noqa: E402
-from selfcal.synth_conditions import CONDITIONS  # noqa: E402
+from selfcal.synth_conditions import CONDITIONS as _NATURAL  # noqa: E402
+from selfcal.synth_exact import EXACT_CONDITIONS  # noqa: E402
+
+# every cell: the natural-scene cells (colour matrix and gamut map before the curves), then
+# the cells where the per-channel model is exact (their frame size is their own)
+CONDITIONS = {**_NATURAL, **EXACT_CONDITIONS}
 
 TIMES = list(DEMO_EXPOSURE_TIMES)
 METHODS = ("selfcal", "colour", "debevec", "robertson")
@@ -140,7 +148,8 @@ def dorf_curve(index: int):
 def one_cell_stack(task):
     _, cell, index, seed, size, methods = task
     t0 = time.perf_counter()
-    stack = CONDITIONS[cell].simulate(dorf_curve(index), seed, size=size)
+    own = getattr(CONDITIONS[cell], "size", None)     # the exact cells' own size
+    stack = CONDITIONS[cell].simulate(dorf_curve(index), seed, size=own or size)
     simulate_seconds = time.perf_counter() - t0
     res = score(calibrate_all(stack.images, TIMES, methods), stack.inverse_response())
     return {"kind": "cell", "cell": cell, "index": index, "seed": seed,
@@ -201,7 +210,9 @@ def split_tasks(split: str, n_curves: int, cells, size, d7000: bool, methods) ->
         if name not in cells:
             continue
         for j in range(n_curves):
-            tasks.append(("cell", name, curves[(j * len(names) + k) % len(curves)],
+            # the stride is the natural cells' count, so adding the exact cells left the
+            # natural cells' curves and seeds as they were
+            tasks.append(("cell", name, curves[(j * len(_NATURAL) + k) % len(curves)],
                           base + SEED_STRIDE * k + j, size, methods))
     return tasks
 
