@@ -19,8 +19,9 @@ def test_codes_are_the_curve_of_the_raw_channel():
                          for c in range(3)], axis=-1)
         assert np.allclose(pipe.render(raw), want)
         # the codes are that, through JPEG q92 4:2:0 (luma is not subsampled)
-        err = np.abs(img.astype(float).mean(axis=-1) - 255 * want.mean(axis=-1))
-        assert np.median(err) < 1.5
+        y = np.array([0.299, 0.587, 0.114])
+        err = np.abs(img.astype(float) @ y - 255 * want @ y)
+        assert np.median(err) < 3.0         # noise in steep shadows loses most
     assert stack.images[-1].max() == 255 and (stack.images[-1] == 255).mean() > 0.05
 
 
