@@ -81,6 +81,8 @@ class ReducedFrame:
     digest: str               # content hash of every decoded pixel, to find duplicate frames
     source: str               # file name or "array #k"
     thumbnail: np.ndarray | None = None   # grey uint8, long side <= THUMBNAIL_SIDE blocks
+    channel_max: np.ndarray | None = None  # (h, w, 3) highest code per channel in the block
+    channel_min: np.ndarray | None = None  # (h, w, 3) lowest code per channel
 
 
 def _as_image_array(image, source: str) -> np.ndarray:
@@ -126,6 +128,7 @@ def reduce_frame(image, *, block: int, source: str = "array",
     digest = content_digest(arr) if digest is None else digest
     if block == 1:
         blocks = crop.astype(np.float32)
+        chmax = chmin = None                      # the pixels are their own extremes
         c0, c1, c2 = cv2.split(np.ascontiguousarray(crop))
         cmax = cv2.max(cv2.max(c0, c1), c2).astype(np.float32)
         cmin = cv2.min(cv2.min(c0, c1), c2).astype(np.float32)
@@ -143,6 +146,10 @@ def reduce_frame(image, *, block: int, source: str = "array",
         cmin = cv2.erode(cv2.min(cv2.min(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
         cmax = cmax.astype(np.float32)
         cmin = cmin.astype(np.float32)
+        # per channel too, in the frame's own type (the histogram correspondences)
+        fine3 = np.ascontiguousarray(fine)
+        chmax = cv2.dilate(fine3, kernel, anchor=(0, 0))[::2, ::2]
+        chmin = cv2.erode(fine3, kernel, anchor=(0, 0))[::2, ::2]
     if NEAR_CLIP_BLOCKS > 0:
         # JPEG ringing and chroma bleed from a clipped neighbour damage a block's codes
         near = np.ones((2 * NEAR_CLIP_BLOCKS + 1,) * 2, np.uint8)
@@ -150,7 +157,8 @@ def reduce_frame(image, *, block: int, source: str = "array",
     blocks = np.ascontiguousarray(blocks, dtype=np.float32)
     return ReducedFrame(blocks=blocks, block_max=cmax, block_min=cmin, max_code=max_code,
                         shape=(h, w), digest=digest, source=source,
-                        thumbnail=_grey_thumbnail(blocks, max_code))
+                        thumbnail=_grey_thumbnail(blocks, max_code),
+                        channel_max=chmax, channel_min=chmin)
 
 
 @dataclass
@@ -195,6 +203,7 @@ class SampleSet:
     digests: list = field(default_factory=list)
     thumbnails: list = field(default_factory=list)
     thumbnail_pixel: float = 1.0
+    reduced: list | None = None   # the ReducedFrames, when asked for (keep_reduced)
 
     @property
     def n_frames(self) -> int:
@@ -327,7 +336,7 @@ def _dct_factor(block: int) -> int:
 def collect_samples(frames, *, sources=None, block: int | None = None,
                     n_bins: int = 48, per_bin: int = 6, max_samples: int = 6000,
                     clip_margin: float = 2.0, seed: int = 0, progress=None,
-                    loader=None) -> SampleSet:
+                    loader=None, keep_reduced: bool = False) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
 
     Parameters
@@ -344,6 +353,9 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         Called as ``progress(k, n, source)`` after each frame is read.
     loader : callable, optional
         ``loader(path) -> array``; defaults to :func:`selfcal.io.read_image`.
+    keep_reduced : bool
+        Keep the reduced frames (every pixel, or block means) in the result's ``reduced``,
+        for :func:`selfcal.response.histogram_samples.histogram_correspondences`.
 
     Raises
     ------
@@ -413,7 +425,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
                      sources=list(sources), block=block, frame_shape=reduced[0].shape,
                      digests=[r.digest for r in reduced],
                      thumbnails=[r.thumbnail for r in reduced],
-                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]))
+                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]),
+                     reduced=reduced if keep_reduced else None)
 
 
 def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,

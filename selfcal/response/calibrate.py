@@ -44,6 +44,12 @@ MIN_SHARED_SAMPLES = 20
 DEFAULT_N_COMPONENTS = 5
 #: Sample locations drawn from a stack (block means; stratified, see collect_samples).
 DEFAULT_MAX_SAMPLES = 4000
+#: What Eq. 8 is solved on: ``"histogram"`` (transfer functions matched on the histograms
+#: of every usable pixel, :mod:`.histogram_samples`, [Grossberg2003]) or ``"blocks"`` (the
+#: stratified flat block samples of :func:`selfcal.samples.collect_samples`).  The block
+#: samples serve the verdict, the frame checks and the time contradictions in either case.
+CORRESPONDENCES = "blocks"
+WITH_BLOCKS = False
 
 
 def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
@@ -218,6 +224,11 @@ def _calibrate_response(images, exposure_times=None, *, refine_exposures="auto",
                               clip_margin=clip_margin, progress=progress)
     refine_exposures = _check_refine_option(refine_exposures)
     result = solve(refine_exposures=refine_exposures is True)
+    if samples.reduced is not None:     # the block fit gates the histogram correspondences
+        solve = _histogram_solve(samples, sub, sub_masks, keep, basis, log_times, result,
+                                 n_components,
+                                 saturation_threshold, clip_margin, progress)
+        result = solve(refine_exposures=refine_exposures is True)
     contradictions = []
     if np.isfinite(log_times).sum() >= 2 and refine_exposures is not True:
         contradictions = _contradicted_times(
@@ -438,7 +449,8 @@ def _sample_usable_frames(frames, sources, times, warnings, *, max_samples, clip
             progress("read", k, n, src)
 
     samples = collect_samples(frames, sources=sources, max_samples=max_samples,
-                              clip_margin=clip_margin, seed=seed, progress=frame_progress)
+                              clip_margin=clip_margin, seed=seed, progress=frame_progress,
+                              keep_reduced=CORRESPONDENCES == "histogram")
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=saturation_threshold)
     keep = _without_clipped_frames(samples, masks, sources, warnings, clip_margin)
@@ -524,15 +536,46 @@ def _log_times(times) -> np.ndarray:
     return log_times
 
 
+def _histogram_solve(samples, sub, sub_masks, keep, basis, log_times, first, n_components,
+                     saturation_threshold, clip_margin, progress):
+    """The solve on histogram correspondences of every usable pixel, gated by a first fit.
+
+    [Grossberg2003] transfer functions (:mod:`.histogram_samples`) of the frames ``keep``,
+    the pixels the block fit ``first`` predicts within ``GATE_CODES``; the reduced frames
+    are released afterwards.
+    """
+    from types import SimpleNamespace
+
+    from .histogram_samples import histogram_correspondences
+
+    grid, inverse = _inverse_response(basis, first.coefficients, n_components)
+    reduced = [samples.reduced[k] for k in keep]
+    samples.reduced = None
+    hist = histogram_correspondences(reduced, clip_margin=clip_margin,
+                                     saturation_threshold=saturation_threshold,
+                                     prediction=(grid, inverse, first.log_exposures))
+    del reduced
+    values, masks, weights = hist.values, hist.masks(), hist.weights
+    if WITH_BLOCKS:
+        values = np.concatenate([sub.values, values], axis=1)
+        masks = {k: np.concatenate([sub_masks[k], masks[k]], axis=1) for k in masks}
+        weights = np.concatenate([np.ones((sub.values.shape[1], 3)), weights])
+    data = SimpleNamespace(values=values, max_code=hist.max_code)
+    return functools.partial(_solve, data, basis, log_times, masks,
+                             weights=weights, n_components=n_components,
+                             saturation_threshold=saturation_threshold,
+                             clip_margin=clip_margin, progress=progress)
+
+
 def _solve(sub, basis, log_times, sub_masks, *, n_components, refine_exposures,
-           saturation_threshold, clip_margin, progress):
+           saturation_threshold, clip_margin, progress, weights=None):
     """Eq. 8 over the usable frames' samples (:func:`solve_exposure_equations`)."""
     if progress is not None:
         progress("solve", 0, 1, "")
     result = solve_exposure_equations(
         sub, basis, log_times, n_components=n_components,
         refine_exposures=refine_exposures, saturation_threshold=saturation_threshold,
-        clip_margin=clip_margin, masks=sub_masks)
+        clip_margin=clip_margin, masks=sub_masks, sample_weights=weights)
     if progress is not None:
         progress("solve", 1, 1, "")
     return result
