@@ -204,6 +204,7 @@ class SampleSet:
     thumbnails: list = field(default_factory=list)
     thumbnail_pixel: float = 1.0
     reduced: list | None = None   # the ReducedFrames, when asked for (keep_reduced)
+    clip_distance: np.ndarray | None = None   # (F, n) blocks to the nearest clipped block
 
     @property
     def n_frames(self) -> int:
@@ -420,13 +421,28 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     bmin = np.stack([r.block_min.ravel()[idx] for r in reduced]) / max_code
     wb = reduced[0].blocks.shape[1]
     locations = np.stack([idx // wb, idx % wb], axis=1)
+    distance = np.stack([_clip_distance(r, clip_margin).ravel()[idx] for r in reduced])
     return SampleSet(values=values.astype(np.float64), block_max=bmax, block_min=bmin,
                      flatness=flatness, locations=locations, max_code=max_code,
                      sources=list(sources), block=block, frame_shape=reduced[0].shape,
                      digests=[r.digest for r in reduced],
                      thumbnails=[r.thumbnail for r in reduced],
                      thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]),
-                     reduced=reduced if keep_reduced else None)
+                     reduced=reduced if keep_reduced else None,
+                     clip_distance=distance)
+
+
+def _clip_distance(r: ReducedFrame, clip_margin: float) -> np.ndarray:
+    """Blocks (Euclidean, 3x3 approximation) from each block to the nearest one touching 0
+    or the top code; 255 where none is (ours: where JPEG damage next to clipping can reach,
+    :mod:`selfcal.response.white_end`)."""
+    cv2 = _cv2()
+    m = clip_margin * r.max_code / 255
+    clipped = (r.block_max >= r.max_code - m) | (r.block_min <= m)
+    if not clipped.any():
+        return np.full(clipped.shape, 255, np.float32)
+    d = cv2.distanceTransform((~clipped).astype(np.uint8), cv2.DIST_L2, 3)
+    return np.minimum(d, 255).astype(np.float32)
 
 
 def frame_masks(samples: SampleSet, *, clip_margin: float = 2.0,
