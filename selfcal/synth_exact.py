@@ -3,8 +3,8 @@
 The cells of :mod:`selfcal.synth_conditions` all put a colour matrix and a gamut map before
 the tone curves, so a calibrator whose model is "one curve per channel" is there only
 approximately right.  These cells apply the curves per channel directly to the noisy
-sensor values (``P_c = f_c(clip(ρ_c))``): the model of Debevec & Malik 1997 and of Eq. 8
-of Lin et al. 2011 holds exactly, up to noise and JPEG.  What they measure is how well a
+sensor values (``P_c = f_c(clip(ρ_c))``): the model of [Debevec1997] and of Eq. 8
+of [Lin2011] holds exactly, up to noise and JPEG.  What they measure is how well a
 calibrator uses its data, not how it copes with colour processing.
 
 Scene (:func:`voronoi_scene`): Voronoi patches over 12 stops, each with its own colour

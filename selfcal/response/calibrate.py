@@ -553,48 +553,27 @@ def _log_times(times) -> np.ndarray:
 
 
 def _ringing_reach(sub, sub_masks, basis, result, n_components) -> int:
-    """With :data:`MEASURE_RINGING`, the reach of JPEG damage next to clipped areas
-    (:mod:`.white_end`, measured on the first fit's residuals); the samples within it are
-    marked clipped in ``sub_masks`` (in place).  Returns the reach in blocks (0: none)."""
-    if not MEASURE_RINGING or sub.clip_distance is None:
+    """With :data:`MEASURE_RINGING`: :func:`.white_end.mask_near_clip` (0 when off)."""
+    if not MEASURE_RINGING:
         return 0
-    from .white_end import near_clip_mask, pair_row_residuals, ringing_reach
+    from .white_end import mask_near_clip
 
     grid, inverse = _inverse_response(basis, result.coefficients, n_components)
-    valid = ~(sub_masks["clipped"] | sub_masks["saturated"])
-    reach = ringing_reach(*pair_row_residuals(sub, valid, result, grid, inverse))
-    if reach:
-        near = near_clip_mask(sub, reach)
-        sub_masks["clipped"] = sub_masks["clipped"] | near
-        sub_masks["saturated"] = sub_masks["saturated"] & ~sub_masks["clipped"]
-    return reach
+    return mask_near_clip(sub, sub_masks, result, grid, inverse)
 
 
 def _histogram_solve(samples, sub, sub_masks, keep, basis, log_times, first, n_components,
                      saturation_threshold, clip_margin, progress):
-    """The solve on histogram correspondences of every usable pixel, gated by a first fit.
-
-    [Grossberg2003] transfer functions (:mod:`.histogram_samples`) of the frames ``keep``,
-    the pixels the block fit ``first`` predicts within ``GATE_CODES``; the reduced frames
-    are released afterwards.
-    """
-    from types import SimpleNamespace
-
-    from .histogram_samples import histogram_correspondences
+    """The solve on histogram correspondences of every usable pixel, gated by a first fit
+    (:func:`.histogram_samples.solve_data`), with the block samples too when
+    :data:`WITH_BLOCKS`."""
+    from .histogram_samples import solve_data
 
     grid, inverse = _inverse_response(basis, first.coefficients, n_components)
-    reduced = [samples.reduced[k] for k in keep]
-    samples.reduced = None
-    hist = histogram_correspondences(reduced, clip_margin=clip_margin,
-                                     saturation_threshold=saturation_threshold,
-                                     prediction=(grid, inverse, first.log_exposures))
-    del reduced
-    values, masks, weights = hist.values, hist.masks(), hist.weights
-    if WITH_BLOCKS:
-        values = np.concatenate([sub.values, values], axis=1)
-        masks = {k: np.concatenate([sub_masks[k], masks[k]], axis=1) for k in masks}
-        weights = np.concatenate([np.ones((sub.values.shape[1], 3)), weights])
-    data = SimpleNamespace(values=values, max_code=hist.max_code)
+    data, masks, weights = solve_data(samples, keep, (grid, inverse, first.log_exposures),
+                                      clip_margin=clip_margin,
+                                      saturation_threshold=saturation_threshold,
+                                      blocks=(sub, sub_masks) if WITH_BLOCKS else None)
     return functools.partial(_solve, data, basis, log_times, masks,
                              weights=weights, n_components=n_components,
                              saturation_threshold=saturation_threshold,

@@ -360,3 +360,29 @@ def _layout(groups, F: int, max_code: int, total: int) -> HistogramSamples:
                             clipped=np.concatenate(clips, axis=1),
                             weights=np.concatenate(weights), pair=np.concatenate(pairs),
                             pixels=total, max_code=max_code)
+
+
+def solve_data(samples, keep, prediction, *, clip_margin: float, saturation_threshold: float,
+               blocks=None):
+    """What the solver takes from the histograms of the frames ``keep``: (data, masks, weights).
+
+    ``samples.reduced`` (kept by ``collect_samples(keep_reduced=True)``) is released.
+    ``prediction`` as :func:`histogram_correspondences`.  With ``blocks`` = (block
+    samples, their masks) of the same frames, both sets of rows go into one solve (block
+    rows at weight 1).
+    """
+    from types import SimpleNamespace
+
+    reduced = [samples.reduced[k] for k in keep]
+    samples.reduced = None
+    hist = histogram_correspondences(reduced, clip_margin=clip_margin,
+                                     saturation_threshold=saturation_threshold,
+                                     prediction=prediction)
+    del reduced
+    values, masks, weights = hist.values, hist.masks(), hist.weights
+    if blocks is not None:
+        sub, sub_masks = blocks
+        values = np.concatenate([sub.values, values], axis=1)
+        masks = {k: np.concatenate([sub_masks[k], masks[k]], axis=1) for k in masks}
+        weights = np.concatenate([np.ones((sub.values.shape[1], 3)), weights])
+    return SimpleNamespace(values=values, max_code=hist.max_code), masks, weights

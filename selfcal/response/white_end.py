@@ -106,3 +106,20 @@ def near_clip_mask(samples, reach: int) -> np.ndarray:
     if reach <= 0 or samples.clip_distance is None:
         return np.zeros(samples.values.shape[:2], bool)
     return samples.clip_distance <= reach
+
+
+def mask_near_clip(samples, masks: dict, result, grid, inverse) -> int:
+    """Measure the reach on a fit and mark the samples within it clipped, in ``masks``.
+
+    ``masks`` (``"clipped"``, ``"saturated"``, as :func:`selfcal.samples.frame_masks`) are
+    replaced in the dict (the caller's solve reads them from there).  Returns the reach in
+    blocks (0: none, masks unchanged).
+    """
+    if samples.clip_distance is None:
+        return 0
+    valid = ~(masks["clipped"] | masks["saturated"])
+    reach = ringing_reach(*pair_row_residuals(samples, valid, result, grid, inverse))
+    if reach:
+        masks["clipped"] = masks["clipped"] | near_clip_mask(samples, reach)
+        masks["saturated"] = masks["saturated"] & ~masks["clipped"]
+    return reach
