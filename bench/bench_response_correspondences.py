@@ -144,12 +144,14 @@ def run_pixels(args):
                     errs += e
                     used.append(u)
         label = f"max_samples {value}" if kind == "blocks" else f"pixels × {value:.4g}"
+        failed = int(np.sum(~np.isfinite(errs))) // 3
         rows.append([kind, label, f"{np.median(used):,.0f}", f"{np.median(errs):.4f}",
-                     f"{np.percentile(errs, 90):.4f}"])
+                     f"{np.percentile(errs, 90, method='higher'):.4f}", failed])
     print(f"{args.split} split, cells {args.cells}, {args.curves} curves per cell; values "
           "used: block samples × frames, or pixel values in the histograms (median per "
           "stack)\n")
-    print(table(["correspondences", "setting", "values used", "median", "p90"], rows))
+    print(table(["correspondences", "setting", "values used", "median", "p90",
+                 "stacks failed (scored inf)"], rows))
 
 
 def main():
