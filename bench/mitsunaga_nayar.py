@@ -20,8 +20,8 @@ Our choices where the paper leaves them open: a fixed random set of pixels
 (:data:`PIXELS`, seeded, the same locations in every frame), per channel, a pixel used in a
 pair when its codes lie in 3 … 251 in both frames (away from clipping and the black floor);
 the error that picks N is measured on the other half of the pixels, relative to the mean
-square of f (:func:`_error`).  The result is f⁻¹ on codes 0 … 255, clipped below at 0; it is not forced to
-be monotone (the bench counts the non-monotone channels).
+square of f (:func:`_error`).  The result is f⁻¹ on codes 0 … 255, clipped below at 0; it
+is not forced to be monotone (the bench counts the non-monotone channels).
 """
 
 from __future__ import annotations

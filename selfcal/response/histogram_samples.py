@@ -107,7 +107,8 @@ class HistogramSamples:
         sel = np.array([a in index and b in index for a, b in self.pair], dtype=bool)
         pair = np.array([(index[a], index[b]) for a, b in self.pair[sel]],
                         dtype=np.int64).reshape(-1, 2)
-        return HistogramSamples(values=self.values[keep][:, sel], clipped=self.clipped[keep][:, sel],
+        return HistogramSamples(values=self.values[keep][:, sel],
+                                clipped=self.clipped[keep][:, sel],
                                 weights=self.weights[sel], pair=pair, pixels=self.pixels,
                                 max_code=self.max_code)
 
