@@ -42,6 +42,7 @@ channel with its own scale).  Skipped, with a message, when the data are absent.
 
     python bench/bench_response_matrix.py [--split heldout|tuning] [--curves 6]
         [--cells saturated/base,neutral] [--size 256x384] [--jobs 2] [--no-d7000]
+        [--methods selfcal,colour,...] [--no-ringing]
 """
 
 from __future__ import annotations
@@ -363,7 +364,14 @@ def main():
     parser.add_argument("--methods", default=",".join(METHODS),
                         help="comma-separated subset of %(default)s (quick looks; the "
                              "acceptance lines need all four)")
+    parser.add_argument("--no-ringing", action="store_true",
+                        help="selfcal without the measured ringing reach "
+                             "(calibrate.MEASURE_RINGING = False), for the comparison")
     args = parser.parse_args()
+    if args.no_ringing:             # set before the workers fork
+        from selfcal.response import calibrate
+
+        calibrate.MEASURE_RINGING = False
     args.methods = tuple(m for m in METHODS if m in args.methods.split(","))
     if "selfcal" not in args.methods:
         parser.error("--methods must include selfcal")
