@@ -7,6 +7,9 @@ matrix with white balance and highlight clip; the smooth or the clip gamut map; 
 curve for all channels or different ones per channel; in-camera sharpening or not; shot
 and read noise; six shots 1/250 … 1/8 s with ±3 % shutter jitter; OpenCV JPEG 4:2:0 or
 4:4:4 at a quality drawn from the seed in 75 … 95.  Every method gets the nominal times.
+The ``exact/…`` cells (``selfcal.sim.exact``) have no colour matrix and no gamut map:
+the curves act per channel on the noisy sensor values of a Voronoi-patch scene over 12
+stops, JPEG q92 4:2:0, at 300x400 and at 1.5 MP (their own size, whatever ``--size``).
 
 Curves: the forward tables of ``../shared/data/dorf_emor/201_CRF_data.mat``.  Split:
 *tuning* = even-indexed curves and seeds < 1000; *held-out* = odd-indexed curves and
@@ -17,7 +20,9 @@ there are enough).  Choose parameters on the tuning split only; report the held-
 Methods: ``selfcal.calibrate_response`` (defaults); colour-hdri's
 ``camera_response_functions_Debevec1997`` (its default Grossberg 2003 histogram sampling;
 an ``ImageStack`` of code/255 frames, shortest first, BLAS on one thread); OpenCV
-``CalibrateDebevec`` and ``CalibrateRobertson`` (``bench/common.py``).
+``CalibrateDebevec`` and ``CalibrateRobertson`` (``bench/common.py``); Mitsunaga & Nayar
+1999 (``bench/mitsunaga_nayar.py``: polynomial response, exposure ratios re-estimated from
+the nominal ones).
 
 Metric, per channel: RMSE of f⁻¹ over codes 1 … 254 after the least-squares scale
 (``selfcal.sim.scoring.best_scale_rmse``, one scale per channel); for selfcal also the
@@ -37,6 +42,7 @@ channel with its own scale).  Skipped, with a message, when the data are absent.
 
     python bench/bench_response_matrix.py [--split heldout|tuning] [--curves 6]
         [--cells saturated/base,neutral] [--size 256x384] [--jobs 2] [--no-d7000]
+        [--methods selfcal,colour,...] [--no-ringing]
 """
 
 from __future__ import annotations
@@ -57,14 +63,22 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import (SHARED_DATA, colour_hdri_inverse_response, opencv_inverse_response,  # noqa: E402
                     table)
 
-from selfcal.sim.scoring import best_scale_rmse, rmse  # noqa: E402
+from mitsunaga_nayar import mitsunaga_nayar_inverse_response  # noqa: E402
+
 from selfcal.sim import DEMO_EXPOSURE_TIMES  # noqa: E402
-from selfcal.sim.conditions import CONDITIONS  # noqa: E402
+from selfcal.sim.conditions import CONDITIONS as _NATURAL  # noqa: E402
+from selfcal.sim.exact import EXACT_CONDITIONS  # noqa: E402
+from selfcal.sim.scoring import best_scale_rmse, rmse  # noqa: E402
+
+# every cell: the natural-scene cells (colour matrix and gamut map before the curves), then
+# the cells where the per-channel model is exact (their frame size is their own)
+CONDITIONS = {**_NATURAL, **EXACT_CONDITIONS}
 
 TIMES = list(DEMO_EXPOSURE_TIMES)
-METHODS = ("selfcal", "colour", "debevec", "robertson")
+METHODS = ("selfcal", "colour", "debevec", "robertson", "mitsunaga")
 LABELS = {"selfcal": "selfcal", "colour": "colour-hdri Debevec",
-          "debevec": "OpenCV Debevec", "robertson": "OpenCV Robertson"}
+          "debevec": "OpenCV Debevec", "robertson": "OpenCV Robertson",
+          "mitsunaga": "Mitsunaga-Nayar 1999"}
 INNER = slice(1, 255)
 DORF = SHARED_DATA / "dorf_emor" / "201_CRF_data.mat"
 NUS = SHARED_DATA / "nus_model_nikon_d7000"
@@ -92,6 +106,7 @@ def calibrate_all(images, times, methods=METHODS) -> dict:
         "colour": lambda: colour_hdri_inverse_response(images, times),
         "debevec": lambda: opencv_inverse_response(images, times, "debevec"),
         "robertson": lambda: opencv_inverse_response(images, times, "robertson"),
+        "mitsunaga": lambda: mitsunaga_nayar_inverse_response(images, times),
     }
     out = {}
     for method in methods:
@@ -116,6 +131,7 @@ def score(luts: dict, truth: np.ndarray) -> dict:
             res[method] = {"best": [math.inf] * 3, "seconds": seconds, "monotone": [False] * 3}
             if method == "selfcal":
                 res[method]["abs"] = [math.inf] * 3
+                res[method]["abs250"] = [math.inf] * 3
             continue
         res[method] = {
             "best": [best_scale_rmse(lut[INNER, c], truth[INNER, c]) for c in range(3)],
@@ -123,6 +139,10 @@ def score(luts: dict, truth: np.ndarray) -> dict:
             "monotone": [bool(np.all(np.diff(lut[:, c]) >= 0)) for c in range(3)]}
         if method == "selfcal":
             res[method]["abs"] = [rmse(lut[INNER, c], truth[INNER, c]) for c in range(3)]
+            # absolute scale judged on codes 1 … 250, both normalised at f⁻¹(250)
+            res[method]["abs250"] = [
+                rmse(lut[1:251, c] / max(lut[250, c], 1e-12), truth[1:251, c] / truth[250, c])
+                for c in range(3)]
     return res
 
 
@@ -140,7 +160,8 @@ def dorf_curve(index: int):
 def one_cell_stack(task):
     _, cell, index, seed, size, methods = task
     t0 = time.perf_counter()
-    stack = CONDITIONS[cell].simulate(dorf_curve(index), seed, size=size)
+    own = getattr(CONDITIONS[cell], "size", None)     # the exact cells' own size
+    stack = CONDITIONS[cell].simulate(dorf_curve(index), seed, size=own or size)
     simulate_seconds = time.perf_counter() - t0
     res = score(calibrate_all(stack.images, TIMES, methods), stack.inverse_response())
     return {"kind": "cell", "cell": cell, "index": index, "seed": seed,
@@ -201,7 +222,9 @@ def split_tasks(split: str, n_curves: int, cells, size, d7000: bool, methods) ->
         if name not in cells:
             continue
         for j in range(n_curves):
-            tasks.append(("cell", name, curves[(j * len(names) + k) % len(curves)],
+            # the stride is the natural cells' count, so adding the exact cells left the
+            # natural cells' curves and seeds as they were
+            tasks.append(("cell", name, curves[(j * len(_NATURAL) + k) % len(curves)],
                           base + SEED_STRIDE * k + j, size, methods))
     return tasks
 
@@ -263,8 +286,8 @@ def acceptance_lines(stats) -> list:
              {c: s["selfcal"][0] <= 0.005 for c, s in stats.items()}, worst("selfcal", 0)),
         line("selfcal p90 ≤ 0.010 in every cell",
              {c: s["selfcal"][1] <= 0.010 for c, s in stats.items()}, worst("selfcal", 1)),
-        line("selfcal median below colour-hdri's Debevec in every cell (aim ≤ 0.5×)",
-             {c: None if np.isnan(s["vs_colour"]) else s["vs_colour"] < 1.0
+        line("selfcal median ≤ 0.7× colour-hdri's Debevec in every cell (aim ≤ 0.5×)",
+             {c: None if np.isnan(s["vs_colour"]) else s["vs_colour"] <= 0.7
               for c, s in stats.items()}, worst("vs_colour")),
         line("selfcal median ≤ 1/4 of OpenCV's better method in every cell",
              {c: None if np.isnan(s["vs_opencv"]) else s["vs_opencv"] <= 0.25
@@ -286,14 +309,17 @@ def d7000_report(results) -> list:
     rows, ok = [], True
     for r in rs:
         best, absolute = pooled(r, "selfcal"), pooled(r, "selfcal", "abs")
-        ok &= best <= 0.006 and absolute <= 0.012
-        rows.append([r["raw"], f"{r['size'][0]}x{r['size'][1]}", _fmt(best), _fmt(absolute)]
-                    + [_fmt(pooled(r, m)) for m in METHODS[1:]])
+        abs250 = pooled(r, "selfcal", "abs250")
+        ok &= best <= 0.008 and abs250 <= 0.012
+        rows.append([r["raw"], f"{r['size'][0]}x{r['size'][1]}", _fmt(best), _fmt(absolute),
+                     _fmt(abs250)] + [_fmt(pooled(r, m)) for m in METHODS[1:]])
     out = ["", "D7000 in-camera model on the shared raws (6 shots 1/250 … 1/8 s, ±2 % jitter, "
            "noise, JPEG q92 4:2:0); RMSE over the three channels' codes 1 … 254", "",
-           table(["raw", "frame", "selfcal best-scale", "selfcal absolute"]
+           table(["raw", "frame", "selfcal best-scale", "selfcal absolute",
+                  "selfcal absolute 1…250 at f⁻¹(250)"]
                  + [LABELS[m] for m in METHODS[1:]], rows), "",
-           f"- D7000: best-scale ≤ 0.006 and absolute ≤ 0.012 on each raw: "
+           f"- D7000: best-scale ≤ 0.008 and absolute (codes 1 … 250, normalised at "
+           f"f⁻¹(250)) ≤ 0.012 on each raw: "
            f"{'met' if ok else 'NOT met'}"]
     return out
 
@@ -309,7 +335,7 @@ def report(results, split, args, wall, cpu) -> str:
         lines += [f"{len(cell_results)} stacks {args.size}, {args.curves} per cell; "
                   "RMSE of f⁻¹ over codes 1 … 254 after the best scale per channel, "
                   "median and p90 over (stack, channel); ratios of the medians", "", tab,
-                  "", "Acceptance (issue 15, synthetic matrix):"] + acceptance_lines(stats)
+                  "", "Acceptance (synthetic matrix):"] + acceptance_lines(stats)
         n = len(cell_results) * 3
         mono = ", ".join(f"{LABELS[m]} {n - int(_values(cell_results, m, 'monotone').sum())}"
                          for m in METHODS if m in args.methods)
@@ -338,7 +364,14 @@ def main():
     parser.add_argument("--methods", default=",".join(METHODS),
                         help="comma-separated subset of %(default)s (quick looks; the "
                              "acceptance lines need all four)")
+    parser.add_argument("--no-ringing", action="store_true",
+                        help="selfcal without the measured ringing reach "
+                             "(calibrate.MEASURE_RINGING = False), for the comparison")
     args = parser.parse_args()
+    if args.no_ringing:             # set before the workers fork
+        from selfcal.response import calibrate
+
+        calibrate.MEASURE_RINGING = False
     args.methods = tuple(m for m in METHODS if m in args.methods.split(","))
     if "selfcal" not in args.methods:
         parser.error("--methods must include selfcal")

@@ -97,6 +97,7 @@ class PairRows:
     Ib: np.ndarray              # (m, 3) codes in the brighter frame
     dH: list                    # per channel (m, N): H(I′) − H(I)
     rhs: list                   # per channel (m,): −(g₀(I′) − g₀(I))
+    weight: np.ndarray | None = None    # (3·m,) row weights, channel by channel; None: 1
 
     @property
     def m(self) -> int:
@@ -105,13 +106,15 @@ class PairRows:
 
 
 def build_pair_rows(values, valid, order, log_exposures, basis, N: int,
-                    max_rank_gap: int) -> PairRows:
+                    max_rank_gap: int, sample_weights=None) -> PairRows:
     """Eq. 8 rows of every sample valid in both frames of each pair, with Eq. 7 put in.
 
     Each frame is paired with the next ``max_rank_gap`` frames in the exposure order
     ``order`` (not only its neighbour: the pairs across larger exposure ratios tie the
     ends of the curve together).  The basis is read at the sample codes by linear
-    interpolation on its grid (``basis.design``).
+    interpolation on its grid (``basis.design``).  ``sample_weights`` ``(n, 3)``, when
+    given, weight each sample's row per channel (histogram correspondences,
+    :mod:`.histogram_samples`: 0 for padding).
 
     Raises
     ------
@@ -139,8 +142,10 @@ def build_pair_rows(values, valid, order, log_exposures, basis, N: int,
         g0b, Hb = basis.design(Ib[:, c], N)
         dH.append(Hb - Ha)
         rhs.append(-(g0b - g0a))
+    weight = (None if sample_weights is None
+              else np.concatenate([sample_weights[ps, c] for c in range(3)]))
     return PairRows(pairs=pairs, stuck=stuck, pa=pa, pb=pb, pair_id=pair_id, Ia=Ia, Ib=Ib,
-                    dH=dH, rhs=rhs)
+                    dH=dH, rhs=rhs, weight=weight)
 
 
 def rejection_counts(clipped, saturated, order, max_rank_gap: int, stuck: int) -> dict:

@@ -67,8 +67,9 @@ def without_duplicates(digests, times, sources, warnings, indices=None) -> list[
 
 def subset(samples, keep):
     """The SampleSet of the frames ``keep`` only."""
+    distance = None if samples.clip_distance is None else samples.clip_distance[keep]
     return replace(samples, values=samples.values[keep], block_max=samples.block_max[keep],
-                   block_min=samples.block_min[keep],
+                   block_min=samples.block_min[keep], clip_distance=distance,
                    sources=[samples.sources[k] for k in keep],
                    digests=[samples.digests[k] for k in keep],
                    thumbnails=[samples.thumbnails[k] for k in keep

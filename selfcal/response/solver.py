@@ -218,7 +218,9 @@ class SolverOptions:
 
 def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
                              refine_exposures: bool = False, masks: dict | None = None,
-                             options: SolverOptions | None = None, **legacy) -> SolveResult:
+                             options: SolverOptions | None = None,
+                             sample_weights: np.ndarray | None = None,
+                             **legacy) -> SolveResult:
     """Solve Eq. 8 of [Lin2011] for three channels' coefficients and exposures.
 
     Parameters
@@ -237,6 +239,10 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         (computed with ``options``' clip margin and β when not given).
     options : SolverOptions, optional
         The finer settings; default ``SolverOptions()``.
+    sample_weights : ndarray (n, 3), optional
+        Weight of each sample's row per channel (histogram correspondences,
+        :mod:`.histogram_samples`); rows of weight 0 are left out of the fit and of the
+        robust scale.
     legacy
         The fields of :class:`SolverOptions` as keyword arguments, the old way: each gives
         a :class:`DeprecationWarning` naming the field.
@@ -267,7 +273,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     # input (the pairs, and so the model, must not depend on the order of the frames)
     order = np.lexsort((values.mean(axis=(1, 2)), exposures.initial))
     rows = build_pair_rows(values, valid, order, exposures.initial, basis, N,
-                           options.max_rank_gap)
+                           options.max_rank_gap, sample_weights)
     rejections = rejection_counts(clipped, saturated, order, options.max_rank_gap, rows.stuck)
     thresholds = (_white_thresholds(values, valid, order, options.max_rank_gap,
                                     samples.max_code, options.clip_margin / 255.0)
@@ -302,13 +308,14 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
             coeffs = x[:3 * N].reshape(3, N)
 
     resid = normal.residual(np.concatenate([coeffs.ravel(), K]))
-    w = fit.robust / fit.variance
+    w = fit.robust / fit.variance * (1.0 if fit.row_weight is None else fit.row_weight)
     residual_rms = float(np.sqrt(np.average(resid ** 2, weights=w)))
     return SolveResult(coefficients=coeffs, log_exposures=K, exposure_fixed=exposures.fixed,
                        pair_frames=np.array([(a, bb) for a, bb, _ in rows.pairs]),
                        residual_rms=residual_rms, per_pair_rms=_per_pair_rms(resid, rows),
                        rejections=rejections, rows_used=int(3 * rows.m),
-                       rows_downweighted=int(np.sum(fit.robust < 0.5)),
+                       rows_downweighted=int(np.sum((fit.robust < 0.5)
+                                                    & (fit.row_weight > 0))),
                        monotone_constrained=fit.monotone_constrained, warnings=warnings,
                        ambiguity_prior=ambiguity_prior)
 
@@ -407,6 +414,7 @@ class _Fit:
     variance: np.ndarray            # noise variance of every row (log units)
     weights: np.ndarray             # the last solve's row weights
     monotone_constrained: bool
+    row_weight: np.ndarray | None = None    # given weight of every row (None: all 1)
 
 
 def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
@@ -428,6 +436,9 @@ def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
     K = exposures.initial.copy()
     K[exposures.fixed] = exposures.log_times[exposures.fixed]
     robust = np.ones(3 * m + nt)
+    row_weight = np.ones(3 * m + nt)
+    if rows.weight is not None:
+        row_weight[:3 * m] = rows.weight
     monotone_constrained = False
     interp_a = [_interpolation_matrix(grid, rows.Ia[:, c]) for c in range(3)]
     interp_b = [_interpolation_matrix(grid, rows.Ib[:, c]) for c in range(3)]
@@ -439,7 +450,7 @@ def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
             normal.A_thr, normal.b_thr = thresholds.rows()
         var = _noise_variance(dg_grid, interp_a, interp_b, m, thresholds, grid)
         # the data term is a likelihood only with the noise at its measured level
-        w = robust / (var * noise_scale ** 2)
+        w = row_weight * robust / (var * noise_scale ** 2)
         if nt:
             w[3 * m:] *= thresholds.active
         if alternate:
@@ -450,14 +461,15 @@ def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
         monotone_constrained |= constrained
         new_coeffs = x[:3 * N].reshape(3, N)
         K = x[3 * N:]
-        new_robust, noise_scale = _huber_weights(normal.residual(x), var, huber_k)
+        new_robust, noise_scale = _huber_weights(normal.residual(x), var, huber_k,
+                                                 row_weight > 0)
         change = np.max(np.abs(new_coeffs - coeffs))
         coeffs = new_coeffs
         robust = new_robust
         if it > 0 and change < tolerance:
             break
     return _Fit(coefficients=coeffs, log_exposures=K, robust=robust, variance=var,
-                weights=w, monotone_constrained=monotone_constrained)
+                weights=w, monotone_constrained=monotone_constrained, row_weight=row_weight)
 
 
 def _noise_variance(dg_grid, interp_a, interp_b, m, thresholds, grid):
@@ -482,14 +494,14 @@ def _noise_variance(dg_grid, interp_a, interp_b, m, thresholds, grid):
     return var
 
 
-def _huber_weights(resid, var, huber_k):
+def _huber_weights(resid, var, huber_k, used=None):
     """Huber IRLS weights min(1, k·s / |u|) of residuals u in noise units, and the scale s.
 
-    s is the robust (MAD) standard deviation of u; it also scales the noise of the next
-    iteration (floored at 1e-3).
+    s is the robust (MAD) standard deviation of u over the ``used`` rows (default all); it
+    also scales the noise of the next iteration (floored at 1e-3).
     """
     u = resid / np.sqrt(var)
-    scale = 1.4826 * np.median(np.abs(u)) + 1e-12
+    scale = 1.4826 * np.median(np.abs(u if used is None else u[used])) + 1e-12
     robust = np.minimum(1.0, huber_k * scale / np.maximum(np.abs(u), 1e-12))
     return robust, max(scale, 1e-3)
 

@@ -82,6 +82,8 @@ class ReducedFrame:
     digest: str               # content hash of every decoded pixel, to find duplicate frames
     source: str               # file name or "array #k"
     thumbnail: np.ndarray | None = None   # grey uint8, long side <= THUMBNAIL_SIDE blocks
+    channel_max: np.ndarray | None = None  # (h, w, 3) highest code per channel in the block
+    channel_min: np.ndarray | None = None  # (h, w, 3) lowest code per channel
 
 
 def _as_image_array(image, source: str) -> np.ndarray:
@@ -127,6 +129,7 @@ def reduce_frame(image, *, block: int, source: str = "array",
     digest = content_digest(arr) if digest is None else digest
     if block == 1:
         blocks = crop.astype(np.float32)
+        chmax = chmin = None                      # the pixels are their own extremes
         c0, c1, c2 = cv2.split(np.ascontiguousarray(crop))
         cmax = cv2.max(cv2.max(c0, c1), c2).astype(np.float32)
         cmin = cv2.min(cv2.min(c0, c1), c2).astype(np.float32)
@@ -144,6 +147,10 @@ def reduce_frame(image, *, block: int, source: str = "array",
         cmin = cv2.erode(cv2.min(cv2.min(c0, c1), c2), kernel, anchor=(0, 0))[::2, ::2]
         cmax = cmax.astype(np.float32)
         cmin = cmin.astype(np.float32)
+        # per channel too, in the frame's own type (the histogram correspondences)
+        fine3 = np.ascontiguousarray(fine)
+        chmax = cv2.dilate(fine3, kernel, anchor=(0, 0))[::2, ::2]
+        chmin = cv2.erode(fine3, kernel, anchor=(0, 0))[::2, ::2]
     if NEAR_CLIP_BLOCKS > 0:
         # JPEG ringing and chroma bleed from a clipped neighbour damage a block's codes
         near = np.ones((2 * NEAR_CLIP_BLOCKS + 1,) * 2, np.uint8)
@@ -151,7 +158,8 @@ def reduce_frame(image, *, block: int, source: str = "array",
     blocks = np.ascontiguousarray(blocks, dtype=np.float32)
     return ReducedFrame(blocks=blocks, block_max=cmax, block_min=cmin, max_code=max_code,
                         shape=(h, w), digest=digest, source=source,
-                        thumbnail=_grey_thumbnail(blocks, max_code))
+                        thumbnail=_grey_thumbnail(blocks, max_code),
+                        channel_max=chmax, channel_min=chmin)
 
 
 @dataclass
@@ -196,6 +204,8 @@ class SampleSet:
     digests: list = field(default_factory=list)
     thumbnails: list = field(default_factory=list)
     thumbnail_pixel: float = 1.0
+    reduced: list | None = None   # the ReducedFrames, when asked for (keep_reduced)
+    clip_distance: np.ndarray | None = None   # (F, n) blocks to the nearest clipped block
 
     @property
     def n_frames(self) -> int:
@@ -328,13 +338,13 @@ def _dct_factor(block: int) -> int:
 def collect_samples(frames, *, sources=None, block: int | None = None,
                     n_bins: int = 48, per_bin: int = 6, max_samples: int = 6000,
                     clip_margin: float = DEFAULT_CLIP_MARGIN, seed: int = 0, progress=None,
-                    loader=None) -> SampleSet:
+                    keep_reduced: bool = False) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
 
     Parameters
     ----------
     frames : sequence
-        ``HxWx3`` uint8/uint16 arrays, or paths (then ``loader`` decodes them one at a time).
+        ``HxWx3`` uint8/uint16 arrays, or paths (decoded one at a time).
     sources : sequence of str, optional
         Names for error messages (file names); defaults to ``"array #k"``.
     block : int, optional
@@ -343,8 +353,9 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         the DCT scaling they are decoded at (a 24 MP frame: 7 -> 8, read at half size).
     progress : callable, optional
         Called as ``progress(k, n, source)`` after each frame is read.
-    loader : callable, optional
-        ``loader(path) -> array``; defaults to :func:`selfcal.io.read_image`.
+    keep_reduced : bool
+        Keep the reduced frames (every pixel, or block means) in the result's ``reduced``,
+        for :func:`selfcal.response.histogram_samples.histogram_correspondences`.
 
     Raises
     ------
@@ -364,14 +375,14 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
             full_shape = read_image_size(frame)
             # JPEGs decode straight to local means (DCT scaling) when blocks are large:
             # only block means are kept, and the full decode is the cost that dominates
-            scalable = loader is None and Path(frame).suffix.lower() in JPEG_SUFFIXES
+            scalable = Path(frame).suffix.lower() in JPEG_SUFFIXES
             if block is None:
                 block = working_block_size(full_shape)
                 if scalable:     # a whole number of reduced pixels per block (rounded up)
                     f = max(f for f in (1, 2, 4, 8) if f == 1 or f * 3 <= block)
                     block = f * -(-block // f)
             factor = _dct_factor(block) if scalable else 1
-            image = (loader or read_image)(frame) if factor == 1 else read_image(
+            image = read_image(frame) if factor == 1 else read_image(
                 frame, reduce=factor)
         else:
             image = frame
@@ -409,12 +420,28 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     bmin = np.stack([r.block_min.ravel()[idx] for r in reduced]) / max_code
     wb = reduced[0].blocks.shape[1]
     locations = np.stack([idx // wb, idx % wb], axis=1)
+    distance = np.stack([_clip_distance(r, clip_margin).ravel()[idx] for r in reduced])
     return SampleSet(values=values.astype(np.float64), block_max=bmax, block_min=bmin,
                      flatness=flatness, locations=locations, max_code=max_code,
                      sources=list(sources), block=block, frame_shape=reduced[0].shape,
                      digests=[r.digest for r in reduced],
                      thumbnails=[r.thumbnail for r in reduced],
-                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]))
+                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]),
+                     reduced=reduced if keep_reduced else None,
+                     clip_distance=distance)
+
+
+def _clip_distance(r: ReducedFrame, clip_margin: float) -> np.ndarray:
+    """Blocks (Euclidean, 3x3 approximation) from each block to the nearest one touching 0
+    or the top code; 255 where none is (ours: where JPEG damage next to clipping can reach,
+    :mod:`selfcal.response.white_end`)."""
+    cv2 = import_cv2()
+    m = clip_margin * r.max_code / 255
+    clipped = (r.block_max >= r.max_code - m) | (r.block_min <= m)
+    if not clipped.any():
+        return np.full(clipped.shape, 255, np.float32)
+    d = cv2.distanceTransform((~clipped).astype(np.uint8), cv2.DIST_L2, 3)
+    return np.minimum(d, 255).astype(np.float32)
 
 
 def frame_masks(samples: SampleSet, *, clip_margin: float = DEFAULT_CLIP_MARGIN,
