@@ -49,7 +49,7 @@ from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
 from ..response.solver import (DEFAULT_SATURATION_THRESHOLD, SolverOptions,
                                solve_exposure_equations)
-from ..stack.samples import SampleSet, collect_samples, frame_masks
+from ..stack.samples import FrameSamples, SampleSet, collect_samples, frame_masks
 
 #: A session disagrees with the shared curve when its code residual under that curve
 #: exceeds this factor times its residual under its own fit ...
@@ -66,7 +66,7 @@ MAX_RANK_GAP = 3
 
 
 @dataclass
-class SessionSamples:
+class SessionSamples(FrameSamples):
     """A session's samples for the pooled fit: block means across its frames, with masks.
 
     Attributes
@@ -98,14 +98,6 @@ class SessionSamples:
     stuck_codes: dict
     own_intensity: np.ndarray | None = None
     own_inverse: np.ndarray | None = None
-
-    @property
-    def n_frames(self) -> int:
-        return self.values.shape[0]
-
-    @property
-    def n_samples(self) -> int:
-        return self.values.shape[1]
 
 
 def session_samples(frames, exposure_times, *, session: str = "",

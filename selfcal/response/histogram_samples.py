@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..stack.samples import hsv_saturation
+from ..stack.samples import FrameSamples, hsv_saturation
 
 #: Pixels at a code for a histogram point to get full weight (fewer: proportionally less).
 FULL_WEIGHT_PIXELS = 20.0
@@ -63,7 +63,7 @@ MAX_RANK_GAP = 3
 
 
 @dataclass
-class HistogramSamples:
+class HistogramSamples(FrameSamples):
     """Histogram-matched correspondences laid out as a solver sample set.
 
     Each sample belongs to one frame pair; column ``c`` of ``values`` holds a point of
@@ -91,14 +91,6 @@ class HistogramSamples:
     pair: np.ndarray
     pixels: int
     max_code: int
-
-    @property
-    def n_frames(self) -> int:
-        return self.values.shape[0]
-
-    @property
-    def n_samples(self) -> int:
-        return self.values.shape[1]
 
     def subset(self, keep) -> "HistogramSamples":
         """The samples of the frames ``keep`` (in that order), pairs outside dropped."""

@@ -25,7 +25,7 @@ Examples
 >>> stack = EXACT_CONDITIONS["exact/saturated"].simulate(
 ...     sim.ToneCurve.srgb(), seed=1000, size=(60, 80))
 >>> len(stack.images), stack.images[0].shape
-(6, 60, 80, 3)
+(6, (60, 80, 3))
 """
 
 from __future__ import annotations

@@ -162,8 +162,21 @@ def reduce_frame(image, *, block: int, source: str = "array",
                         channel_max=chmax, channel_min=chmin)
 
 
+class FrameSamples:
+    """What every set of samples across a stack's frames has: ``values`` of shape
+    ``(frames, samples, 3)``, and their counts."""
+
+    @property
+    def n_frames(self) -> int:
+        return self.values.shape[0]
+
+    @property
+    def n_samples(self) -> int:
+        return self.values.shape[1]
+
+
 @dataclass
-class SampleSet:
+class SampleSet(FrameSamples):
     """Intensity samples at fixed locations across a stack.
 
     Attributes
@@ -207,13 +220,6 @@ class SampleSet:
     reduced: list | None = None   # the ReducedFrames, when asked for (keep_reduced)
     clip_distance: np.ndarray | None = None   # (F, n) blocks to the nearest clipped block
 
-    @property
-    def n_frames(self) -> int:
-        return self.values.shape[0]
-
-    @property
-    def n_samples(self) -> int:
-        return self.values.shape[1]
 
 
 def hsv_saturation(rgb: np.ndarray) -> np.ndarray:
