@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -56,3 +57,32 @@ def dim_training_pixels():
     sat = (raw.max(1) - raw.min(1)) / np.maximum(raw.max(1), 1e-6)
     pick = np.flatnonzero((raw.max(1) < 0.35) & (raw.max(1) > 0.01) & (sat < 0.6))
     return raw, jpg, np.random.default_rng(0).choice(pick, 1200, replace=False)
+
+
+FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
+
+
+@pytest.fixture(scope="session")
+def pair_model_file(tmp_path_factory):
+    """The RAW-path model file ``selfcal calibrate`` writes for the fixture RAW+JPEG pair
+    (16-bit linear TIFF + JPEG); one calibration for every test module that reads it."""
+    from selfcal_cli.main import main
+
+    out = tmp_path_factory.mktemp("pair_model") / "camera.json"
+    assert main(["calibrate", str(FIXTURES / "pair" / "pair.tiff"),
+                 str(FIXTURES / "pair" / "pair.jpg"), "-o", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="session")
+def pair_pixels_model():
+    """A RAW-path model fitted to 600 pixels of the fixture pair (backward: lattice LUT; the
+    RBF variant goes through the same dense table), for the export tests."""
+    from selfcal.io import read_image
+    from selfcal.pipeline import PipelineOptions, fit_pipeline
+
+    raw = read_image(FIXTURES / "pair" / "pair.tiff").reshape(-1, 3) / 65535.0
+    jpg = read_image(FIXTURES / "pair" / "pair.jpg").reshape(-1, 3)
+    idx = np.random.default_rng(0).choice(raw.shape[0], 600, replace=False)
+    return fit_pipeline(raw[idx], jpg[idx] / 255.0, PipelineOptions(n_sets=2, backward="lut"),
+                        n_train=600, seed=0)

@@ -129,27 +129,17 @@ def test_demo_reports_error_against_truth(capsys, tmp_path):
     assert code == EXIT_OUTPUT
 
 
-@pytest.fixture(scope="module")
-def pipeline_model_file(tmp_path_factory):
-    """A RAW-path model from the fixture RAW+JPEG pair (16-bit linear TIFF + JPEG)."""
-    out = tmp_path_factory.mktemp("pipeline") / "camera.json"
-    code = main(["calibrate", str(FIXTURES / "pair" / "pair.tiff"),
-                 str(FIXTURES / "pair" / "pair.jpg"), "-o", str(out)])
-    assert code == 0
-    return out
-
-
-def test_calibrate_pair_takes_pipeline_path(pipeline_model_file):
-    doc = json.loads(pipeline_model_file.read_text())
+def test_calibrate_pair_takes_pipeline_path(pair_model_file):
+    doc = json.loads(pair_model_file.read_text())
     assert doc["format"] == "selfcal-model" and doc["kind"] == "pipeline"
 
 
-def test_to_raw_and_render_against_the_pair(pipeline_model_file, tmp_path, capsys):
+def test_to_raw_and_render_against_the_pair(pair_model_file, tmp_path, capsys):
     import numpy as np
 
     from selfcal.io import read_image
 
-    code, text = run(["to-raw", "--model", pipeline_model_file,
+    code, text = run(["to-raw", "--model", pair_model_file,
                       FIXTURES / "pair" / "pair.jpg", "-o", tmp_path / "raw"], capsys)
     assert code == 0, text
     est = read_image(tmp_path / "raw" / "pair.tiff").astype(float) / 65535
@@ -157,7 +147,7 @@ def test_to_raw_and_render_against_the_pair(pipeline_model_file, tmp_path, capsy
     unclipped = (truth < 0.95).all(axis=2)
     assert np.sqrt(np.mean((est - truth)[unclipped] ** 2)) < 0.03
 
-    code, text = run(["render", "--model", pipeline_model_file,
+    code, text = run(["render", "--model", pair_model_file,
                       FIXTURES / "pair" / "pair.tiff", "-o", tmp_path / "jpg"], capsys)
     assert code == 0, text
     rendered = read_image(tmp_path / "jpg" / "pair.jpg").astype(float)
@@ -165,7 +155,7 @@ def test_to_raw_and_render_against_the_pair(pipeline_model_file, tmp_path, capsy
     assert np.sqrt(np.mean((rendered - camera) ** 2)) < 8.0
 
     # a second run keeps what is there
-    code, text = run(["render", "--model", pipeline_model_file,
+    code, text = run(["render", "--model", pair_model_file,
                       FIXTURES / "pair" / "pair.tiff", "-o", tmp_path / "jpg"], capsys)
     assert code == EXIT_OUTPUT and "--force" in text
 

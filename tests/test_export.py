@@ -18,7 +18,6 @@ import selfcal
 from bench.ffmpeg_lut import apply_cube_ffmpeg, ffmpeg_binaries
 from selfcal.export import cube_table, read_cube_header, write_cube
 from selfcal.io import read_image
-from selfcal.pipeline import PipelineOptions, fit_pipeline
 from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT
 from selfcal_cli.main import main
 
@@ -43,17 +42,6 @@ def response_model():
     return selfcal.calibrate_response(sorted((FIXTURES / "stack").glob("*.jpg")))
 
 
-@pytest.fixture(scope="module")
-def pipeline_model():
-    """A RAW-path model from 600 pixels of the fixture pair (backward: lattice LUT; the
-    RBF variant goes through the same dense table)."""
-    raw = read_image(FIXTURES / "pair" / "pair.tiff").reshape(-1, 3) / 65535.0
-    jpg = read_image(FIXTURES / "pair" / "pair.jpg").reshape(-1, 3)
-    idx = np.random.default_rng(0).choice(raw.shape[0], 600, replace=False)
-    return fit_pipeline(raw[idx], jpg[idx] / 255.0, PipelineOptions(n_sets=2, backward="lut"),
-                        n_train=600, seed=0)
-
-
 def test_1d_cube_read_by_colour_linearises_every_code(response_model, tmp_path, colour):
     path = write_cube(response_model, tmp_path / "lin.cube")
     head = read_cube_header(path)
@@ -70,22 +58,22 @@ def test_1d_cube_read_by_colour_linearises_every_code(response_model, tmp_path, 
     assert np.abs(lut.apply(codes / 255.0) - want).max() < 1e-3
 
 
-def test_3d_table_order_red_fastest(pipeline_model):
-    rows, direction, size = cube_table(pipeline_model, "to-raw", size=3)
+def test_3d_table_order_red_fastest(pair_pixels_model):
+    rows, direction, size = cube_table(pair_pixels_model, "to-raw", size=3)
     assert direction == "to-raw" and rows.shape == (27, 3)
     # row 1 is (r, g, b) = (0.5, 0, 0), row 3 is (0, 0.5, 0), row 9 is (0, 0, 0.5)
     for row, node in ((1, [0.5, 0, 0]), (3, [0, 0.5, 0]), (9, [0, 0, 0.5])):
-        np.testing.assert_allclose(rows[row], pipeline_model.to_raw(np.array([node]))[0],
+        np.testing.assert_allclose(rows[row], pair_pixels_model.to_raw(np.array([node]))[0],
                                    atol=1e-7)
 
 
 @needs_ffmpeg
 @pytest.mark.parametrize("exe", FFMPEG)
-def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe, colour):
-    cube = write_cube(pipeline_model, tmp_path / "to_raw.cube", direction="to-raw")
+def test_3d_to_raw_cube_applied_by_ffmpeg(pair_pixels_model, tmp_path, exe, colour):
+    cube = write_cube(pair_pixels_model, tmp_path / "to_raw.cube", direction="to-raw")
     assert read_cube_header(cube)["LUT_3D_SIZE"] == "33"
     jpg = read_image(FIXTURES / "pair" / "pair.jpg")
-    ours = pipeline_model.to_raw(jpg)
+    ours = pair_pixels_model.to_raw(jpg)
     by_colour = colour.read_LUT(str(cube)).apply(jpg / 255.0)
     inner = ((jpg >= 8) & (jpg <= 247)).all(axis=2)    # not in a cell touching a clip face
     for interp in ("trilinear", "tetrahedral"):
@@ -99,8 +87,8 @@ def test_3d_to_raw_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe, colour)
 
 @needs_ffmpeg
 @pytest.mark.parametrize("exe", FFMPEG)
-def test_3d_render_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe, colour):
-    cube = write_cube(pipeline_model, tmp_path / "render.cube", direction="render")
+def test_3d_render_cube_applied_by_ffmpeg(pair_pixels_model, tmp_path, exe, colour):
+    cube = write_cube(pair_pixels_model, tmp_path / "render.cube", direction="render")
     raw16 = read_image(FIXTURES / "pair" / "pair.tiff")
     by_colour = colour.read_LUT(str(cube)).apply(raw16 / 65535.0)
     out = apply_cube_ffmpeg(exe, cube, raw16, "trilinear")
@@ -109,17 +97,17 @@ def test_3d_render_cube_applied_by_ffmpeg(pipeline_model, tmp_path, exe, colour)
     k = np.random.default_rng(1).integers(0, 33, (64, 64, 3))
     nodes16 = np.round(k / 32 * 65535).astype(np.uint16)
     out = apply_cube_ffmpeg(exe, cube, nodes16, "tetrahedral")
-    assert np.abs(out - pipeline_model.render(nodes16)).max() < 2e-3
+    assert np.abs(out - pair_pixels_model.render(nodes16)).max() < 2e-3
     # between nodes: a uniform 33³ grid of linear raw is coarse where the tone curve is
     # steep (the fixture's median raw is 0.045); half the pixels within 0.5 %
     out = apply_cube_ffmpeg(exe, cube, raw16, "tetrahedral")
-    err = np.abs(out - pipeline_model.render(raw16)).max(axis=2)
+    err = np.abs(out - pair_pixels_model.render(raw16)).max(axis=2)
     assert np.median(err) < 0.005
 
 
-def test_export_cli_directions_and_errors(response_model, pipeline_model, tmp_path, capsys):
+def test_export_cli_directions_and_errors(response_model, pair_pixels_model, tmp_path, capsys):
     response_model.save(tmp_path / "resp.json")
-    pipeline_model.save(tmp_path / "pipe.json")
+    pair_pixels_model.save(tmp_path / "pipe.json")
     assert main(["export", str(tmp_path / "resp.json"), "-o", str(tmp_path / "r.cube")]) == 0
     assert read_cube_header(tmp_path / "r.cube")["LUT_1D_SIZE"] == "256"
     assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "p.cube"),
@@ -215,8 +203,8 @@ def test_code_range_continues_chords_outside(tmp_path):
     assert not (tmp_path / "x.cube").exists()
 
 
-def test_export_cli_range(pipeline_model, tmp_path, capsys):
-    pipeline_model.save(tmp_path / "pipe.json")
+def test_export_cli_range(pair_pixels_model, tmp_path, capsys):
+    pair_pixels_model.save(tmp_path / "pipe.json")
     assert main(["export", str(tmp_path / "pipe.json"), "-o", str(tmp_path / "a.cube"),
                  "--size", "5"]) == 0
     assert "codes" not in (tmp_path / "a.cube").read_text()     # a fitted model: no range

@@ -23,7 +23,6 @@ from selfcal.export.ocio import (CONFIG_NAME, OCIO_3D_SIZE, ocio_colour_space_na
 from selfcal.export.shaper import (apply_shaper_lut, render_knees, shaper_lut,
                                    write_shaper_cube)
 from selfcal.io import read_image
-from selfcal.pipeline import fit_pipeline
 from selfcal_cli.common import EXIT_OUTPUT
 from selfcal_cli.main import main
 
@@ -81,15 +80,6 @@ def _fresh_ocio_cache():
 
 
 @pytest.fixture(scope="module")
-def pipeline_model():
-    raw = read_image(FIXTURES / "pair" / "pair.tiff").reshape(-1, 3) / 65535.0
-    jpg = read_image(FIXTURES / "pair" / "pair.jpg").reshape(-1, 3)
-    idx = np.random.default_rng(0).choice(raw.shape[0], 600, replace=False)
-    return fit_pipeline(raw[idx], jpg[idx] / 255.0, n_train=600, n_sets=2, seed=0,
-                        backward="lut")
-
-
-@pytest.fixture(scope="module")
 def response_model():
     return selfcal.calibrate_response(sorted((FIXTURES / "stack").glob("*.jpg")))
 
@@ -137,18 +127,18 @@ def test_clf_and_shaper_cube_follow_a_closed_form_model(direction, tmp_path):
     assert root.find("LUT3D/Array").get("dim") == "33 33 33 3"
 
 
-def test_fitted_model_shaper_luts_by_ocio(pipeline_model, tmp_path):
+def test_fitted_model_shaper_luts_by_ocio(pair_pixels_model, tmp_path):
     raw16 = read_image(FIXTURES / "pair" / "pair.tiff")
     jpg = read_image(FIXTURES / "pair" / "pair.jpg")
-    want = pipeline_model.render(raw16)
-    clf = write_model_clf(pipeline_model, tmp_path / "render.clf", direction="render")
+    want = pair_pixels_model.render(raw16)
+    clf = write_model_clf(pair_pixels_model, tmp_path / "render.clf", direction="render")
     err = np.abs(_apply_file(clf, raw16 / 65535.0) - want).max(axis=2)
-    plain = write_cube(pipeline_model, tmp_path / "plain.cube", direction="render")
+    plain = write_cube(pair_pixels_model, tmp_path / "plain.cube", direction="render")
     err_plain = np.abs(_apply_file(plain, raw16 / 65535.0, True) - want).max(axis=2)
     # measured: 98.5 % within 0.005 with the shaper, 57 % on the uniform 33³ grid
     assert np.mean(err <= 0.005) > 0.97 and np.mean(err_plain <= 0.005) < 0.8
-    clf = write_model_clf(pipeline_model, tmp_path / "to_raw.clf", direction="to-raw")
-    err = np.abs(_apply_file(clf, jpg / 255.0) - pipeline_model.to_raw(jpg)).max(axis=2)
+    clf = write_model_clf(pair_pixels_model, tmp_path / "to_raw.clf", direction="to-raw")
+    err = np.abs(_apply_file(clf, jpg / 255.0) - pair_pixels_model.to_raw(jpg)).max(axis=2)
     inner = ((jpg >= 8) & (jpg <= 247)).all(axis=2)
     assert np.mean(err[inner] <= 0.005) > 0.995       # measured 99.95 %
 
@@ -195,9 +185,9 @@ def test_ocio_config_validates_and_round_trips(tmp_path):
     assert OCIO_3D_SIZE == 65
 
 
-def test_export_cli_formats_and_ocio(pipeline_model, response_model, tmp_path, capsys,
+def test_export_cli_formats_and_ocio(pair_pixels_model, response_model, tmp_path, capsys,
                                      monkeypatch):
-    pipeline_model.save(tmp_path / "pipe.json")
+    pair_pixels_model.save(tmp_path / "pipe.json")
     response_model.save(tmp_path / "resp.json")
     # an extension the command does not write: a usage error, nothing written
     for name in ("lut.xyz", "lut"):

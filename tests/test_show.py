@@ -32,14 +32,6 @@ def response_file(tmp_path_factory):
     return out
 
 
-@pytest.fixture(scope="module")
-def pipeline_file(tmp_path_factory):
-    out = tmp_path_factory.mktemp("show_pipeline") / "camera.json"
-    assert main(["calibrate", str(FIXTURES / "pair" / "pair.tiff"),
-                 str(FIXTURES / "pair" / "pair.jpg"), "-o", str(out)]) == 0
-    return out
-
-
 def _table(text: str, title_start: str) -> list[list[str]]:
     """Rows of the table whose title line starts with ``title_start`` (header dropped)."""
     lines = text.splitlines()
@@ -78,10 +70,10 @@ def test_show_response_numbers_are_the_models(response_file, capsys):
     assert "Traceback" not in out + err
 
 
-def test_show_pipeline_numbers_are_the_models(pipeline_file, capsys):
-    code, out, err = run(["show", pipeline_file], capsys)
+def test_show_pipeline_numbers_are_the_models(pair_model_file, capsys):
+    code, out, err = run(["show", pair_model_file], capsys)
     assert code == 0, err
-    model = selfcal.load_model(pipeline_file)
+    model = selfcal.load_model(pair_model_file)
     assert re.search(r"^kind\s+pipeline", out, re.M)
     assert re.search(rf"^backward\s+{model.backward}\b", out, re.M)
     matrix = np.array([[float(v) for v in r[1:]] for r in _table(out, "colour matrix")])
@@ -105,11 +97,11 @@ def test_describe_is_plain_values(response_file):
 
 
 @pytest.mark.parametrize("which", ["response", "pipeline"])
-def test_show_plot_writes_the_requested_png(which, response_file, pipeline_file, tmp_path,
+def test_show_plot_writes_the_requested_png(which, response_file, pair_model_file, tmp_path,
                                             capsys):
     from PIL import Image
 
-    model = response_file if which == "response" else pipeline_file
+    model = response_file if which == "response" else pair_model_file
     png = tmp_path / "curves.png"
     code, out, err = run(["show", model, "--plot", png], capsys)
     assert code == 0, err
