@@ -19,8 +19,6 @@ RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
 # ------------------------------------------------------------------------- merge
 
 def cmd_merge(args) -> int:
-    import numpy as np
-
     import selfcal
     from selfcal.hdr import MergeOptions, merge_hdr
     from selfcal.hdr.io import RADIANCE_SUFFIXES, sigma_path, write_preview
@@ -69,7 +67,18 @@ def cmd_merge(args) -> int:
             staged.write(args.preview, lambda tmp: write_preview(
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
 
-    # summary
+    _say_merge_summary(result, images, args)
+    for w in result.warnings:
+        warn(w)
+    _say_written(result, written, out, sig_out, args)
+    return EXIT_OK
+
+
+def _say_merge_summary(result, images, args) -> None:
+    """What ``selfcal merge`` says about a merge: the exposures and where they came from,
+    each frame's share and shift, the radiance range and the unmeasured pixels."""
+    import numpy as np
+
     how = ("linear input" if args.linear else
            f"model from {args.model}" if args.model else "model calibrated on the fly")
     unit = ("ratios measured from the pixels, scaled to the EXIF t·ISO/100/N²"
@@ -110,10 +119,6 @@ def cmd_merge(args) -> int:
                  f"(0.1-99.9%), {np.log2(hi / max(lo, 1e-30)):.1f} stops; 1 = white at e = 1")
     say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
-    for w in result.warnings:
-        warn(w)
-    _say_written(result, written, out, sig_out, args)
-    return EXIT_OK
 
 
 def _say_written(result, written, out, sig_out, args) -> None:
