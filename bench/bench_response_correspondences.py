@@ -77,7 +77,8 @@ def compare_task(task):
 def pixels_task(args):
     task, settings = args
     from selfcal.response import histogram_samples
-    from selfcal.stack.samples import collect_samples
+    from selfcal.stack import samples
+    from selfcal.stack.samples import PER_BIN, collect_samples
 
     stack = _stack(task)
     rows = []
@@ -87,6 +88,13 @@ def pixels_task(args):
             errs = _errors(stack, max_samples=int(value))
             s = collect_samples(stack.images, max_samples=int(value))
             used = s.n_samples * s.n_frames
+        elif kind == "per_bin":
+            _configure("blocks")
+            samples.PER_BIN = int(value)
+            errs = _errors(stack, max_samples=10**6)
+            s = collect_samples(stack.images, max_samples=10**6)
+            used = s.n_samples * s.n_frames
+            samples.PER_BIN = PER_BIN
         else:
             _configure("histogram", value)
             errs = _errors(stack)
@@ -132,7 +140,10 @@ def run_compare(args):
 
 def run_pixels(args):
     settings = ([("blocks", n) for n in (250, 1000, 4000, 16000)]
+                + [("per_bin", n) for n in args.per_bin]
                 + [("histogram", f) for f in (1 / 256, 1 / 64, 1 / 16, 1 / 4, 1.0)])
+    if args.per_bin:
+        settings = [s for s in settings if s[0] != "histogram"]
     with Pool(args.jobs, initializer=_init) as pool:
         results = pool.map(pixels_task, [(t, settings) for t in _tasks(args)])
     rows = []
@@ -143,7 +154,8 @@ def run_pixels(args):
                 if (k, v) == (kind, value):
                     errs += e
                     used.append(u)
-        label = f"max_samples {value}" if kind == "blocks" else f"pixels × {value:.4g}"
+        label = {"blocks": f"max_samples {value}", "per_bin": f"per_bin {value}",
+                 "histogram": f"pixels × {value:.4g}"}[kind]
         failed = int(np.sum(~np.isfinite(errs))) // 3
         rows.append([kind, label, f"{np.median(used):,.0f}", f"{np.median(errs):.4f}",
                      f"{np.percentile(errs, 90, method='higher'):.4f}", failed])
@@ -163,6 +175,9 @@ def main():
     parser.add_argument("--cells", default=None)
     parser.add_argument("--size", default="256x384")
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--per-bin", type=lambda v: [int(x) for x in v.split(",")],
+                        default=[], help="with --pixels: also these locations per intensity "
+                        "bin and frame (no max_samples cap), and no histogram rows")
     args = parser.parse_args()
     if args.compare:
         args.cells = args.cells or "neutral,colourful,saturated,exact/neutral,exact/saturated"

@@ -315,6 +315,9 @@ def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: 
     return idx, worst[idx] if idx.size else np.zeros(0)
 
 
+#: Locations taken per intensity bin and frame by :func:`collect_samples` (the flattest).
+PER_BIN = 6
+
 #: Blocks a frame is reduced to, about (:func:`working_block_size`).
 TARGET_BLOCKS = 400_000
 
@@ -342,7 +345,7 @@ def _dct_factor(block: int) -> int:
 
 
 def collect_samples(frames, *, sources=None, block: int | None = None,
-                    n_bins: int = 48, per_bin: int = 6, max_samples: int = 6000,
+                    n_bins: int = 48, per_bin: int | None = None, max_samples: int = 6000,
                     clip_margin: float = DEFAULT_CLIP_MARGIN, seed: int = 0, progress=None,
                     keep_reduced: bool = False) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
@@ -417,6 +420,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         del image, arr
         if progress is not None:
             progress(k + 1, n, src)
+    per_bin = PER_BIN if per_bin is None else per_bin
     idx, flatness = choose_locations(reduced, n_bins=n_bins, per_bin=per_bin,
                                      max_samples=max_samples, clip_margin=clip_margin,
                                      seed=seed)
