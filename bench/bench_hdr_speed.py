@@ -14,8 +14,14 @@
    peak: what any merge that returns a float32 H×W×3 map with per-channel weights holds at
    once (the map, the per-channel weight sums, one decoded frame) plus the interpreter
    with selfcal imported.
+3. From files, issue 26 (Build 5): the same 17-frame merge with the radiance σ
+   (``MergeOptions(sigma=True)``) in its own fresh child, against the merge without it
+   (target: σ costs ≤ 25 % more); and OpenCV's ``MergeDebevec`` from the same files with
+   the same curve (decode every frame, then merge: what OpenCV's API needs), its time and
+   peak in a fresh child (target: selfcal's peak ≤ 0.6× OpenCV's).  Every child decodes
+   the files once more after its job, for the decode-time floor of that same process.
 
-    python bench/bench_hdr_speed.py
+    python bench/bench_hdr_speed.py [--files-only]
 """
 
 from __future__ import annotations
@@ -45,7 +51,7 @@ import json, resource, sys, time
 import selfcal
 from selfcal.hdr.io import write_radiance
 from selfcal.io import read_image
-paths, model_path, out = json.loads(sys.argv[1])
+paths, model_path, out, with_sigma = json.loads(sys.argv[1])
 model = selfcal.load_model(model_path)
 import_rss = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmRSS"))
 
@@ -58,7 +64,8 @@ def peaks():
 
 
 t0 = time.perf_counter()
-result = selfcal.merge_hdr(paths, model=model)
+result = selfcal.merge_hdr(paths, model=model,
+                           options=selfcal.MergeOptions(sigma=bool(with_sigma)))
 t1 = time.perf_counter()
 merge_peaks = peaks()
 write_radiance(out, result.radiance, half=True)
@@ -78,6 +85,30 @@ print(json.dumps({"merge_s": t1 - t0, "write_s": t2 - t1, "decode_s": t3 - t2,
 """
 
 
+OPENCV_FROM_FILES = r"""
+import json, sys, time
+import cv2
+import numpy as np
+import selfcal
+from selfcal.io import read_exposure_info
+paths, model_path = json.loads(sys.argv[1])
+model = selfcal.load_model(model_path)
+response = model.inverse_response()[:, ::-1].astype(np.float32).reshape(256, 1, 3)
+times = np.asarray([read_exposure_info(p).relative_exposure for p in paths], np.float32)
+t0 = time.perf_counter()
+frames = [cv2.imread(p, cv2.IMREAD_COLOR) for p in paths]
+out = cv2.createMergeDebevec().process(frames, times, response)
+t1 = time.perf_counter()
+hwm = next(int(l.split()[1]) for l in open("/proc/self/status") if l.startswith("VmHWM"))
+del frames, out
+t2 = time.perf_counter()
+for p in paths:
+    cv2.imread(p, cv2.IMREAD_COLOR)
+t3 = time.perf_counter()
+print(json.dumps({"merge_s": t1 - t0, "decode_s": t3 - t2, "peak_kb": hwm}))
+"""
+
+
 def run_child(code: str, arg) -> str:
     proc = subprocess.run([sys.executable, "-c", code, json.dumps(arg)], capture_output=True,
                           text=True, cwd=REPO)
@@ -94,22 +125,59 @@ def memory_run(folder: Path):
         with Timer() as t_cal:
             run_child(CALIBRATE, [all_paths, model_path])
         out = Path(tmp) / "merged.exr"
-        stats = json.loads(run_child(MERGE, [all_paths, model_path, str(out)])
+        stats = json.loads(run_child(MERGE, [all_paths, model_path, str(out), False])
                            .strip().splitlines()[-1])
         stats["exr_mb"] = out.stat().st_size / 1e6
+        stats["sigma"] = json.loads(run_child(MERGE, [all_paths, model_path, str(out), True])
+                                    .strip().splitlines()[-1])
+        stats["opencv"] = json.loads(run_child(OPENCV_FROM_FILES, [all_paths, model_path])
+                                     .strip().splitlines()[-1])
     stats["calibrate_s"] = t_cal.seconds
     stats["frames"] = len(all_paths)
     return stats
 
 
+def sigma_and_opencv_report(stats) -> None:
+    """Issue 26, Build 5: σ's cost from files, and the peak against OpenCV's from files."""
+    mb = 1024.0
+    plain, sig, cv = stats, stats["sigma"], stats["opencv"]
+    peak = max(plain["merge_peaks_kb"]) / mb
+    peak_sigma = max(sig["merge_peaks_kb"]) / mb
+    rows = [["selfcal merge_hdr from files", f"{plain['merge_s']:.1f}",
+             f"{plain['decode_s']:.1f}", f"{plain['merge_s'] / plain['decode_s']:.2f}",
+             f"{peak:.0f}", f"{peak / (cv['peak_kb'] / mb):.2f}"],
+            ["selfcal merge_hdr from files, sigma=True", f"{sig['merge_s']:.1f}",
+             f"{sig['decode_s']:.1f}", f"{sig['merge_s'] / sig['decode_s']:.2f}",
+             f"{peak_sigma:.0f}", f"{peak_sigma / (cv['peak_kb'] / mb):.2f}"],
+            ["OpenCV: decode all, MergeDebevec", f"{cv['merge_s']:.1f}", f"{cv['decode_s']:.1f}",
+             f"{cv['merge_s'] / cv['decode_s']:.2f}", f"{cv['peak_kb'] / mb:.0f}", "1.00"]]
+    print(f"\nissue 26 (Build 5): the same {stats['frames']} files, each run in a fresh "
+          "process; decode = the same files decoded once more in that process\n")
+    print(table(["run", "seconds", "decode s", "ratio to decode", "peak MB (VmHWM)",
+                 "peak / OpenCV's"], rows))
+    cost = sig["merge_s"] / plain["merge_s"] - 1
+    print(f"\nmerge / decode {plain['merge_s'] / plain['decode_s']:.2f} (target ≤ 2); σ costs "
+          f"{100 * cost:+.0f} % (target ≤ +25 %); peak / OpenCV's {peak / (cv['peak_kb'] / mb):.2f}"
+          f", with σ {peak_sigma / (cv['peak_kb'] / mb):.2f} (target ≤ 0.6)")
+
+
 def main():
+    import argparse
+
     import cv2
 
     import selfcal
     from selfcal.io import read_exposure_info, read_image
 
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--files-only", action="store_true",
+                        help="only the from-files runs (parts 2 and 3)")
+    args = parser.parse_args()
     folder = data_dir("ntu_canon_m3")
     stats = memory_run(folder)
+    if args.files_only:
+        files_report(stats)
+        return
     paths = [folder / f"{n}.JPG" for n in SPEED_FRAMES]
     with Timer() as t_cal:
         model = selfcal.calibrate_response(paths)
@@ -145,7 +213,10 @@ def main():
           "(target ≤ 0.3); "
           f"selfcal unmeasured pixels {100 * result.unmeasured.mean():.1f}%")
     del result
+    files_report(stats)
 
+
+def files_report(stats) -> None:
     h, w = stats["shape"][:2]
     mb = 1024.0                      # /proc and ru_maxrss report kB
     mh, mr = stats["merge_peaks_kb"]
@@ -173,6 +244,7 @@ def main():
                 + [["sum", f"{sum(v for _, v in floor):.0f}"]]))
     for warning in stats["warnings"]:
         print(f"  merge warning: {warning}")
+    sigma_and_opencv_report(stats)
 
 if __name__ == "__main__":
     main()
