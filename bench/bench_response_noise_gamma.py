@@ -2,9 +2,9 @@
 
 With fewer than two known exposure times, Eq. 8 of Lin et al. (ICCV 2011, §5) fixes f⁻¹
 only up to an exponent: F^s with exposure ratios k^s fits the pixels as well as F for any
-s.  The frame-to-frame transfer functions τ (Grossberg & Nayar, PAMI 2003) are the same for
-every s, so histograms and correspondences cannot choose it; the sensor noise could: shot
-noise has variance ∝ the linear signal, so in code units its variance at code I is
+s.  The frame-to-frame transfer functions τ are the same for every s, so histograms and
+correspondences cannot choose it ([Grossberg2003], the PAMI paper); the sensor noise could:
+shot noise has variance ∝ the linear signal, so in code units its variance at code I is
 α F(I)^s / (F^s)'(I)², a shape that changes with s.  This script asks whether that shape
 can be read off a stack in the most favourable case -- the *true* F and the true exposures
 give τ exactly, so that the residuals r = I_b − τ(I_a) of adjacent frames are noise and

@@ -95,7 +95,12 @@ _WEIGHT_OFFSET = 0.05
 
 #: The standard encodings whose basis coefficients, averaged, centre the PCA-variance prior
 #: when fewer than two different exposure times are known (:func:`ambiguity_centre`);
-#: ``"gamma p"`` is the power law ``E^(1/p)``.
+#: ``"gamma p"`` is the power law ``E^(1/p)``.  Chosen on the tuning split of
+#: ``bench/bench_response_unknown.py --step 10`` (10 common-encoding and 11 DoRF stacks)
+#: among the basis mean (median f⁻¹ RMSE 0.0593 one time known / 0.0560 none), gamma 1.8
+#: (0.0470 / 0.0521), sRGB + Rec.709 + gamma 2.2 (0.0358 / 0.0361), the same with gamma
+#: 1.8 (0.0387 / 0.0398) and sRGB + Rec.709 (0.0277 / 0.0275).  A centre on the DoRF
+#: curves themselves makes common encodings flatter still (BENCHMARKS, issue 25).
 AMBIGUITY_CENTRE_CURVES = ("srgb", "rec709")
 
 
