@@ -97,12 +97,25 @@ def _init_worker():
     warnings.filterwarnings("ignore")
 
 
+#: The times selfcal is given (``--selfcal-times``): all, the first only, or none; the peers
+#: always get all.
+SELFCAL_TIMES = "all"
+
+
+def _selfcal_times(times) -> list:
+    times = list(times)
+    if SELFCAL_TIMES == "one":
+        return times[:1] + [None] * (len(times) - 1)
+    return [None] * len(times) if SELFCAL_TIMES == "none" else times
+
+
 def calibrate_all(images, times, methods=METHODS) -> dict:
     """method -> (f⁻¹ table (256, 3) or None when the method failed, seconds)."""
     import selfcal
 
     calls = {
-        "selfcal": lambda: selfcal.calibrate_response(images, list(times)).inverse_response(),
+        "selfcal": lambda: selfcal.calibrate_response(
+            images, _selfcal_times(times)).inverse_response(),
         "colour": lambda: colour_hdri_inverse_response(images, times),
         "debevec": lambda: opencv_inverse_response(images, times, "debevec"),
         "robertson": lambda: opencv_inverse_response(images, times, "robertson"),
@@ -330,6 +343,9 @@ def report(results, split, args, wall, cpu) -> str:
     title = ("held-out split (odd DoRF curves, seeds ≥ 1000)" if split == "heldout"
              else "tuning split (even DoRF curves, seeds < 1000)")
     lines = [f"### {title}", ""]
+    if SELFCAL_TIMES != "all":
+        lines += [f"selfcal given {SELFCAL_TIMES} of the exposure times"
+                  + (", prior at the basis mean" if args.basis_mean_prior else ""), ""]
     if cell_results:
         tab, stats = cell_table(cell_results, cells)
         lines += [f"{len(cell_results)} stacks {args.size}, {args.curves} per cell; "
@@ -367,11 +383,23 @@ def main():
     parser.add_argument("--no-ringing", action="store_true",
                         help="selfcal without the measured ringing reach "
                              "(calibrate.MEASURE_RINGING = False), for the comparison")
+    parser.add_argument("--selfcal-times", choices=("all", "one", "none"), default="all",
+                        help="the exposure times selfcal is given (the peers get all)")
+    parser.add_argument("--basis-mean-prior", action="store_true",
+                        help="with fewer than two known times, centre selfcal's prior at "
+                             "the basis mean as before issue 25 (solver.CENTRE_AMBIGUITY "
+                             "= False), for the comparison")
     args = parser.parse_args()
+    global SELFCAL_TIMES
+    SELFCAL_TIMES = args.selfcal_times
     if args.no_ringing:             # set before the workers fork
         from selfcal.response import calibrate
 
         calibrate.MEASURE_RINGING = False
+    if args.basis_mean_prior:
+        from selfcal.response import solver
+
+        solver.CENTRE_AMBIGUITY = False
     args.methods = tuple(m for m in METHODS if m in args.methods.split(","))
     if "selfcal" not in args.methods:
         parser.error("--methods must include selfcal")

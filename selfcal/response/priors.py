@@ -12,6 +12,9 @@ exists for one reason:
   ``invemor.txt`` stores no variances) gets λ_n estimated by
   :func:`estimated_coefficient_variance` (ours: the second moments of the coefficients
   of selfcal's documented curve family projected on that basis).
+  With fewer than two different known times it is centred at :func:`ambiguity_centre`
+  instead (ours, issue 25): there it also chooses the exponent γ, and the basis mean
+  chooses it too flat for common encodings.
 - :attr:`PriorTerms.ridge`: only with ``prior_weight = 0`` (it replaces the
   PCA-variance prior, never adds to it); it keeps the coefficient block invertible.
 - :class:`WhiteContinuation`, the *white-continuation prior*: beyond the brightest valid
@@ -88,6 +91,64 @@ ESTIMATED_PRIOR_SCALE = 3.0
 #: κ of the projection weights ``(rms f⁻¹ + κ)²``, as the built-in basis' PCA
 #: (:func:`selfcal.response.basis.log_pca_basis`).
 _WEIGHT_OFFSET = 0.05
+
+
+#: The standard encodings whose basis coefficients, averaged, centre the PCA-variance prior
+#: when fewer than two different exposure times are known (:func:`ambiguity_centre`);
+#: ``"gamma p"`` is the power law ``E^(1/p)``.  Chosen on the tuning split of
+#: ``bench/bench_response_unknown.py --step 10`` (10 common-encoding and 11 DoRF stacks)
+#: among the basis mean (median f⁻¹ RMSE 0.0593 one time known / 0.0560 none), gamma 1.8
+#: (0.0470 / 0.0521), sRGB + Rec.709 + gamma 2.2 (0.0358 / 0.0361), the same with gamma
+#: 1.8 (0.0387 / 0.0398) and sRGB + Rec.709 (0.0277 / 0.0275).  A centre on the DoRF
+#: curves themselves makes common encodings flatter still (BENCHMARKS, issue 25).
+AMBIGUITY_CENTRE_CURVES = ("srgb", "rec709")
+
+
+def _standard_inverse(name: str, grid: np.ndarray) -> np.ndarray:
+    """f⁻¹ on ``grid`` of one of :data:`AMBIGUITY_CENTRE_CURVES`."""
+    from .curve_family import invert_curve, rec709_oetf, srgb_oetf
+
+    if name.startswith("gamma "):
+        return np.power(grid, float(name.split()[1]))
+    return invert_curve({"srgb": srgb_oetf, "rec709": rec709_oetf}[name](), grid)
+
+
+@functools.lru_cache(maxsize=8)
+def _centre_of(basis, N: int, names: tuple) -> np.ndarray:
+    grid = basis.intensity
+    coeffs = [basis.fit_inverse_response(grid, _standard_inverse(name, grid), N)
+              for name in names]
+    centre = np.mean(coeffs, axis=0)
+    centre.setflags(write=False)
+    return centre
+
+
+def ambiguity_centre(basis, N: int) -> np.ndarray:
+    """Centre μ of the PCA-variance prior when the exponential ambiguity is left to it (ours).
+
+    With fewer than two different known exposure times, Eq. 8 of [Lin2011] fixes f⁻¹ only
+    up to an exponent γ (§5), and the prior c_n ~ N(μ_n, λ_n / w) chooses it: the γ whose
+    (f⁻¹)^γ is least costly.  Centred at the basis mean (μ = 0, the prior of every other
+    solve), that γ is 0.64-0.94 for common encodings (the curve family behind the basis
+    is pulled flat; ``bench/bench_response_prior_gamma.py``).  Centred here instead: the
+    mean of the basis coefficients of the standard encodings
+    :data:`AMBIGUITY_CENTRE_CURVES` (their best ``N``-component fits), so that a curve
+    shaped like them comes out with γ ≈ 1.  No DoRF data goes into it (DoRF may not be
+    redistributed); the choice of curves was measured on the tuning split.
+
+    Parameters
+    ----------
+    basis : ResponseBasis
+        Log-domain basis (Eq. 7).
+    N : int
+        Number of components used.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Read-only; cached per basis and ``N``.
+    """
+    return _centre_of(basis, int(N), tuple(AMBIGUITY_CENTRE_CURVES))
 
 
 @functools.lru_cache(maxsize=4)
@@ -212,6 +273,10 @@ class PriorTerms:
         Its std (log units).
     exposure : ExposurePrior
         The prior on the log exposures; added only when the solve refines the given times.
+    coefficient_mean : ndarray (N,) or None
+        Centre μ of the PCA-variance prior, the same for every channel; None: 0, the basis
+        mean.  Set (to :func:`ambiguity_centre`) only when fewer than two different
+        exposure times are known.
     """
 
     coefficient_precision: np.ndarray | None
@@ -219,10 +284,13 @@ class PriorTerms:
     white_continuation: tuple
     white_continuation_sigma: float
     exposure: ExposurePrior
+    coefficient_mean: np.ndarray | None = None
 
     def add_to(self, Q: np.ndarray, q: np.ndarray, N: int, exposure_prior: bool) -> None:
         """Add the priors to the normal equations ``Q x = q`` in place."""
         self.add_coefficient_prior(Q, N)
+        if self.coefficient_mean is not None and self.coefficient_precision is not None:
+            q[:3 * N] += np.tile(self.coefficient_precision * self.coefficient_mean, 3)
         self.add_white_continuation(Q, q, N)
         if exposure_prior:
             self.exposure.add_to_normal(Q, q, N)

@@ -28,7 +28,8 @@ selfcal's own (one line each on why):
 
 - PCA-variance prior on the coefficients (:mod:`.priors`): the data leave the bend of the
   never-observed last codes open, and with fewer than two known times the exponential
-  ambiguity too; the curve database decides.  On in every solve with the built-in basis
+  ambiguity too; the curve database decides (with fewer than two known times the prior
+  is centred at standard encodings, :data:`CENTRE_AMBIGUITY`).  On in every solve with the built-in basis
   (it carries PCA variances), not only with < 2 known times.  A basis without variances
   (``invemor.txt``) gets them estimated from the curve family projected on it
   (:func:`.priors.estimated_coefficient_variance`, ours); the ridge acts only when the
@@ -76,7 +77,14 @@ from .equations import (
     build_pair_rows,
     rejection_counts,
 )
-from .priors import ExposurePrior, PriorTerms, pca_variance_precision, white_continuation_terms
+from . import priors as _priors
+from .priors import (
+    ExposurePrior,
+    PriorTerms,
+    ambiguity_centre,
+    pca_variance_precision,
+    white_continuation_terms,
+)
 
 #: Default HSV saturation threshold β.  Lin et al. (§7) use 0.4 for cameras with strong
 #: colour mapping and above 0.7 for most others; 0.5 drops the colours gamut mapping is
@@ -87,6 +95,10 @@ DEFAULT_SATURATION_THRESHOLD = 0.5
 CODE_NOISE = 1.0 / 255.0
 #: IRLS iterations at most when some exposures are estimated (run to convergence).
 MAX_ITERATIONS_ESTIMATED = 60
+#: With fewer than two different known times, centre the PCA-variance prior at
+#: :func:`.priors.ambiguity_centre` (standard encodings) instead of the basis mean, and
+#: start the exposures from that centre's curve (issue 25; BENCHMARKS, "Exposures unknown").
+CENTRE_AMBIGUITY = True
 
 
 @dataclass
@@ -265,9 +277,13 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                             saturation_threshold=options.saturation_threshold)
     clipped, saturated = masks["clipped"], masks["saturated"]
     valid = ~(clipped | saturated)
-    exposures = _exposure_setup(np.asarray(log_times, dtype=float), refine_exposures,
-                                values, valid, basis)
-    warnings, ambiguity_prior = _ambiguity_warnings(exposures.known, exposures.log_times)
+    log_times = np.asarray(log_times, dtype=float)
+    warnings, ambiguity_prior = _ambiguity_warnings(np.isfinite(log_times), log_times)
+    precision = pca_variance_precision(basis, N, options.prior_weight)
+    centre = (ambiguity_centre(basis, N) if ambiguity_prior and precision is not None
+              and CENTRE_AMBIGUITY else None)
+    exposures = _exposure_setup(log_times, refine_exposures, values, valid, basis,
+                                None if centre is None else basis.model_values(centre))
 
     # frames by exposure; shots of one exposure by brightness, not by their place in the
     # input (the pairs, and so the model, must not depend on the order of the frames)
@@ -284,8 +300,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     normal = _NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
 
     priors = PriorTerms(
-        coefficient_precision=pca_variance_precision(basis, N, options.prior_weight),
-        ridge=options.ridge,
+        coefficient_precision=precision, coefficient_mean=centre, ridge=options.ridge,
         white_continuation=white_continuation_terms(values, valid, basis, N),
         white_continuation_sigma=options.white_continuation_sigma,
         exposure=ExposurePrior(mean=exposures.log_times, frames=exposures.known,
@@ -336,16 +351,22 @@ def _ambiguity_warnings(known: np.ndarray, log_times: np.ndarray):
         ambiguity_prior = True
         warnings.append(
             "fewer than two different exposure times are known: the exponential "
-            "ambiguity of the response (Lin et al. §5) was resolved by a prior towards the "
-            "basis mean response, a guess that can leave f⁻¹ raised to a wrong power; "
+            "ambiguity of the response (Lin et al. §5) was resolved by a prior towards "
+            + (f"standard encodings ({', '.join(_priors.AMBIGUITY_CENTRE_CURVES)})"
+               if CENTRE_AMBIGUITY
+               else "the basis mean response")
+            + ", a guess that can leave f⁻¹ raised to a wrong power; "
             "exposures are relative"
             + (" to the frame(s) with a known time" if known.any() else "")
             + "; two different known exposure times fix it")
     return warnings, ambiguity_prior
 
 
-def _exposure_setup(log_times, refine: bool, values, valid, basis) -> _Exposures:
+def _exposure_setup(log_times, refine: bool, values, valid, basis,
+                    start_curve=None) -> _Exposures:
     """Which log exposures are held, with first estimates, and the additive gauge of K.
+
+    ``start_curve`` (g on the basis grid) replaces the basis mean in the first estimates.
 
     Given times are held unless ``refine``.  When nothing else fixes the additive gauge of
     K (Eq. 8 sees differences only), one frame is held: the first with a known time, else
@@ -353,7 +374,7 @@ def _exposure_setup(log_times, refine: bool, values, valid, basis) -> _Exposures
     """
     known = np.isfinite(log_times)
     fixed = known.copy() if not refine else np.zeros(log_times.size, bool)
-    init = _initial_log_exposures(values, valid, basis, log_times)
+    init = _initial_log_exposures(values, valid, basis, log_times, start_curve)
     if not fixed.any() and not (refine and known.any()):
         # fix the additive gauge of K: the first known frame, else the frame chosen above
         gauge = int(np.flatnonzero(known)[0]) if known.any() else int(np.argmin(np.abs(init)))
@@ -365,15 +386,16 @@ def _exposure_setup(log_times, refine: bool, values, valid, basis) -> _Exposures
                       initial=init)
 
 
-def _initial_log_exposures(values, valid, basis, log_times):
+def _initial_log_exposures(values, valid, basis, log_times, start_curve=None):
     """Exposure guesses from the mean response where times are unknown (median ratios).
 
-    selfcal's: with the basis mean g₀ for g, Eq. 8 gives K_j − K_k as the median of
-    g₀(I_j) − g₀(I_k) over the samples valid in both frames; unknown frames are chained to
-    the known frame sharing most samples with them.
+    selfcal's: with the basis mean g₀ (or ``start_curve``) for g, Eq. 8 gives K_j − K_k as
+    the median of g₀(I_j) − g₀(I_k) over the samples valid in both frames; unknown frames
+    are chained to the known frame sharing most samples with them.
     """
     F = values.shape[0]
-    g0 = np.interp(values, basis.intensity, basis.mean)  # (F, n, 3)
+    g0 = np.interp(values, basis.intensity,
+                   basis.mean if start_curve is None else start_curve)  # (F, n, 3)
     est = np.where(np.isfinite(log_times), log_times, np.nan)
     if np.all(np.isnan(est)):
         # the brightest-looking frame sets the origin
