@@ -1,5 +1,6 @@
 """``python bench/bench_export_cube.py --tune``: candidate render shapers and 3D node
-values at 33³, on the tuning image alone.
+values at 33³, on the tuning image alone.  ``--where``: where the shipped table's
+pixels beyond 0.005 lie, on every bench image.
 
 The NUS Nikon D7000 model (white balance 14) and the tuning image
 ``sony_ilce6400/scene1/DSC04141.JPG`` of ``bench_export_shaper`` (its ``prepare``: the
@@ -255,6 +256,34 @@ def failing(out: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> str:
             f"r/g/b {100 * share[0]:.0f}/{100 * share[1]:.0f}/{100 * share[2]:.0f} %; "
             f"their brightest output channel at the 10/50/90th percentile "
             + " / ".join(f"{v:.2f}" for v in level))
+
+
+def failing_row(out: np.ndarray, ref: np.ndarray, mask: np.ndarray) -> list:
+    """:func:`failing` as table cells."""
+    err = np.abs(out - ref)[mask]
+    bad = err.max(axis=1) > 0.005
+    share = np.bincount(err[bad].argmax(axis=1), minlength=3) / max(bad.sum(), 1)
+    level = np.percentile(ref[mask][bad].max(axis=1), [10, 50, 90])
+    return [f"{100 * np.mean(~bad):.2f}", f"{bad.sum()}",
+            "/".join(f"{100 * v:.0f}" for v in share), " / ".join(f"{v:.2f}" for v in level)]
+
+
+def main_where() -> None:
+    """``--where``: the pixels beyond 0.005 of the shipped render table at 33³ on every
+    bench image (a description, not a choice: nothing is chosen from it)."""
+    from selfcal.export.shaper import shaper_lut
+
+    model = selfcal.load_model(data_dir("nus_model_nikon_d7000"))
+    lut = shaper_lut(model, "render", size=SIZE)
+    rows = []
+    for fr in prepare(model, bench_images()):
+        out = apply_chunked(lut, fr["raw16"] / 65535.0)
+        rows.append([fr["split"], fr["label"],
+                     *failing_row(out, fr["render"], fr["mask"]["render"])])
+    print("render 33³ (the shipped shaper), in-range pixels beyond 0.005: how many, which "
+          "output channel is worst on them, and their brightest output channel")
+    print(table(["split", "image", "% within", "pixels beyond", "worst channel r/g/b %",
+                 "brightest channel p10 / p50 / p90"], rows))
 
 
 def main_tune() -> None:
