@@ -11,6 +11,7 @@ interpolation rows).  Candidates (ours unless a source is named):
 
 - ``log2``: the shipped shaper, ``log2(1 + x/ε_c)`` with the knee where the model's tone
   curve reaches a share of its output (``f_c(ε_c M_cc) = q``), q swept;
+- ``log2`` with one channel's knee moved (the others at the shipped q);
 - ``power``: density ``(x + ε_c)^-β`` instead of the log's ``1/(x + ε_c)``: for a tone
   curve ``e^γ`` the L∞-optimal knots of piecewise-linear interpolation have density
   ``|f''|^(1/2) ∝ e^(γ/2 - 1)`` (de Boor, *A Practical Guide to Splines*, ch. III), and
@@ -314,6 +315,12 @@ def main_tune() -> None:
         if q == chosen:
             shipped, shipped_pre, shipped_h = lut, pre, h
     eps = knees_at(model, chosen)
+    for c, channel in enumerate("rgb"):   # one channel's knee moved, the others kept
+        for q in (0.2, 0.3):
+            one = eps.copy()
+            one[c] = knees_at(model, q)[c]
+            lut, build = timed(lambda: sampled(model, log2_shaper(one))[0])
+            row(f"log2, knee q={chosen:g}, {channel} at q={q:g}", lut, build)
     for beta in (0.9, 0.8, 0.7):
         lut, build = timed(lambda: sampled(model, power_shaper(eps, beta))[0])
         row(f"power, beta={beta:g}, knee q={chosen:g}", lut, build)
