@@ -4,8 +4,9 @@
 Resolve ``.cube``), the ffmpeg ``lut1d`` + ``lut3d`` chain, response-model LUTs and the
 OpenColorIO config -- see ``bench/bench_export_shaper.py``.
 
-``python bench/bench_export_cube.py --tune``: the render shaper's knee swept on the
-tuning image.
+``python bench/bench_export_cube.py --tune``: candidate render shapers and node values
+at 33³ on the tuning image (``bench/export_shaper_tune.py``); ``--where``: where the
+shipped render table's pixels beyond 0.005 lie, on every image.
 
 ``python bench/bench_export_cube.py --no-shaper``: what follows, the 3D-only cubes.
 
@@ -247,8 +248,12 @@ if __name__ == "__main__":
 
     if "--no-shaper" in sys.argv[1:]:
         main_no_shaper()
+    elif "--where" in sys.argv[1:]:
+        from export_shaper_tune import main_where
+
+        main_where()
     elif "--tune" in sys.argv[1:]:
-        from bench_export_shaper import main_tune
+        from export_shaper_tune import main_tune
 
         main_tune()
     else:

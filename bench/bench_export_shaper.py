@@ -257,29 +257,3 @@ def main_shaper() -> None:
     print(table(["config", "split", "image", "% within (OCIO round trip)", "worst (OCIO)",
                  "% within (model's own)", "% OCIO within 0.005 of the model's"], trip))
 
-
-def main_tune() -> None:
-    """``--tune``: the render shaper's knee (the tone-curve output it sits at) swept on
-    the tuning image alone, 33³, applied by selfcal's own tetrahedral interpolation
-    (:func:`selfcal.export.shaper.apply_shaper_lut`, equal to OpenColorIO's to 1e-6)."""
-    import selfcal.export.shaper as export_shaper
-    from selfcal.export.shaper import apply_shaper_lut, render_knees
-
-    model = selfcal.load_model(data_dir("nus_model_nikon_d7000"))
-    fr = prepare(model, bench_images()[:1])[0]
-    mask = fr["mask"]["render"]
-    chosen = export_shaper.KNEE_OUTPUT
-    rows = []
-    try:
-        for knee in (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5):
-            export_shaper.KNEE_OUTPUT = knee
-            lut = shaper_lut(model, "render", size=33)
-            out = apply_shaper_lut(lut, fr["raw16"] / 65535.0)
-            rows.append([f"{knee:g}" + (" (chosen)" if knee == chosen else ""),
-                         " ".join(f"{e:.4f}" for e in render_knees(model)),
-                         *score(out, fr["render"], mask)])
-    finally:
-        export_shaper.KNEE_OUTPUT = chosen
-    print(f"render shaper knee on the tuning image {fr['label']} (33³, in-range pixels)")
-    print(table(["knee: tone-curve output", "knees (raw r g b)", "% within", "p99", "worst"],
-                rows))
