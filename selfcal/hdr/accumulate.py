@@ -88,7 +88,7 @@ class MergeSums:
     fill; ``residuals`` the misalignment test of each pair of neighbours.
     """
 
-    def __init__(self, shape, exposures, ref: int, used):
+    def __init__(self, shape, exposures, ref: int, used, unchecked=()):
         hh, ww = shape
         n = len(exposures)
         self.num = np.zeros((hh, ww, 3), dtype=np.float32)
@@ -115,6 +115,11 @@ class MergeSums:
         self._local = threading.local()
         #: the radiance's σ in the making (:class:`.sigma.SigmaSums`), or None
         self.sigma = None
+        #: frames merged with a time the pixels could not check, and per pixel the number
+        #: of them that contributed (only when there are some)
+        self.unchecked = set(unchecked)
+        self.unchecked_count = (np.zeros((hh, ww), dtype=np.uint8) if self.unchecked
+                                else None)
 
     def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
         """One strip of one frame into the sums (strips are disjoint: threads may share).
@@ -174,7 +179,16 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.add(s, codes, tab, valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
+        if tab.unchecked:
+            np.add(self.unchecked_count[s], valid >> 7, out=self.unchecked_count[s])
         return n_valid, excluded
+
+    def unchecked_pixels(self, unmeasured: np.ndarray) -> np.ndarray | None:
+        """Measured pixels whose every contributing frame is unchecked (None: no such
+        frame was merged)."""
+        if self.unchecked_count is None:
+            return None
+        return (self.count > 0) & (self.unchecked_count == self.count) & ~unmeasured
 
     def frame_diagnostics(self, sources, *, deghost: bool) -> dict:
         """Per frame, the fraction of pixels used (and excluded by deghosting)."""
@@ -267,6 +281,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             # codes below this in every channel are not near white (see add_strip)
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
+            tab.unchecked = k in sums.unchecked
             sums.tables[k] = tab
             if sums.sigma is not None:
                 sums.sigma.prepare(tab)
