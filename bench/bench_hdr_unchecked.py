@@ -8,7 +8,8 @@ False``: the frame is left out) and once as now (merged with its time, its pixel
 ``HDRResult.unchecked``).  Printed: the share of the image unmeasured (filled with a bound)
 and flagged unchecked, the merge's warnings about ntu36, and on the pixels now flagged
 the ratio of the new value to the old fill (the fill is the brightest frame's
-f⁻¹(I)/e: an upper bound for a shadow).
+f⁻¹(I)/e at codes of 2-3, where f⁻¹ is near 0: not a useful bound), and the flagged pixels'
+radiance against the checked ones' (shadows only the 8 s frame sees should be darker).
 
     python bench/bench_hdr_unchecked.py
 """
@@ -64,6 +65,12 @@ def main():
         print(f"\non the pixels now flagged unchecked ({100 * flagged.mean():.1f}%): "
               f"new value / old fill, p10 {q[0]:.3g}, median {q[1]:.3g}, p90 {q[2]:.3g}; "
               f"of them unmeasured before: {100 * before.unmeasured[flagged].mean():.1f}%")
+        checked = ~now.unmeasured & ~flagged
+        qf = np.percentile(now.radiance[flagged].max(axis=1), [50, 90, 99])
+        qc = np.percentile(now.radiance[checked].min(axis=1), [1, 10, 50])
+        print(f"their radiance (largest channel) p50 / p90 / p99: {qf[0]:.3g} / {qf[1]:.3g} / "
+              f"{qf[2]:.3g}; the checked pixels' (smallest channel) p1 / p10 / p50: "
+              f"{qc[0]:.3g} / {qc[1]:.3g} / {qc[2]:.3g}")
     print(f"\nwall {time.perf_counter() - t0:.0f} s")
 
 

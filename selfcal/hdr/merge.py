@@ -202,10 +202,10 @@ class HDRResult:
     model : object
         The response model used (calibrated on the fly when none was given).
     unchecked : numpy.ndarray or None
-        bool ``HxW``: measured pixels whose every contributing frame is one merged with an
-        exposure time the pixels could not check (``diagnostics['frames_unchecked']``: a
-        frame the calibration ignored as too far from the rest of the bracket); None when
-        no frame is unchecked.
+        bool ``HxW``: measured pixels where, in some channel, more than half of the weight
+        is that of frames merged with an exposure time the pixels could not check
+        (``diagnostics['frames_unchecked']``: a frame the calibration ignored as too far
+        from the rest of the bracket); None when no frame is unchecked.
     sigma : numpy.ndarray or None
         float32 ``HxWx3``, shaped like :attr:`radiance` and in its units: the standard
         deviation of each value from the noise model, the exposures' uncertainty and the
