@@ -475,7 +475,7 @@ def _frames_to_merge(frames: StackFrames, model, fresh: bool, exposures, warning
             warnings.append(f"{frames.sources[k]}: merged with its exposure time "
                             f"({e:g}), unchecked against the pixels: the calibration "
                             f"ignored it ({reason}); HDRResult.unchecked flags the pixels "
-                            "it alone measures")
+                            "that rest on it")
             continue
         left_out.append(k)
         warnings.append(f"{frames.sources[k]}: not merged: the calibration ignored it"
