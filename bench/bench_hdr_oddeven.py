@@ -8,7 +8,10 @@ every scene of ../shared/data/real_brackets, with EXIF times), frames sorted by 
   ``camera_response_functions_Debevec1997``;
 * the **even**-indexed frames (0, 2, 4, ... in exposure order) and the **odd**-indexed
   ones (1, 3, ...) are merged separately with that response: selfcal's ``merge_hdr`` with
-  its defaults, with ``weighting="noise"`` and with ``weighting="hat"``; OpenCV's
+  its defaults, with ``weighting="noise"`` and with ``weighting="hat"``, and its default
+  before issue 26 ("selfcal before": ``selfcal.hdr.weights.USE_CODE_ERROR`` and
+  ``selfcal.hdr.merge.MERGE_UNCHECKED`` off -- no code-error term in the weights, frames
+  too far from the bracket left out; never a candidate of the "lowest" column); OpenCV's
   ``MergeDebevec``; colour-hdri's ``image_stack_to_HDRI``;
 * where both halves measured a pixel the two radiance maps should agree up to one global
   scale.  The score is the median (and the 90th percentile) of ``|log(E_odd / E_even) − s|``
@@ -67,7 +70,10 @@ from common import real_bracket_scenes, real_stacks, table  # noqa: E402
 TUNING = ("memorial", "fujifilm_xh1/scene1", "sony_ilce6400/scene1")
 #: The 24 MP ntu frames are decoded at 1/NTU_REDUCE at least.
 NTU_REDUCE = 4
-METHODS = ("selfcal default", "selfcal noise", "selfcal hat", "OpenCV", "colour-hdri")
+METHODS = ("selfcal before", "selfcal default", "selfcal noise", "selfcal hat", "OpenCV",
+           "colour-hdri")
+#: Not a candidate for the "lowest" column: the default before issue 26's change.
+BEFORE = "selfcal before"
 #: Block size of the block-averaged score (every method) and the sizes of the scaling table.
 BLOCK = 8
 BLOCKS = (2, 4, 8, 16)
@@ -162,16 +168,29 @@ def block_agreement(a, b, mask, size):
 # --------------------------------------------------------------------------------------
 
 def selfcal_merges(frames, times, halves):
+    """selfcal's merges of the halves; "selfcal before" is the default with the module
+    switches of issue 26 off (no code-error term in the weights, frames the calibration
+    ignored as too far from the bracket left out): the default of b8a2705."""
     import selfcal
+    from selfcal.hdr import merge, weights
 
     model = selfcal.calibrate_response(frames, times)
     out, flagged = {}, {}
-    for label, kwargs in (("selfcal default", {}), ("selfcal noise", {"weighting": "noise"}),
+    for label, kwargs in ((BEFORE, {}), ("selfcal default", {}),
+                          ("selfcal noise", {"weighting": "noise"}),
                           ("selfcal hat", {"weighting": "hat"})):
-        results = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h], model,
-                                     **kwargs) for h in halves]
+        before = label == BEFORE
+        weights.USE_CODE_ERROR = merge.MERGE_UNCHECKED = not before
+        try:
+            results = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h],
+                                         model, **kwargs) for h in halves]
+        finally:
+            weights.USE_CODE_ERROR = merge.MERGE_UNCHECKED = True
         out[label] = [r.radiance for r in results]
         flagged[label] = results[0].unmeasured | results[1].unmeasured
+        unchecked = [r.unchecked for r in results if r.unchecked is not None]
+        flagged[label + " unchecked"] = (np.logical_or.reduce(unchecked) if unchecked
+                                         else np.zeros_like(flagged[label]))
     return out, flagged, model
 
 
@@ -243,6 +262,9 @@ def run_stack(name, paths, times, reduce: int):
                               in (".jpg", ".jpeg") else ""),
         "measured": float(mask.mean()),
         "flagged": float(flagged["selfcal default"][mask].mean()) if mask.any() else 0.0,
+        "flagged before": float(flagged[BEFORE][mask].mean()) if mask.any() else 0.0,
+        "unchecked": (float(flagged["selfcal default unchecked"][mask].mean()) if mask.any()
+                      else 0.0),
         "seconds": time.perf_counter() - t0,
         "blocks": blocks,
         "scaling": scaling,
@@ -322,8 +344,9 @@ def main(argv=None):
         for name, (scores, info) in results.items():
             vals = [scores[m][idx] for m in METHODS]
             shown = [fmt.format(v) for v in vals]
-            low = min(float(v) for v in shown)
-            best = ", ".join(m for m, v in zip(METHODS, shown) if float(v) == low)
+            low = min(float(v) for m, v in zip(METHODS, shown) if m != BEFORE)
+            best = ", ".join(m for m, v in zip(METHODS, shown)
+                             if m != BEFORE and float(v) == low)
             rows.append([name, split(name), info["frames"], info["size"],
                          f"{100 * info['measured']:.1f}%"]
                         + shown + [best])
@@ -336,9 +359,9 @@ def main(argv=None):
     for name, (scores, info) in results.items():
         blocks = info["blocks"]
         shown = [f"{blocks[m][0]:.3f}" for m in METHODS]
-        finite = [float(v) for v in shown if v != "nan"]
+        finite = [float(v) for m, v in zip(METHODS, shown) if v != "nan" and m != BEFORE]
         best = ", ".join(m for m, v in zip(METHODS, shown) if finite and v != "nan"
-                         and float(v) == min(finite))
+                         and m != BEFORE and float(v) == min(finite))
         rows.append([name, split(name), str(blocks[METHODS[0]][3])] + shown + [best])
     print(f"\nOdd/even agreement on {BLOCK}×{BLOCK} block means, median |log ratio| after one "
           "global scale (per channel, blocks whose every pixel is measured in both halves; "
@@ -364,12 +387,19 @@ def main(argv=None):
         print("\nScored values non-finite or ≤ 0, counted as infinite disagreement (colour-hdri: "
               "its Debevec curve, extrapolated by a polynomial, goes ≤ 0 at low codes): "
               + "; ".join(bad))
-    flagged = [f"{name} {100 * info['flagged']:.2g}%" for name, (_, info) in results.items()
-               if info["flagged"] > 0]
+    flagged = [f"{name} {100 * info['flagged']:.2g}% (before {100 * info['flagged before']:.2g}%)"
+               for name, (_, info) in results.items()
+               if info["flagged"] > 0 or info["flagged before"] > 0]
     if flagged:
         print("\nScored pixels that selfcal's default merge flags unmeasured in a half (its "
               "clip rules or frames it leaves out; their values are its fill, a bound): "
               + "; ".join(flagged))
+    unchecked = [f"{name} {100 * info['unchecked']:.2g}%" for name, (_, info) in results.items()
+                 if info["unchecked"] > 0]
+    if unchecked:
+        print("\nScored pixels that selfcal's default merge flags unchecked in a half (measured "
+              "only by a frame merged with a time the pixels could not check): "
+              + "; ".join(unchecked))
     if extra is not None:
         print("\nmemorial, all 16 frames, one model (the one above): the default and the hat "
               "merge against the noise-weighted one (log ratio per channel, no rescaling):\n")

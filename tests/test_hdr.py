@@ -730,18 +730,50 @@ def test_shortest_frame_only_pixels_within_five_percent(highlights):
     assert np.max(np.abs(y / y_true - 1)) > 0.05
 
 
-def test_frame_the_calibration_ignores_is_not_merged(stack):
-    """A frame far beyond the bracket: ignored by the calibration, so by the merge."""
-    scene = sim.make_scene(96, 144, dynamic_range_stops=12, saturation=0.3, seed=3)
-    far = sim.simulate_stack(scene, simple_pipeline(), [TIMES[-1] * 256], jitter=0.0,
-                               jpeg_quality=90, seed=3, exposure_scale=stack.exposure_scale)
-    images = list(stack.images) + far.images
-    times = list(stack.exposure_times) + [TIMES[-1] * 256]
+def test_frame_too_far_from_the_bracket_is_merged_unchecked():
+    """A frame far beyond the bracket (ntu's 8 s one): the right half of the scene is 2⁻¹⁷
+    of the left, black in the four bracketed frames and measured by the long frame alone,
+    which is white on the left.  The calibration ignores that frame (no unclipped sample
+    in common: its exposure cannot be checked against the pixels); the merge uses its
+    time, says so, and flags the pixels it alone measures -- which follow the truth."""
+    base = sim.make_scene(96, 144, dynamic_range_stops=6, saturation=0.3, seed=3)
+    scene = base.copy()
+    scene[:, 72:] = base[:, :72] * 2.0 ** -17
+    st = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=90,
+                            seed=3, exposure_scale=100.0)
+    far = sim.simulate_stack(scene, simple_pipeline(), [512.0], jitter=0.0, jpeg_quality=90,
+                             seed=3, exposure_scale=100.0)
+    result = merge_hdr(list(st.images) + far.images, list(st.exposure_times) + [512.0])
+    assert result.model.diagnostics["frames_used"] == [f"array #{k}" for k in range(4)]
+    assert result.diagnostics["frames_unchecked"] == ["array #4"]
+    assert "frames_ignored" not in result.diagnostics
+    assert result.diagnostics["frame_used_fraction"][4] > 0.3
+    assert any(w.startswith("array #4: merged with its exposure time")
+               and "unchecked" in w for w in result.warnings), result.warnings
+
+    # the flagged pixels are the ones only the far frame measures: unmeasured without it
+    flagged = result.unchecked
+    without = merge_hdr(list(st.images), list(st.exposure_times), result.model)
+    assert without.unchecked is None
+    assert 0.3 < flagged.mean() < 0.5
+    assert flagged[:, :72].mean() < 0.01
+    assert without.unmeasured[flagged].mean() > 0.99
+    assert not np.any(result.unmeasured & flagged)
+    # ... and their values follow the truth on the scale of the checked pixels
+    truth = truth_radiance(st)
+    checked = ~result.unmeasured & ~flagged
+    scale = float(np.median(result.radiance[checked] / truth[checked]))
+    err = np.abs(result.radiance[flagged] / (scale * truth[flagged]) - 1)
+    assert np.median(err) < 0.06, np.median(err)
+
+
+def test_frame_the_calibration_ignores_as_a_duplicate_is_not_merged(stack):
+    images = list(stack.images) + [stack.images[1].copy()]
+    times = list(stack.exposure_times) + [stack.exposure_times[1]]
     result = merge_hdr(images, times)
-    ignored = result.model.diagnostics["frames_used"]
-    assert "array #4" not in ignored
     assert result.diagnostics["frames_ignored"] == ["array #4"]
     assert result.diagnostics["frame_used_fraction"][4] == 0
+    assert result.unchecked is None
     assert any(w.startswith("array #4: not merged") for w in result.warnings), result.warnings
 
 

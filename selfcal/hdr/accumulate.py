@@ -88,7 +88,7 @@ class MergeSums:
     fill; ``residuals`` the misalignment test of each pair of neighbours.
     """
 
-    def __init__(self, shape, exposures, ref: int, used):
+    def __init__(self, shape, exposures, ref: int, used, unchecked=()):
         hh, ww = shape
         n = len(exposures)
         self.num = np.zeros((hh, ww, 3), dtype=np.float32)
@@ -115,6 +115,13 @@ class MergeSums:
         self._local = threading.local()
         #: the radiance's σ in the making (:class:`.sigma.SigmaSums`), or None
         self.sigma = None
+        #: frames merged with a time the pixels could not check, their Σ w per pixel and
+        #: channel, and the pixels where they carry most of the weight (only when there
+        #: are some)
+        self.unchecked = set(unchecked)
+        self.unchecked_den = (np.zeros((hh, ww, 3), dtype=np.float32) if self.unchecked
+                              else None)
+        self.unchecked_mask = None
 
     def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
         """One strip of one frame into the sums (strips are disjoint: threads may share).
@@ -174,7 +181,17 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.add(s, codes, tab, valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
+        if tab.unchecked:
+            kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
+            np.add(self.unchecked_den[s], kept, out=self.unchecked_den[s])
         return n_valid, excluded
+
+    def unchecked_pixels(self, unmeasured: np.ndarray) -> np.ndarray | None:
+        """Measured pixels where, in some channel, frames merged unchecked carry more than
+        half of the weight (None: no such frame was merged)."""
+        if self.unchecked_mask is None:
+            return None
+        return self.unchecked_mask & ~unmeasured
 
     def frame_diagnostics(self, sources, *, deghost: bool) -> dict:
         """Per frame, the fraction of pixels used (and excluded by deghosting)."""
@@ -197,9 +214,14 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.calibrate_noise()
 
+        if self.unchecked_den is not None:
+            self.unchecked_mask = np.zeros((hh, ww), dtype=bool)
+
         def strip(s):
             ns, ds = self.num[s], self.den[s]
             hole = ds <= 0
+            if self.unchecked_den is not None:
+                self.unchecked_mask[s] = _any_channel(self.unchecked_den[s] > 0.5 * ds)
             if self.sigma is not None:
                 self.sigma.finish_strip(s, ds)
             # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
@@ -216,7 +238,7 @@ class MergeSums:
         # strips are disjoint, and numpy releases the GIL
         with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
             list(pool.map(strip, self.strips))
-        self.den = None
+        self.den = self.unchecked_den = None
         return unmeasured
 
 
@@ -267,6 +289,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             # codes below this in every channel are not near white (see add_strip)
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
+            tab.unchecked = k in sums.unchecked
             sums.tables[k] = tab
             if sums.sigma is not None:
                 sums.sigma.prepare(tab)

@@ -32,7 +32,8 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
   widened by :data:`RINGING_RADIUS` pixels (``cv2.dilate``), because ringing at a
   highlight edge leaves clipped pixels a few codes below white;
 * **the same frames as the calibration**: a frame the model's calibration ignored is not
-  merged, with its reason in a warning;
+  merged, with its reason in a warning -- except one it ignored as too far from the rest
+  of the bracket, which is merged with its time and flagged (:attr:`HDRResult.unchecked`);
 * a **misalignment test**: neighbours in exposure are compared, exposure-normalised, as
   registered and shifted by a pixel (:mod:`.deghost`); a shift lowering the residual by
   more than ``deghost.MISALIGNMENT_GAIN`` gives a warning naming ``--align``;
@@ -110,6 +111,13 @@ __all__ = ["HDRResult", "MergeOptions", "merge_hdr", "linearize_images"]
 #: 3 / 4 / 5 (3 / 0 / 0 visibly clipped), off by > 5 % where only the shortest frame
 #: measures, with the true f⁻¹: 2 / 1 / 0; the median error rose 0.0141 -> 0.0148.
 RINGING_RADIUS = 5
+
+#: The calibration's reason for ignoring a frame whose exposure the pixels cannot check
+#: (:mod:`selfcal.response.calibrate`: too few unclipped samples shared with any other
+#: frame); such a frame is merged with its time, flagged (:func:`_frames_to_merge`).
+UNCHECKED_REASON = "too far from the rest of the bracket"
+#: Merge such frames (True) or leave them out as before (False: for benchmarks' "before").
+MERGE_UNCHECKED = True
 
 
 @dataclass(frozen=True)
@@ -193,6 +201,11 @@ class HDRResult:
         ``neighbour_residuals`` (the misalignment test of each neighbour pair).
     model : object
         The response model used (calibrated on the fly when none was given).
+    unchecked : numpy.ndarray or None
+        bool ``HxW``: measured pixels where, in some channel, more than half of the weight
+        is that of frames merged with an exposure time the pixels could not check
+        (``diagnostics['frames_unchecked']``: a frame the calibration ignored as too far
+        from the rest of the bracket); None when no frame is unchecked.
     sigma : numpy.ndarray or None
         float32 ``HxWx3``, shaped like :attr:`radiance` and in its units: the standard
         deviation of each value from the noise model, the exposures' uncertainty and the
@@ -213,6 +226,7 @@ class HDRResult:
     diagnostics: dict = field(default_factory=dict)
     model: object = field(default=None, repr=False)
     sigma: np.ndarray | None = field(default=None, repr=False)
+    unchecked: np.ndarray | None = field(default=None, repr=False)
 
 
 # --------------------------------------------------------------------------------------
@@ -236,7 +250,8 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     the minimum-variance combination.  Ours (the module docstring says more): ``w_j = 0``
     where any channel of frame ``j`` is clipped, at a black floor or a stuck ceiling, seen
     clipped by a shorter frame, or (JPEG) near a clipped region; frames the calibration
-    ignored are not merged; misaligned neighbours give a warning naming ``--align``;
+    ignored are not merged, but one too far from the rest of the bracket is, with its
+    time, flagged unchecked; misaligned neighbours give a warning naming ``--align``;
     pixels no frame measures are filled with a bound and flagged.
 
     Parameters
@@ -338,10 +353,10 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                                         linear=linear, clip_margin=opts.clip_margin,
                                         warnings=warnings, progress=progress)
 
-    used, ref, stuck, radius = _merge_plan(frames, model, fresh, exposures, ref, opts,
-                                           linear=linear, warnings=warnings,
-                                           diagnostics=diagnostics)
-    sums = MergeSums(frames.shape, exposures, ref, used)
+    used, unchecked, ref, stuck, radius = _merge_plan(
+        frames, model, fresh, exposures, ref, opts, linear=linear, warnings=warnings,
+        diagnostics=diagnostics)
+    sums = MergeSums(frames.shape, exposures, ref, used, unchecked)
     if opts.sigma:
         sums.sigma = SigmaSums(frames.shape, model)
         diagnostics["sigma_curve_band"] = sums.sigma.has_band
@@ -355,7 +370,8 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
-                     sigma=None if sums.sigma is None else _sigma_result(sums, diagnostics))
+                     sigma=None if sums.sigma is None else _sigma_result(sums, diagnostics),
+                     unchecked=sums.unchecked_pixels(unmeasured))
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
@@ -374,12 +390,16 @@ def _reference_frame(exposures, reference, n: int) -> int:
 
 def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
                 opts: MergeOptions, *, linear: bool, warnings: list, diagnostics: dict):
-    """(frames to merge, reference, per-channel floors and ceilings or None, ringing radius).
+    """(frames to merge, frames merged unchecked, reference, per-channel floors and
+    ceilings or None, ringing radius).
 
     The reference moves to the middle merged frame when the calibration ignored it (an
-    error when the caller chose it).
+    error when the caller chose it), or to the middle checked one when it is unchecked.
     """
-    used = _frames_to_merge(frames, model, fresh, warnings, diagnostics)
+    used, unchecked = _frames_to_merge(frames, model, fresh, exposures, warnings, diagnostics)
+    if ref in unchecked:
+        ref = [k for k in used if k not in unchecked][default_reference(
+            exposures[[k for k in used if k not in unchecked]])]
     if ref not in used:
         ref = used[default_reference(exposures[used])] if opts.reference is None else ref
     if ref not in used:
@@ -390,7 +410,7 @@ def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
     lossy = _looks_lossy(frames, linear) if opts.lossy is None else opts.lossy
     radius = RINGING_RADIUS if lossy else 0
     diagnostics["ringing_radius"] = radius
-    return used, ref, stuck, radius
+    return used, unchecked, ref, stuck, radius
 
 
 def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bool,
@@ -417,37 +437,54 @@ def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bo
     return unmeasured
 
 
-def _frames_to_merge(frames: StackFrames, model, fresh: bool, warnings: list,
-                     diagnostics: dict) -> list:
-    """Indices of the frames to merge: those the calibration used (ours).
+def _frames_to_merge(frames: StackFrames, model, fresh: bool, exposures, warnings: list,
+                     diagnostics: dict):
+    """(indices of the frames to merge, those of them merged unchecked) (ours).
 
-    A frame the model's calibration ignored (a duplicate, one clipped almost everywhere,
-    one sharing too few unclipped samples with the rest of the bracket:
-    ``model.diagnostics['frames_used']``) is not merged either, with the calibration's
-    reason in a warning; its exposure was never checked against the pixels.  Frames the
-    model never saw (a model calibrated on other frames) are merged.
+    A frame the model's calibration ignored as a duplicate or as clipped almost everywhere
+    (``model.diagnostics['frames_used']``) is not merged, with the calibration's reason in
+    a warning.  A frame it ignored for sharing too few unclipped samples with the rest of
+    the bracket (:data:`UNCHECKED_REASON`: a long exposure far beyond the others, whose
+    pixels are black in every other frame) is merged with its given or EXIF time, which
+    the pixels could not check -- it alone measures the shadows it sees (ntu's 8 s frame:
+    half of the scene) -- and named in a warning, ``diagnostics['frames_unchecked']`` and
+    :attr:`HDRResult.unchecked`.  Frames the model never saw (a model calibrated on other
+    frames) are merged.
     """
     n = len(frames)
     diag = getattr(model, "diagnostics", None) or {}
     frames_used = diag.get("frames_used")
     if model is None or frames_used is None:
-        return list(range(n))
+        return list(range(n)), []
     idx = model_frame_index(model, frames, fresh)
     msources = list(getattr(model, "sources", []) or [])
     used_names = {str(f) for f in frames_used}
     ignored = [k for k, i in enumerate(idx)
                if i is not None and i < len(msources) and msources[i] not in used_names]
     if not ignored or len(ignored) == n:
-        return list(range(n))
+        return list(range(n)), []
+    left_out, unchecked = [], []
     for k in ignored:
         name = msources[idx[k]]
         reason = next((w[len(name) + 2:] for w in diag.get("warnings", [])
                        if w.startswith(f"{name}: ") and "ignored" in w), "")
         reason = reason.replace("; ignored", "").strip()
+        e = float(exposures[k])
+        if MERGE_UNCHECKED and UNCHECKED_REASON in reason and np.isfinite(e) and e > 0:
+            unchecked.append(k)
+            warnings.append(f"{frames.sources[k]}: merged with its exposure time "
+                            f"({e:g}), unchecked against the pixels: the calibration "
+                            f"ignored it ({reason}); HDRResult.unchecked flags the pixels "
+                            "that rest on it")
+            continue
+        left_out.append(k)
         warnings.append(f"{frames.sources[k]}: not merged: the calibration ignored it"
                         + (f" ({reason})" if reason else ""))
-    diagnostics["frames_ignored"] = [frames.sources[k] for k in ignored]
-    return [k for k in range(n) if k not in ignored]
+    if left_out:
+        diagnostics["frames_ignored"] = [frames.sources[k] for k in left_out]
+    if unchecked:
+        diagnostics["frames_unchecked"] = [frames.sources[k] for k in unchecked]
+    return [k for k in range(n) if k not in left_out], unchecked
 
 
 def _stuck_levels(model, frames: StackFrames, exposures, used, clip_margin: float,

@@ -8,7 +8,9 @@ three parts, which :class:`SigmaSums` accumulates beside the merge's own sums:
   ``V_j`` of :func:`.weights.noise_variance` under the merge's noise model -- shot and
   read noise [Granados2010]_, and the code noise (quantisation, JPEG) through the slope of
   f⁻¹ -- *without* its relative term (which stands in the weights for the model and
-  exposure errors counted below);
+  exposure errors counted below), and *with* the curve's measured error at the frame's
+  code beyond that noise (:mod:`selfcal.response.code_error`, as the weights take it):
+  frames of one pixel sit at different codes, so it is independent between them;
 * each frame's exposure error, independent between frames: a log exposure off by δ_j
   (std σ_t, :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA`) moves ``X_j`` by
   ``X_j δ_j``;
@@ -29,8 +31,9 @@ noise away, another sharpens it.  So the independent part (noise and exposures) 
 by κ, measured on the stack itself (:meth:`SigmaSums.keep_sample`): on every 8th pixel of
 every 8th row (at most 50,000 values a pair), for each pair of frames merged one after
 the other (neighbours in exposure), ``z = (g X_a − X_b) / √(g² U_a + U_b)`` with
-``U = V + X² σ_t²`` and ``g`` the pair's median ratio, where both frames measure the
-pixel; κ = median |z| / 0.6745 (1 for a noise model that is right), clamped to [1/4, 4],
+``g`` the pair's median ratio, where both frames measure the
+pixel (``U = V`` here: the fitted ``g`` takes the pair's exposure error out of the
+difference); κ = median |z| / 0.6745 (1 for a noise model that is right), clamped to [1/4, 4],
 1 with fewer than :data:`MIN_NOISE_SAMPLES` values.  The merge's diagnostics hold it
 (``sigma_noise_scale``).
 
@@ -107,8 +110,12 @@ class SigmaSums:
         v = noise_variance(x, lin.slope, tab.e, noise, code_std=lin.code_std())
         w = tab.w_table.astype(np.float64)
         X = x / tab.e
+        if tab.code_error is not None:
+            v = v + (X * tab.code_error) ** 2
         u = v + (X * self.sigma_t) ** 2
-        tab.su_table = u.astype(np.float32)
+        # κ's pairs fit their own exposure ratio (g), which takes the exposure error out
+        # of their difference: their U leaves σ_t out too
+        tab.su_table = v.astype(np.float32)
         tab.sv_table = (w * w * u).astype(np.float32)
         tab.sc_table = (w * X * self._band_at(lin.max_code)).astype(np.float32)
 

@@ -21,7 +21,12 @@ noise parameters (not estimated from the stack -- on the tuning stacks of
 ``bench/bench_hdr_oddeven.py``, half or twice the code term and a tenth or
 ten times the shot term moved the odd/even median by at most 0.006 (twice the code term
 was better by 0.001 on all three), ten times the read term made it worse by up to 0.015,
-while these weights instead of the hat took memorial's from 0.20 to 0.06); a weight of
+while these weights instead of the hat took memorial's from 0.20 to 0.06); the curve's
+own error per code, measured on the calibration's samples
+(:mod:`selfcal.response.code_error`, the model's ``diagnostics["code_error_log"]``), where
+it exceeds what the noise model explains, as a further term ``(s(z) · x)²`` of the
+variance (:func:`_excess_code_error`; issue 26: the noise weights trusted codes where the
+curve is worse than the noise says); a weight of
 zero wherever *any* channel is clipped or at its stuck ceiling, and for a channel at its
 black floor (:func:`selfcal.stack.frames.stuck_code_levels`), which :class:`_FrameTables` takes
 as per-channel limits; and :class:`_FrameTables`, which tabulates weight, weighted radiance,
@@ -117,9 +122,14 @@ class NoiseModel:
 #: 0.0488 / 0.0473 / 0.0508.
 DEFAULT_NOISE = NoiseModel(relative=0.03)
 
+#: Add the curve's measured error per code (:mod:`selfcal.response.code_error`, the
+#: model's ``diagnostics["code_error_log"]``) to the variance of the weights and of σ
+#: (False: the weights before it, for benchmarks' "before").
+USE_CODE_ERROR = True
+
 
 def noise_variance(x, slope, exposure: float, noise: NoiseModel = NoiseModel(), *,
-                   code_std: float | None = None):
+                   code_std: float | None = None, code_error=None):
     """Variance of the radiance estimate ``X = f⁻¹(z) / e`` of one frame.
 
     ``Var[X] = (shot · x + read² + (slope · σ_z)² + (relative · x)²) / e²`` with
@@ -140,6 +150,9 @@ def noise_variance(x, slope, exposure: float, noise: NoiseModel = NoiseModel(), 
     noise : NoiseModel
     code_std : float, optional
         Code noise in normalised units, overriding ``noise.code / 255``.
+    code_error : array_like, optional
+        The curve's measured error of log f⁻¹ at the codes (shaped like ``x``;
+        :mod:`selfcal.response.code_error`): adds ``(code_error · x)²`` (ours).
 
     Returns
     -------
@@ -149,7 +162,26 @@ def noise_variance(x, slope, exposure: float, noise: NoiseModel = NoiseModel(), 
     sz = noise.code / 255.0 if code_std is None else float(code_std)
     var = (noise.shot * x + noise.read ** 2 + (np.asarray(slope) * sz) ** 2
            + (noise.relative * x) ** 2)
+    if code_error is not None:
+        var = var + (np.asarray(code_error) * x) ** 2
     return np.maximum(var, 1e-20) / float(exposure) ** 2
+
+
+def _excess_code_error(total, profile, lin, noise: NoiseModel):
+    """The part of the measured error of log f⁻¹ (:mod:`selfcal.response.code_error`) that
+    the noise model does not explain: ``√max(0, s² − V_noise / x² / b²)`` per code, with
+    ``V_noise`` the shot, read and code terms of :func:`noise_variance` and ``b`` the
+    calibration's sample block (its samples are b×b means, whose noise variance is b²
+    times smaller).  None without a profile."""
+    if total is None:
+        return None
+    from dataclasses import replace
+
+    x = np.maximum(lin.table, 1e-6)
+    block = float((profile or {}).get("block", 1) or 1)
+    v = noise_variance(x, lin.slope, 1.0, replace(noise, relative=0.0),
+                       code_std=lin.code_std()) / (x * block) ** 2
+    return np.sqrt(np.maximum(total ** 2 - v, 0.0))
 
 
 class _FrameTables:
@@ -178,8 +210,17 @@ class _FrameTables:
         self.hi = np.broadcast_to(np.asarray(hi, dtype=np.float64), (3,)).copy()
         self.wlo = self.lo if floor is None else np.maximum(self.lo, floor)
         self.lut = lin.table is not None and lin.kind != "to_raw"
+        self.code_error = None
+        self.unchecked = False      # merged with a time the pixels could not check
         if lin.table is None:
             return
+        if USE_CODE_ERROR and lin.kind == "lut":
+            from ..response.code_error import code_error_at
+
+            diag = getattr(lin.model, "diagnostics", None) or {}
+            self.code_error = _excess_code_error(code_error_at(diag.get("code_error_log"),
+                                                               lin.max_code),
+                                                 diag.get("code_error_log"), lin, noise)
         mc = lin.max_code
         z = np.arange(mc + 1) / mc
         x = lin.table
@@ -190,7 +231,8 @@ class _FrameTables:
         self.x_table = (x / self.e).astype(np.float32)
         self.a_table = (w * x / self.e).astype(np.float32)
         if need_variance:
-            var = noise_variance(x, lin.slope, self.e, noise, code_std=lin.code_std())
+            var = noise_variance(x, lin.slope, self.e, noise, code_std=lin.code_std(),
+                                 code_error=self.code_error)
             self.v_table = var.astype(np.float32)
 
     def _weights(self, z, x, slope):
@@ -200,7 +242,7 @@ class _FrameTables:
             # 1 / Var[f⁻¹(I)/e], scaled by the longest exposure² (a common factor, which
             # keeps float32 sums in range)
             var = noise_variance(x, slope, self.e / self.e_norm, self.noise,
-                                 code_std=self.lin.code_std())
+                                 code_std=self.lin.code_std(), code_error=self.code_error)
             return 1.0 / var
         w = np.asarray(self.weighting(z), dtype=np.float64)
         if w.shape != np.shape(z):

@@ -30,6 +30,7 @@ from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import SampleSet, collect_samples, frame_masks
 from .bands import band_for_fit
+from .code_error import code_error_profile
 from .delta import delta_eq12
 from .exposure_times import (
     CONTRADICTION_FACTOR,
@@ -286,6 +287,10 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
         refine_exposures=refine_exposures, options=options, frames_used=usable.sources,
         samples=samples, contradictions=contradictions)
     diagnostics["stuck_codes"] = fit["stuck"]
+    # the curve's error per code level (the merge weighs and its σ counts it)
+    diagnostics["code_error_log"] = code_error_profile(
+        usable.samples, ~(usable.masks["clipped"] | usable.masks["saturated"]), result,
+        fit["grid"], fit["inverse"])
     if MEASURE_RINGING:
         diagnostics["ringing_reach_blocks"] = int(reach)
     from .model import ResponseModel
