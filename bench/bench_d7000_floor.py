@@ -70,8 +70,16 @@ def one_case(task):
         # and its Debevec solve takes minutes on the larger frames
         methods = ("selfcal",)
     t0 = time.perf_counter()
-    res = matrix.score(matrix.calibrate_all(images, matrix.TIMES, methods),
-                       stack.inverse_response())
+    truth = stack.inverse_response()
+    if depth == 16:
+        # a 16-bit calibration's table has 65536 rows: scored at the 8-bit codes' levels
+        import selfcal
+
+        lut = selfcal.calibrate_response(images, list(matrix.TIMES)).inverse_response()
+        luts = {"selfcal": (lut[::257], time.perf_counter() - t0)}
+        res = matrix.score(luts, truth[::257])
+    else:
+        res = matrix.score(matrix.calibrate_all(images, matrix.TIMES, methods), truth)
     return fname, side, variant, rgb.shape[:2], res, time.perf_counter() - t0
 
 
@@ -89,6 +97,8 @@ def main():
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     parser.add_argument("--sides", default="384,1536",
                         help="long side of the frames, px (default %(default)s)")
+    parser.add_argument("--variants", default="",
+                        help="only these rows of VARIANTS (0-based, comma-separated)")
     args = parser.parse_args()
     if not (matrix.NUS.is_dir()
             and all((matrix.SHARED_DATA / "raw" / f).exists() for f in matrix.RAWS)):
@@ -96,7 +106,8 @@ def main():
         return
     sides = [int(s) for s in args.sides.split(",")]
     tasks = [(f, s, v) for s in sorted(sides, reverse=True) for f in matrix.RAWS
-             for v in range(len(VARIANTS))]
+             for v in range(len(VARIANTS))
+             if not args.variants or str(v) in args.variants.split(",")]
     t0 = time.perf_counter()
     with Pool(args.jobs, initializer=matrix._init_worker) as pool:
         results = pool.map(one_case, tasks, chunksize=1)
