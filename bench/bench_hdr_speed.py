@@ -128,7 +128,8 @@ def memory_run(folder: Path):
         stats = json.loads(run_child(MERGE, [all_paths, model_path, str(out), False])
                            .strip().splitlines()[-1])
         stats["exr_mb"] = out.stat().st_size / 1e6
-        stats["sigma"] = json.loads(run_child(MERGE, [all_paths, model_path, str(out), True])
+        out_sigma = Path(tmp) / "merged-sigma.exr"
+        stats["sigma"] = json.loads(run_child(MERGE, [all_paths, model_path, str(out_sigma), True])
                                     .strip().splitlines()[-1])
         stats["opencv"] = json.loads(run_child(OPENCV_FROM_FILES, [all_paths, model_path])
                                      .strip().splitlines()[-1])
