@@ -348,7 +348,10 @@ def report(results, split, args, wall, cpu) -> str:
                   + (", prior at the basis mean" if args.basis_mean_prior else ""), ""]
     if cell_results:
         tab, stats = cell_table(cell_results, cells)
-        lines += [f"{len(cell_results)} stacks {args.size}, {args.curves} per cell; "
+        own = sorted({"x".join(map(str, CONDITIONS[c].size)) for c in cells
+                      if getattr(CONDITIONS[c], "size", None)})
+        sizes = args.size + (f" (the exact cells at their own {', '.join(own)})" if own else "")
+        lines += [f"{len(cell_results)} stacks {sizes}, {args.curves} per cell; "
                   "RMSE of f⁻¹ over codes 1 … 254 after the best scale per channel, "
                   "median and p90 over (stack, channel); ratios of the medians", "", tab,
                   "", "Acceptance (synthetic matrix):"] + acceptance_lines(stats)
