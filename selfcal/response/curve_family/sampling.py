@@ -233,6 +233,14 @@ def invert_curve(curve: ResponseCurve, intensity) -> np.ndarray:
     return inv
 
 
+def _unit_grid(values, what: str) -> np.ndarray:
+    """``values`` as a 1-D float grid in [0, 1] (default 1024 even points), or InputError."""
+    g = np.linspace(0.0, 1.0, 1024) if values is None else np.asarray(values, dtype=np.float64)
+    if g.ndim != 1 or np.any(g < 0) or np.any(g > 1):
+        raise InputError(f"the {what} grid must be a 1-D array in [0, 1]")
+    return g
+
+
 def generate_response_curves(n_curves: int, *, grid=None, seed: int = 0):
     """Generate a database of forward response curves (Grossberg & Nayar's DoRF layout).
 
@@ -251,9 +259,7 @@ def generate_response_curves(n_curves: int, *, grid=None, seed: int = 0):
     curves : ndarray, shape (n_curves, K)
         Forward responses ``f(E)``, each monotone with ``f(0) = 0``, ``f(1) = 1``.
     """
-    e = np.linspace(0.0, 1.0, 1024) if grid is None else np.asarray(grid, dtype=np.float64)
-    if e.ndim != 1 or np.any(e < 0) or np.any(e > 1):
-        raise InputError("the irradiance grid must be a 1-D array in [0, 1]")
+    e = _unit_grid(grid, "irradiance")
     return e, evaluate_curves(sample_response_curves(n_curves, seed=seed), e)
 
 
@@ -277,9 +283,7 @@ def generate_inverse_curves(n_curves: int, *, intensity=None, seed: int = 0):
     names : list of str
         The curves' descriptions.
     """
-    i = np.linspace(0.0, 1.0, 1024) if intensity is None else np.asarray(intensity, dtype=np.float64)
-    if i.ndim != 1 or np.any(i < 0) or np.any(i > 1):
-        raise InputError("the intensity grid must be a 1-D array in [0, 1]")
+    i = _unit_grid(intensity, "intensity")
     curves = sample_response_curves(n_curves, seed=seed)
     inv = np.empty((len(curves), i.size))
     for k, c in enumerate(curves):
