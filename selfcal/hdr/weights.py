@@ -25,7 +25,7 @@ while these weights instead of the hat took memorial's from 0.20 to 0.06); the c
 own error per code, measured on the calibration's samples
 (:mod:`selfcal.response.code_error`, the model's ``diagnostics["code_error_log"]``), where
 it exceeds what the noise model explains, as a further term ``(s(z) · x)²`` of the
-variance (:func:`_excess_code_error`; issue 26: the noise weights trusted codes where the
+variance (:func:`_excess_code_error`: the noise weights trusted codes where the
 curve is worse than the noise says); a weight of
 zero wherever *any* channel is clipped or at its stuck ceiling, and for a channel at its
 black floor (:func:`selfcal.stack.frames.stuck_code_levels`), which :class:`_FrameTables` takes

@@ -13,7 +13,7 @@ exists for one reason:
   :func:`estimated_coefficient_variance` (ours: the second moments of the coefficients
   of selfcal's documented curve family projected on that basis).
   With fewer than two different known times it is centred at :func:`ambiguity_centre`
-  instead (ours, issue 25): there it also chooses the exponent γ, and the basis mean
+  instead (ours): there it also chooses the exponent γ, and the basis mean
   chooses it too flat for common encodings.
 - :attr:`PriorTerms.ridge`: only with ``prior_weight = 0`` (it replaces the
   PCA-variance prior, never adds to it); it keeps the coefficient block invertible.
@@ -100,7 +100,7 @@ _WEIGHT_OFFSET = 0.05
 #: among the basis mean (median f⁻¹ RMSE 0.0593 one time known / 0.0560 none), gamma 1.8
 #: (0.0470 / 0.0521), sRGB + Rec.709 + gamma 2.2 (0.0358 / 0.0361), the same with gamma
 #: 1.8 (0.0387 / 0.0398) and sRGB + Rec.709 (0.0277 / 0.0275).  A centre on the DoRF
-#: curves themselves makes common encodings flatter still (BENCHMARKS, issue 25).
+#: curves themselves makes common encodings flatter still (BENCHMARKS, "Exposures unknown (Build 4)").
 AMBIGUITY_CENTRE_CURVES = ("srgb", "rec709")
 
 

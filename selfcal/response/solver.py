@@ -97,7 +97,7 @@ CODE_NOISE = 1.0 / 255.0
 MAX_ITERATIONS_ESTIMATED = 60
 #: With fewer than two different known times, centre the PCA-variance prior at
 #: :func:`.priors.ambiguity_centre` (standard encodings) instead of the basis mean, and
-#: start the exposures from that centre's curve (issue 25; BENCHMARKS, "Exposures unknown").
+#: start the exposures from that centre's curve (BENCHMARKS, "Exposures unknown").
 CENTRE_AMBIGUITY = True
 
 
