@@ -115,14 +115,16 @@ def scale_to_times(measured: np.ndarray, times: list) -> float | None:
     return math.exp(float(np.median(logs))) if logs else None
 
 
-def thumbnail_exposures(thumbs):
+def thumbnail_exposures(thumbs, max_gap: int | None = None):
     """Relative exposures (first measured frame = 1, NaN outside the largest connected set
     of frames) and the measured pairs, from the frames' split thumbnails
     (:func:`selfcal.stack.exposure_ratios.split_thumbnails`: ``(values, selection)``), by
     :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the ``"sum"`` statistic.
-    Shared by the linear path and the response path (:mod:`.measured_exposures`)."""
+    Shared by the linear path and the response path (:mod:`.measured_exposures`, which
+    passes ``max_gap``)."""
     rel, report = raw_exposure_ratios([v for v, _ in thumbs], select=[c for _, c in thumbs],
-                                      statistic="sum", max_side=2 * MEASURE_SIDE)
+                                      statistic="sum", max_side=2 * MEASURE_SIDE,
+                                      max_gap=max_gap)
     # one connected set of frames is needed for one scale
     components = [c for c in report["component"] if c >= 0]
     main = max(set(components), key=components.count) if components else None

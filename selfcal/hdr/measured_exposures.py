@@ -35,12 +35,21 @@ from .accumulate import _frame_limits
 from .linear_exposures import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
 
-__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE",
+__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PAIR_GAP",
            "MIN_LOG_SIGMA"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below :data:`.linear_exposures.MEASURE_SIDE`.
 PREPASS_REDUCE = 8
+#: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
+#: with the square of the frame count; far pairs share few well-exposed pixels).
+PAIR_GAP = 3
+#: What sets the exposures' trend over the bracket: "pixels" (the measured ratios as
+#: they are) or "times" (:func:`_times_trend`).
+TREND = "pixels"
+#: σ's exposure term with measured exposures: :func:`fit_log_sigma` (True) or the fixed
+#: :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA` of given times (False).
+SIGMA_FROM_FIT = True
 #: Floor of the exposure term of σ when the exposures are measured (:func:`fit_log_sigma`).
 MIN_LOG_SIGMA = 0.005
 #: Sentinel put on excluded values: above ``_CLIP_LEVEL`` they turn to NaN in a thumbnail.
@@ -77,6 +86,24 @@ def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
     return split_thumbnails(x, max_side=MEASURE_SIDE, clip_level=_CLIP_LEVEL)
 
 
+def _times_trend(rel, times):
+    """The measured exposures with their trend against the times replaced by the times'
+    (ours): ``log e = a + b log t + r`` fitted by least squares over the measured frames
+    (three at least), and ``t · exp(r)`` kept -- the pixels' deviations frame by frame,
+    the times' ratio over the whole bracket (a curve whose slope is off turns into a
+    trend of the measured ratios, not into a shutter error)."""
+    rel = np.asarray(rel, dtype=float)
+    ok = np.isfinite(rel)
+    if ok.sum() < 3:
+        return rel
+    x = np.log(np.asarray(times, dtype=float)[ok])
+    y = np.log(rel[ok])
+    b, a = np.polyfit(x, y, 1)
+    out = rel.copy()
+    out[ok] = np.exp(x + (y - (a + b * x)))
+    return out
+
+
 def fit_log_sigma(measured, pairs) -> float:
     """The exposure term of σ for measured exposures (ours): the count-weighted RMS, over
     the measured pairs, of ``log(ratio) − log(e_j / e_i)`` -- how far the pairs disagree
@@ -92,7 +119,7 @@ def fit_log_sigma(measured, pairs) -> float:
 
 
 def measure_response_exposures(frames, model, exposures, frame_set, *, clip_margin: float,
-                               stuck=None, progress=None):
+                               stuck=None, reduce: int | None = None, progress=None):
     """The frames' exposures with their ratios measured from the pixels through ``model``.
 
     Parameters
@@ -109,6 +136,8 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
     clip_margin : float
     stuck : (floor, ceiling) or None
         Per-channel normalised codes that do not move with exposure (excluded).
+    reduce : {1, 2, 4, 8}, optional
+        The files' DCT scale; default :data:`PREPASS_REDUCE`, less for small frames.
     progress : callable, optional
         ``progress("exposures", done, total, source)``.
 
@@ -119,15 +148,18 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
         exposures, ``differences`` ``time / measured − 1`` per frame, ``log_sigma`` of
         :func:`fit_log_sigma`, the pre-pass ``reduce``).
     """
-    frame_set = list(frame_set)
-    reduce = _prepass_reduce(frames)
+    frame_set = sorted(frame_set, key=lambda k: (float(exposures[k]), k))
+    reduce = _prepass_reduce(frames) if reduce is None else int(reduce)
     thumbs = []
     for q, k in enumerate(frame_set):
         thumbs.append(_thumbnail(frames, k, model, clip_margin, stuck, reduce))
         if progress is not None:
             progress("exposures", q + 1, len(frame_set), frames.sources[k])
-    rel, pairs = thumbnail_exposures(thumbs)
+    rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP)
     times = [float(exposures[k]) for k in frame_set]
+    log_sigma = fit_log_sigma(rel, pairs)
+    if TREND == "times":
+        rel = _times_trend(rel, times)
     scale = scale_to_times(rel, times)
     out = np.array(exposures, dtype=float)
     n = len(frames)
@@ -140,7 +172,7 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
                 out[k] = rel[q] * scale
                 differences[k] = float(times[q] / out[k] - 1.0)
     summary = {"measured": measured, "differences": differences,
-               "log_sigma": fit_log_sigma(rel, pairs), "reduce": reduce,
+               "log_sigma": log_sigma, "reduce": reduce, "trend": TREND,
                "frames": [Path(s).name for s in frames.sources]}
     return out, summary
 

@@ -99,6 +99,7 @@ from ..stack.samples import collect_samples
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import _misalignment_warning, _poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
+from . import measured_exposures
 from .measured_exposures import measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums
@@ -402,7 +403,7 @@ def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts, 
     moved = measured_warning(summary, label)
     if moved:
         warnings.append(moved)
-    return out, summary["log_sigma"]
+    return out, (summary["log_sigma"] if measured_exposures.SIGMA_FROM_FIT else None)
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
