@@ -96,7 +96,7 @@ READABLE = 0.02            # shortest-only pixels the shortest frame gives to wi
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 ALL = ("selfcal", "opencv", "colour", "oracle")
 LABELS = {"selfcal": "selfcal", "opencv": "OpenCV", "colour": "colour-hdri",
-          "oracle": "true f⁻¹, t", "measured": "selfcal, measured exposures"}
+          "oracle": "true f⁻¹, t", "measured_e": "selfcal, measured exposures"}
 
 
 def _init_worker():
@@ -218,7 +218,7 @@ def one_stack(task):
         from selfcal.hdr import MergeOptions
 
         r = selfcal.merge_hdr(images, TIMES, model, options=MergeOptions(measure_exposures=True))
-        out["measured"] = scores(r.radiance, e_true, scored, readable, r.unmeasured)
+        out["measured_e"] = scores(r.radiance, e_true, scored, readable, r.unmeasured)
     unflagged = clipped_all & ~result.unmeasured
     out["unflagged"] = int(unflagged.sum())
     out["unflagged_visible"] = int((unflagged & visible).sum())
@@ -246,7 +246,7 @@ def one_stack(task):
 
 
 def split_table(results, title):
-    cols = ALL + (("measured",) if "measured" in results[0] else ())
+    cols = ALL + (("measured_e",) if "measured_e" in results[0] else ())
 
     def row(label, seed, quality, get):
         med = {m: get(m, 0) for m in cols}
@@ -262,7 +262,7 @@ def split_table(results, title):
             f"{get('shortest_only', None)} / {get('shortest_all', None)}",
             f"{off['selfcal']} ({get('selfcal', 2)})", off["opencv"], off["colour"],
             f"{off['oracle']} ({get('oracle', 2)})"] + (
-            [f"{off['measured']} ({get('measured', 2)})"] if "measured" in cols else [])
+            [f"{off['measured_e']} ({get('measured_e', 2)})"] if "measured_e" in cols else [])
 
     rows = []
     for r in results:
@@ -285,7 +285,7 @@ def split_table(results, title):
                   "clipped in every frame", "shortest-only: readable / all",
                   "off > 5 %: selfcal (flagged)", "OpenCV", "colour-hdri",
                   f"{LABELS['oracle']} (flagged)"]
-               + ([f"{LABELS['measured']} (flagged)"] if "measured" in cols else []))
+               + ([f"{LABELS['measured_e']} (flagged)"] if "measured_e" in cols else []))
     ratio_o = np.array([r["selfcal"][0] / r["opencv"][0] for r in results])
     ratio_c = np.array([r["selfcal"][0] / r["colour"][0] for r in results])
     unflagged = sum(r["unflagged"] for r in results)
