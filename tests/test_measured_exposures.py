@@ -67,7 +67,10 @@ def test_measured_exposures_recover_the_truth_from_arrays(stack):
     np.testing.assert_allclose(plain.exposures, times)
 
 
-def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path):
+def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path, monkeypatch):
+    from selfcal.hdr import measured_exposures
+
+    monkeypatch.setattr(measured_exposures, "PREPASS_MIN_SIDE", 512)
     true = np.asarray(stack.true_exposures, float)
     times = list(true * OFF)
     paths = stack.write(tmp_path, fmt="jpg")

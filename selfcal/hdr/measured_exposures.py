@@ -13,10 +13,10 @@ statistic, the absolute scale from the times by the median of ``log(time / measu
 on ``f⁻¹(codes)``.  Ours: codes at or beyond the merge's clip limits (any channel at white
 excludes the pixel, a channel at or below its black floor excludes that channel) never
 enter a thumbnail; arrays are linearised at full size and then area-averaged (unbiased),
-files are decoded with libjpeg's DCT scaling (:func:`selfcal.io.read_image` ``reduce``:
-a pre-pass much cheaper than the full decode, whose block means of *codes* are then
+files are decoded with libjpeg's DCT scaling when large (:func:`selfcal.io.read_image`
+``reduce``: a pre-pass cheaper than the full decode, whose block means of *codes* are then
 linearised, biased where the texture within a block is strong -- measured in
-``bench/bench_measured_exposures.py``); the exposure term of the merge's σ becomes the
+``bench/bench_measured_exposures.py``; :data:`PREPASS_MIN_SIDE`); the exposure term of the merge's σ becomes the
 pair residual of the measurement (:func:`fit_log_sigma`).  Frames the pixels cannot place
 (no shared well-exposed pixels, merged unchecked) keep their time.
 """
@@ -35,12 +35,17 @@ from .accumulate import _frame_limits
 from .linear_exposures import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
 
-__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PAIR_GAP",
+__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE", "PAIR_GAP",
            "MIN_LOG_SIGMA"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
-#: the decoded long side would fall below :data:`.linear_exposures.MEASURE_SIDE`.
+#: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
+#: linearised, are biased where a block holds texture -- on the tuning stacks
+#: (``bench/bench_measured_exposures.py``) Sony's 3008-pixel frames at 1/2 are within a
+#: median 0.0006 (log) of the full-size measurement, Fujifilm's 1500-pixel ones (a
+#: camera-downscaled size) off by 0.017 at 1/2 and 0.03 at 1/4, as much as the times.
 PREPASS_REDUCE = 8
+PREPASS_MIN_SIDE = 1500
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3
@@ -63,7 +68,7 @@ def _prepass_reduce(frames) -> int:
         return 1
     side = max(frames.shape)
     r = PREPASS_REDUCE
-    while r > 1 and side / r < MEASURE_SIDE:
+    while r > 1 and side / r < PREPASS_MIN_SIDE:
         r //= 2
     return r
 

@@ -155,8 +155,8 @@ class MergeOptions:
     measure_exposures : bool
         Rendered frames: measure the exposure ratios from the pixels through the model's
         curve, the times setting only the scale (:mod:`.measured_exposures`; files get a
-        pre-pass decoded at 1/8); σ's exposure term becomes the measurement's.  Default
-        False.
+        pre-pass, decoded at 1/2-1/8 when large); σ's exposure term becomes the
+        measurement's.  Default False.
     """
 
     reference: int | None = None
