@@ -215,8 +215,9 @@ def one_stack(task):
     result = selfcal.merge_hdr(images, TIMES, model)
     out["selfcal"] = scores(result.radiance, e_true, scored, readable, result.unmeasured)
     if with_measured:
-        from selfcal.hdr import MergeOptions
+        from selfcal.hdr import MergeOptions, measured_exposures
 
+        measured_exposures.TREND = with_measured
         r = selfcal.merge_hdr(images, TIMES, model, options=MergeOptions(measure_exposures=True))
         out["measured_e"] = scores(r.radiance, e_true, scored, readable, r.unmeasured)
     unflagged = clipped_all & ~result.unmeasured
@@ -311,8 +312,11 @@ def main():
     parser.add_argument("--size", default="256x384", help="scene HxW (default %(default)s)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     parser.add_argument("--split", choices=("both", "tuning", "held-out"), default="both")
-    parser.add_argument("--measured-exposures", action="store_true",
-                        help="add selfcal's merge with MergeOptions(measure_exposures=True)")
+    parser.add_argument("--measured-exposures", nargs="?", const="pixels",
+                        choices=("pixels", "times"),
+                        help="add selfcal's merge with MergeOptions(measure_exposures=True); "
+                        "the exposures' trend over the bracket the pixels' (default) or the "
+                        "times' (selfcal.hdr.measured_exposures.TREND)")
     args = parser.parse_args()
     if args.step < 1:
         parser.error("--step must be >= 1")
