@@ -1,24 +1,27 @@
 """Exposures of a rendered (JPEG) bracket measured from its pixels, given the model's curve.
 
 [Lin2011] §5 computes a raw bracket's exposure ratios "by dividing the raw values between
-two images"; once a response model gives f⁻¹, a rendered bracket's frames are linear values
-too, and the same ratios measure its exposures.  The times a camera writes are nominal
-(1/60 s for 2⁻⁶ s, third-stop steps of 1.2-1.33×: off from the pixels by a median of
+two images"; once a response model gives f⁻¹, a rendered bracket's frames are linear
+values too, and the same ratios measure its exposures.  The times a camera writes are
+nominal (1/60 s for 2⁻⁶ s, third-stop steps of 1.2-1.33×: off from the pixels by a median of
 0.009-0.031 in log on the real brackets of ``bench/BENCHMARKS.md``), and a merge whose
 weights lean on one frame per pixel carries that frame's exposure error whole.
 
 What is done here is the linear path's measurement (:mod:`.linear_exposures`: split
 thumbnails, :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the ``"sum"``
 statistic, the absolute scale from the times by the median of ``log(time / measured)``)
-on ``f⁻¹(codes)``.  Ours: codes at or beyond the merge's clip limits (any channel at white
-excludes the pixel, a channel at or below its black floor excludes that channel) never
-enter a thumbnail; arrays are linearised at full size and then area-averaged (unbiased),
-files are decoded with libjpeg's DCT scaling when large (:func:`selfcal.io.read_image`
-``reduce``: a pre-pass cheaper than the full decode, whose block means of *codes* are then
-linearised, biased where the texture within a block is strong -- measured in
-``bench/bench_measured_exposures.py``; :data:`PREPASS_MIN_SIDE`); the exposure term of the merge's σ becomes the
-pair residual of the measurement (:func:`fit_log_sigma`).  Frames the pixels cannot place
-(no shared well-exposed pixels, merged unchecked) keep their time.
+on ``f⁻¹(codes)``.  Ours: the trend of the measured exposures over the bracket is the
+times' (:data:`TREND`, :func:`_times_trend`) -- a calibrated curve whose slope is slightly
+off makes the measured ratios drift by a few per cent per stop, which a shutter does not;
+codes at or beyond the merge's clip limits (any channel at white excludes the pixel, a
+channel at or below its black floor excludes that channel) never enter a thumbnail;
+arrays are linearised at full size and then area-averaged (unbiased); files are decoded
+with libjpeg's DCT scaling when large (:func:`selfcal.io.read_image` ``reduce``, down to
+:data:`PREPASS_MIN_SIDE`: a pre-pass cheaper than the full decode, whose block means of
+*codes* are then linearised, biased where the texture within a block is strong --
+measured in ``bench/bench_measured_exposures.py``); the exposure term of the merge's σ
+becomes the pair residual of the measurement (:func:`fit_log_sigma`).  Frames the pixels
+cannot place (no shared well-exposed pixels, merged unchecked) keep their time.
 """
 
 from __future__ import annotations
@@ -35,8 +38,8 @@ from .accumulate import _frame_limits
 from .linear_exposures import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
 
-__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE", "PAIR_GAP",
-           "MIN_LOG_SIGMA"]
+__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
+           "PAIR_GAP", "MIN_LOG_SIGMA"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
@@ -50,8 +53,13 @@ PREPASS_MIN_SIDE = 1500
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3
 #: What sets the exposures' trend over the bracket: "pixels" (the measured ratios as
-#: they are) or "times" (:func:`_times_trend`).
-TREND = "pixels"
+#: they are) or "times" (:func:`_times_trend`).  "times", chosen on the tuning split: the
+#: pixels' trend agrees better between odd and even halves (8×8 blocks, memorial 0.0257
+#: against 0.0321, Fujifilm 1 0.0125 / 0.0131, Sony 1 0.0343 / 0.0345) but carries the
+#: calibrated curve's slope error into the exposures, which the halves share and the
+#: truth does not: on synthetic stacks (tuning seeds, ``--step 20``) it raised the median
+#: error on 4 of 11 stacks (dorf60 0.0187 -> 0.0320), the times' trend lowered it on 10.
+TREND = "times"
 #: σ's exposure term with measured exposures: :func:`fit_log_sigma` (True) or the fixed
 #: :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA` of given times (False).
 SIGMA_FROM_FIT = True
