@@ -14,8 +14,12 @@ exposure (scale from the EXIF times or memorial's shutter_times.txt):
   mean);
 * how far the times are from the pixels: median and largest ``|log(time / e_array)|``;
 * the cost: seconds of a full decode of the files (``read_image``, one thread), of a
-  decode at 1/8 alone, of the default pre-pass (decode at 1/K, linearise, thumbnails, ratios), and the ratio; best of
-  ``--repeats``.  memorial's PNGs cannot be DCT-scaled: their pre-pass is a full decode.
+  decode at 1/8 alone, of the default pre-pass (decode at 1/K, linearise, thumbnails,
+  ratios), and the ratio; best of ``--repeats``.  memorial's PNGs cannot be DCT-scaled:
+  their pre-pass is a full decode.
+
+The measurement is the option's as it stands (``selfcal.hdr.measured_exposures.TREND``:
+the times' trend since b026c6b, so "times off" is the frames' deviation from it).
 
     python bench/bench_measured_exposures.py                  # tuning stacks
     python bench/bench_measured_exposures.py --split heldout
