@@ -47,6 +47,7 @@ pixels some frame measured.
     python bench/bench_hdr_oddeven.py                 # every stack (6 min, 6 GB peak)
     python bench/bench_hdr_oddeven.py --only memorial --only sony_ilce6400/scene3
     python bench/bench_hdr_oddeven.py --reduce 4      # every JPEG at 1/4 (quick)
+    python bench/bench_hdr_oddeven.py --measured-exposures   # + the "selfcal measured" columns
 
 The ntu frames (6000×4000) are always decoded at 1/4 or less (libjpeg DCT scaling,
 ``read_image(..., reduce=4)``); the "size" column gives the size merged.  Colour-hdri runs
@@ -74,6 +75,12 @@ METHODS = ("selfcal before", "selfcal default", "selfcal noise", "selfcal hat", 
            "colour-hdri")
 #: Not a candidate for the "lowest" column: the default before issue 26's change.
 BEFORE = "selfcal before"
+#: With --measured-exposures: the default merge with the exposures measured from the
+#: pixels through the curve (``MergeOptions(measure_exposures=True)``), their trend over
+#: the bracket the pixels' or the times' (``selfcal.hdr.measured_exposures.TREND``);
+#: not candidates of the "lowest" column either.
+MEASURED = {"selfcal measured": "pixels", "selfcal measured, times' trend": "times"}
+NOT_CANDIDATES = (BEFORE, *MEASURED)
 #: Block size of the block-averaged score (every method) and the sizes of the scaling table.
 BLOCK = 8
 BLOCKS = (2, 4, 8, 16)
@@ -167,25 +174,29 @@ def block_agreement(a, b, mask, size):
 # the three merges
 # --------------------------------------------------------------------------------------
 
-def selfcal_merges(frames, times, halves):
+def selfcal_merges(frames, times, halves, methods=METHODS):
     """selfcal's merges of the halves; "selfcal before" is the default with the module
     switches of issue 26 off (no code-error term in the weights, frames the calibration
     ignored as too far from the bracket left out): the default of b8a2705."""
     import selfcal
-    from selfcal.hdr import merge, weights
+    from selfcal.hdr import MergeOptions, measured_exposures, merge, weights
 
     model = selfcal.calibrate_response(frames, times)
     out, flagged = {}, {}
-    for label, kwargs in ((BEFORE, {}), ("selfcal default", {}),
-                          ("selfcal noise", {"weighting": "noise"}),
-                          ("selfcal hat", {"weighting": "hat"})):
+    variants = [(BEFORE, {}), ("selfcal default", {}), ("selfcal noise", {"weighting": "noise"}),
+                ("selfcal hat", {"weighting": "hat"})]
+    variants += [(m, {"options": MergeOptions(measure_exposures=True)}) for m in MEASURED
+                 if m in methods]
+    for label, kwargs in variants:
         before = label == BEFORE
         weights.USE_CODE_ERROR = merge.MERGE_UNCHECKED = not before
+        measured_exposures.TREND = MEASURED.get(label, "pixels")
         try:
             results = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h],
                                          model, **kwargs) for h in halves]
         finally:
             weights.USE_CODE_ERROR = merge.MERGE_UNCHECKED = True
+            measured_exposures.TREND = "pixels"
         out[label] = [r.radiance for r in results]
         flagged[label] = results[0].unmeasured | results[1].unmeasured
         unchecked = [r.unchecked for r in results if r.unchecked is not None]
@@ -238,7 +249,7 @@ def sorted_frames(name, paths, times, reduce: int):
     return [read_image(p, reduce=reduce) for p in paths], paths, times
 
 
-def run_stack(name, paths, times, reduce: int):
+def run_stack(name, paths, times, reduce: int, methods=METHODS):
     t0 = time.perf_counter()
     frames, paths, times = sorted_frames(name, paths, times, reduce)
     if any(f.dtype != np.uint8 for f in frames):
@@ -249,11 +260,11 @@ def run_stack(name, paths, times, reduce: int):
     halves = (odd, even)
     mask = measured([frames[k] for k in odd]) & measured([frames[k] for k in even])
 
-    maps, flagged, model = selfcal_merges(frames, times, halves)
+    maps, flagged, model = selfcal_merges(frames, times, halves, methods)
     maps["OpenCV"] = opencv_merges(frames, times, halves)
     maps["colour-hdri"] = colour_hdri_merges(frames, times, meta, halves)
-    scores = {m: agreement(maps[m][0], maps[m][1], mask) for m in METHODS}
-    blocks = {m: block_agreement(maps[m][0], maps[m][1], mask, BLOCK) for m in METHODS}
+    scores = {m: agreement(maps[m][0], maps[m][1], mask) for m in methods}
+    blocks = {m: block_agreement(maps[m][0], maps[m][1], mask, BLOCK) for m in methods}
     scaling = {b: block_agreement(*maps["selfcal default"], mask, b) for b in BLOCKS}
     h, w = frames[0].shape[:2]
     info = {
@@ -308,7 +319,12 @@ def main(argv=None):
     parser.add_argument("--reduce", type=int, default=1, choices=(1, 2, 4, 8),
                         help="decode every JPEG at 1/K (DCT scaling; ntu at 1/max(K, 4)); "
                         "memorial's PNGs are used as they are")
+    parser.add_argument("--measured-exposures", action="store_true",
+                        help="add the columns " + ", ".join(f'"{m}"' for m in MEASURED))
     args = parser.parse_args(argv)
+    methods = METHODS + (tuple(MEASURED) if args.measured_exposures else ())
+    # the measured exposures move the scores in the fourth digit
+    digits = 4 if args.measured_exposures else 3
 
     import warnings
 
@@ -329,7 +345,7 @@ def main(argv=None):
     results, extra = {}, None
     with threadpool_limits(limits=1, user_api="blas"):
         for name, (paths, times) in stacks.items():
-            scores, info, ex = run_stack(name, paths, times, args.reduce)
+            scores, info, ex = run_stack(name, paths, times, args.reduce, methods)
             results[name] = (scores, info)
             extra = ex if ex is not None else extra
             print(f"[{name}: {info['seconds']:.0f} s]", file=sys.stderr, flush=True)
@@ -338,35 +354,36 @@ def main(argv=None):
     def split(name):
         return "tuning" if name in TUNING else "held out"
 
-    for title, idx, fmt in (("median |log ratio|", 0, "{:.3f}"),
-                            ("p90 |log ratio|", 1, "{:.3f}")):
+    for title, idx, fmt in (("median |log ratio|", 0, f"{{:.{digits}f}}"),
+                            ("p90 |log ratio|", 1, f"{{:.{digits}f}}")):
         rows = []
         for name, (scores, info) in results.items():
-            vals = [scores[m][idx] for m in METHODS]
+            vals = [scores[m][idx] for m in methods]
             shown = [fmt.format(v) for v in vals]
-            low = min(float(v) for m, v in zip(METHODS, shown) if m != BEFORE)
-            best = ", ".join(m for m, v in zip(METHODS, shown)
-                             if m != BEFORE and float(v) == low)
+            low = min(float(v) for m, v in zip(methods, shown) if m not in NOT_CANDIDATES)
+            best = ", ".join(m for m, v in zip(methods, shown)
+                             if m not in NOT_CANDIDATES and float(v) == low)
             rows.append([name, split(name), info["frames"], info["size"],
                          f"{100 * info['measured']:.1f}%"]
                         + shown + [best])
         print(f"\nOdd/even agreement, {title} after one global scale (per channel, "
               "pixels measured in both halves):\n")
         print(table(["stack", "split", "frames odd/even", "size", "measured"]
-                    + list(METHODS) + ["lowest"], rows))
+                    + list(methods) + ["lowest"], rows))
 
     rows = []
     for name, (scores, info) in results.items():
         blocks = info["blocks"]
-        shown = [f"{blocks[m][0]:.3f}" for m in METHODS]
-        finite = [float(v) for m, v in zip(METHODS, shown) if v != "nan" and m != BEFORE]
-        best = ", ".join(m for m, v in zip(METHODS, shown) if finite and v != "nan"
-                         and m != BEFORE and float(v) == min(finite))
-        rows.append([name, split(name), str(blocks[METHODS[0]][3])] + shown + [best])
+        shown = [f"{blocks[m][0]:.{digits}f}" for m in methods]
+        finite = [float(v) for m, v in zip(methods, shown)
+                  if v != "nan" and m not in NOT_CANDIDATES]
+        best = ", ".join(m for m, v in zip(methods, shown) if finite and v != "nan"
+                         and m not in NOT_CANDIDATES and float(v) == min(finite))
+        rows.append([name, split(name), str(blocks[methods[0]][3])] + shown + [best])
     print(f"\nOdd/even agreement on {BLOCK}×{BLOCK} block means, median |log ratio| after one "
           "global scale (per channel, blocks whose every pixel is measured in both halves; "
           "a block with a non-finite or ≤ 0 value counts as infinite):\n")
-    print(table(["stack", "split", "blocks"] + list(METHODS) + ["lowest"], rows))
+    print(table(["stack", "split", "blocks"] + list(methods) + ["lowest"], rows))
 
     rows = []
     for name, (scores, info) in results.items():
@@ -382,7 +399,7 @@ def main(argv=None):
                 + [f"B=1 − B={BLOCK}"], rows))
 
     bad = [f"{name} {m} {100 * scores[m][2]:.2g}%" for name, (scores, _) in results.items()
-           for m in METHODS if scores[m][2] > 0]
+           for m in methods if scores[m][2] > 0]
     if bad:
         print("\nScored values non-finite or ≤ 0, counted as infinite disagreement (colour-hdri: "
               "its Debevec curve, extrapolated by a polynomial, goes ≤ 0 at low codes): "

@@ -96,7 +96,7 @@ READABLE = 0.02            # shortest-only pixels the shortest frame gives to wi
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 ALL = ("selfcal", "opencv", "colour", "oracle")
 LABELS = {"selfcal": "selfcal", "opencv": "OpenCV", "colour": "colour-hdri",
-          "oracle": "true f⁻¹, t"}
+          "oracle": "true f⁻¹, t", "measured_e": "selfcal, measured exposures"}
 
 
 def _init_worker():
@@ -185,7 +185,7 @@ def colour_hdri_merge(images, times):
 
 
 def one_stack(task):
-    index, seed, size = task
+    index, seed, size, with_measured = task
     import cv2
     import scipy.io as sio
 
@@ -214,6 +214,12 @@ def one_stack(task):
     model = selfcal.calibrate_response(images, TIMES)
     result = selfcal.merge_hdr(images, TIMES, model)
     out["selfcal"] = scores(result.radiance, e_true, scored, readable, result.unmeasured)
+    if with_measured:
+        from selfcal.hdr import MergeOptions, measured_exposures
+
+        measured_exposures.TREND = with_measured
+        r = selfcal.merge_hdr(images, TIMES, model, options=MergeOptions(measure_exposures=True))
+        out["measured_e"] = scores(r.radiance, e_true, scored, readable, r.unmeasured)
     unflagged = clipped_all & ~result.unmeasured
     out["unflagged"] = int(unflagged.sum())
     out["unflagged_visible"] = int((unflagged & visible).sum())
@@ -241,12 +247,14 @@ def one_stack(task):
 
 
 def split_table(results, title):
+    cols = ALL + (("measured_e",) if "measured_e" in results[0] else ())
+
     def row(label, seed, quality, get):
-        med = {m: get(m, 0) for m in ALL}
-        off = {m: get(m, 1) for m in ALL}
+        med = {m: get(m, 0) for m in cols}
+        off = {m: get(m, 1) for m in cols}
         t1 = get("t1_error", None)
         t1 = "" if t1 == "" else f"{100 * t1:+.1f} %"
-        return [label, seed, quality, t1] + [f"{med[m]:.4f}" for m in ALL] + [
+        return [label, seed, quality, t1] + [f"{med[m]:.4f}" for m in cols] + [
             f"{med['selfcal'] / med['opencv']:.2f}", f"{med['selfcal'] / med['colour']:.2f}",
             f"{get('unflagged', None)} ({get('unflagged_visible', None)})",
             f"{get('flagged_measured', None)} "
@@ -254,7 +262,8 @@ def split_table(results, title):
             get("clipped_all", None),
             f"{get('shortest_only', None)} / {get('shortest_all', None)}",
             f"{off['selfcal']} ({get('selfcal', 2)})", off["opencv"], off["colour"],
-            f"{off['oracle']} ({get('oracle', 2)})"]
+            f"{off['oracle']} ({get('oracle', 2)})"] + (
+            [f"{off['measured_e']} ({get('measured_e', 2)})"] if "measured_e" in cols else [])
 
     rows = []
     for r in results:
@@ -271,17 +280,18 @@ def split_table(results, title):
         return sum(r[k][i] for r in results)
 
     rows.append(row("median / total", "", "", total))
-    headers = (["curve", "seed", "JPEG q", "t₁ error"] + [f"median: {LABELS[m]}" for m in ALL]
+    headers = (["curve", "seed", "JPEG q", "t₁ error"] + [f"median: {LABELS[m]}" for m in cols]
                + ["selfcal/OpenCV", "selfcal/colour-hdri", "unflagged (visible)",
                   "measured but flagged",
                   "clipped in every frame", "shortest-only: readable / all",
                   "off > 5 %: selfcal (flagged)", "OpenCV", "colour-hdri",
-                  f"{LABELS['oracle']} (flagged)"])
+                  f"{LABELS['oracle']} (flagged)"]
+               + ([f"{LABELS['measured_e']} (flagged)"] if "measured_e" in cols else []))
     ratio_o = np.array([r["selfcal"][0] / r["opencv"][0] for r in results])
     ratio_c = np.array([r["selfcal"][0] / r["colour"][0] for r in results])
     unflagged = sum(r["unflagged"] for r in results)
     off = sum(r["selfcal"][1] for r in results)
-    med = {m: total(m, 0) for m in ALL}
+    med = {m: total(m, 0) for m in cols}
     return "\n".join([
         f"### {title}", "", table(headers, rows), "",
         f"Ratio of the medians over the stacks: selfcal/OpenCV "
@@ -302,6 +312,11 @@ def main():
     parser.add_argument("--size", default="256x384", help="scene HxW (default %(default)s)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     parser.add_argument("--split", choices=("both", "tuning", "held-out"), default="both")
+    parser.add_argument("--measured-exposures", nargs="?", const="pixels",
+                        choices=("pixels", "times"),
+                        help="add selfcal's merge with MergeOptions(measure_exposures=True); "
+                        "the exposures' trend over the bracket the pixels' (default) or the "
+                        "times' (selfcal.hdr.measured_exposures.TREND)")
     args = parser.parse_args()
     if args.step < 1:
         parser.error("--step must be >= 1")
@@ -310,9 +325,10 @@ def main():
     even = sorted({i - i % 2 for i in range(0, n_curves, args.step)})
     tasks = []
     if args.split in ("both", "tuning"):
-        tasks += [(i, i, (h, w)) for i in even]
+        tasks += [(i, i, (h, w), args.measured_exposures) for i in even]
     if args.split in ("both", "held-out"):
-        tasks += [(i + 1, 1000 + i + 1, (h, w)) for i in even if i + 1 < n_curves]
+        tasks += [(i + 1, 1000 + i + 1, (h, w), args.measured_exposures)
+                  for i in even if i + 1 < n_curves]
     t0 = time.perf_counter()
     with Pool(args.jobs, initializer=_init_worker) as pool:
         results = sorted(pool.imap_unordered(one_stack, tasks), key=lambda r: r["index"])

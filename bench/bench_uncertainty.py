@@ -207,13 +207,19 @@ def sim_report(results) -> list:
 # σ on real odd/even halves
 # --------------------------------------------------------------------------------------
 
+#: --measured-exposures: the merges with ``MergeOptions(measure_exposures=True)``; σ's
+#: exposure term the measurement's fit (``SIGMA_FROM_FIT``) or the fixed 0.02.
+MEASURED = (("noise measured", False, True), ("full measured", True, True),
+            ("full measured, σ_t 0.02", True, False))
+
+
 def real_task(task):
-    name, paths, times, reduce = task
+    name, paths, times, reduce, with_measured = task
     from dataclasses import replace
 
     import selfcal
     from bench_hdr_oddeven import measured, sorted_frames
-    from selfcal.hdr import MergeOptions, merge, weights
+    from selfcal.hdr import MergeOptions, measured_exposures, merge, weights
 
     frames, paths, times = sorted_frames(name, paths, times, reduce)
     n = len(frames)
@@ -242,19 +248,46 @@ def real_task(task):
         if "before" not in label:
             out["kappa"] = [r.diagnostics["sigma_noise_scale"] for r in res]
             out["pixels"] = float(keep.mean())
+    for label, full, from_fit in (MEASURED if with_measured else ()):
+        measured_exposures.SIGMA_FROM_FIT = from_fit
+        try:
+            res = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h],
+                                     model if full else bare,
+                                     options=MergeOptions(sigma=True, measure_exposures=True))
+                   for h in halves]
+        finally:
+            measured_exposures.SIGMA_FROM_FIT = True
+        out[label] = _median_abs_z(res, mask)
+        out["σ_t fit"] = [r.diagnostics["measured_exposures"]["log_sigma"] for r in res]
     return out
+
+
+def _median_abs_z(res, mask) -> float:
+    """Median |z| of two halves' merges over the pixels measured in both (as above)."""
+    keep = mask & ~res[0].unmeasured & ~res[1].unmeasured
+    a, b = (np.asarray(r.radiance, np.float64)[keep] for r in res)
+    sa, sb = (np.asarray(r.sigma, np.float64)[keep] for r in res)
+    ok = (a > 0) & (b > 0) & np.isfinite(sa) & np.isfinite(sb)
+    g = np.exp(-float(np.median(np.log(a[ok] / b[ok]))))
+    return float(np.median(np.abs((a[ok] * g - b[ok]) / np.sqrt((sa[ok] * g) ** 2
+                                                                 + sb[ok] ** 2))))
 
 
 def real_report(results, tuning) -> list:
     head = ["stack", "split", "size", "scored pixels", "median |z| noise before",
             "median |z| full before", "median |z| noise", "median |z| full", "κ odd / even"]
+    extra = [m[0] for m in MEASURED if m[0] in results[0]]
+    if extra:
+        head += [f"median |z| {m}" for m in extra] + ["σ_t fit odd / even"]
     rows = [[r["name"], "tuning" if r["name"] in tuning else "held out", r["size"],
              f"{100 * r['pixels']:.0f} %", f"{r['noise before']:.3f}",
              f"{r['full before']:.3f}", f"{r['noise']:.3f}", f"{r['full']:.3f}",
              " / ".join(f"{k:.2f}" for k in r["kappa"])]
+            + [f"{r[m]:.3f}" for m in extra]
+            + ([" / ".join(f"{v:.4f}" for v in r["σ_t fit"])] if extra else [])
             for r in results]
     out = [table(head, rows), ""]
-    for label in ("noise", "full"):
+    for label in ("noise", "full", *extra):
         vals = [r[label] for r in results]
         inside = sum(0.55 <= v <= 0.85 for v in vals)
         out.append(f"- median |z| ({label} σ) in 0.55-0.85: {inside} of {len(vals)} stacks "
@@ -318,6 +351,8 @@ def main(argv=None):
     parser.add_argument("--compare", action="store_true",
                         help="bands: the location bootstrap beside the covariance")
     parser.add_argument("--only", action="append", help="real: only these stacks")
+    parser.add_argument("--measured-exposures", action="store_true",
+                        help="real: add the merges with exposures measured from the pixels")
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args(argv)
     size = tuple(int(v) for v in args.size.split("x"))
@@ -350,7 +385,7 @@ def main(argv=None):
             names = [n for n in stacks if (n in TUNING) != heldout]
             if args.only:
                 names = [n for n in names if n in args.only]
-            tasks = [(n, *stacks[n], args.reduce) for n in names]
+            tasks = [(n, *stacks[n], args.reduce, args.measured_exposures) for n in names]
             results = pool.map(real_task, tasks, chunksize=1)
             print(f"## Radiance σ on real odd/even halves (JPEGs decoded at 1/{args.reduce}; "
                   "ntu at 1/4 at least)\n")

@@ -107,12 +107,32 @@ def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
     return split_thumbnails(rgb, max_side=MEASURE_SIDE, clip_level=clip_level)
 
 
-def _scale_to_times(measured: np.ndarray, times: list) -> float | None:
+def scale_to_times(measured: np.ndarray, times: list) -> float | None:
     """The factor putting the measured exposures in the times' units: the median over the
     frames with both of ``log(time / measured)`` (None without such a frame)."""
     logs = [math.log(t / m) for t, m in zip(times, measured)
             if t is not None and math.isfinite(m)]
     return math.exp(float(np.median(logs))) if logs else None
+
+
+def thumbnail_exposures(thumbs, max_gap: int | None = None):
+    """Relative exposures (first measured frame = 1, NaN outside the largest connected set
+    of frames) and the measured pairs, from the frames' split thumbnails
+    (:func:`selfcal.stack.exposure_ratios.split_thumbnails`: ``(values, selection)``), by
+    :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the ``"sum"`` statistic.
+    Shared by the linear path and the response path (:mod:`.measured_exposures`, which
+    passes ``max_gap``)."""
+    rel, report = raw_exposure_ratios([v for v, _ in thumbs], select=[c for _, c in thumbs],
+                                      statistic="sum", max_side=2 * MEASURE_SIDE,
+                                      max_gap=max_gap)
+    # one connected set of frames is needed for one scale
+    components = [c for c in report["component"] if c >= 0]
+    main = max(set(components), key=components.count) if components else None
+    measured = np.array([e if c == main else np.nan
+                         for e, c in zip(rel, report["component"])], dtype=float)
+    if np.isfinite(measured).any():
+        measured /= measured[np.isfinite(measured)][0]
+    return measured, report["pairs"]
 
 
 def measure_linear_exposures(frames, times, times_source: str, *, use: str = "auto",
@@ -153,17 +173,8 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
         thumbs.append(_thumbnail(frames, k, clip_margin))
         if progress is not None:
             progress("exposures", k + 1, n, frames.sources[k])
-    rel, report = raw_exposure_ratios([v for v, _ in thumbs], select=[c for _, c in thumbs],
-                                      statistic="sum", max_side=2 * MEASURE_SIDE)
-    # one connected set of frames is needed for one scale
-    components = [c for c in report["component"] if c >= 0]
-    main = max(set(components), key=components.count) if components else None
-    measured = np.array([e if c == main else np.nan
-                         for e, c in zip(rel, report["component"])], dtype=float)
-    if np.isfinite(measured).any():
-        measured /= measured[np.isfinite(measured)][0]
-
-    scale = _scale_to_times(measured, times)
+    measured, pairs = thumbnail_exposures(thumbs)
+    scale = scale_to_times(measured, times)
     differences = [None if t is None or not math.isfinite(m) or scale is None
                    else float(t / (m * scale) - 1.0) for t, m in zip(times, measured)]
     keep_times = use == "times" or (use == "auto" and times_source == "given"
@@ -183,7 +194,7 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
             f"{missing[0]}: {why} (give exposure times)"
             + (f"; {len(missing) - 1} more frames too" if len(missing) > 1 else ""))
     return LinearExposures(np.asarray(exposures, dtype=float), measured, list(times),
-                           times_source, source, differences, report["pairs"])
+                           times_source, source, differences, pairs)
 
 
 def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: float,

@@ -99,6 +99,8 @@ from ..stack.samples import collect_samples
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import _misalignment_warning, _poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
+from . import measured_exposures
+from .measured_exposures import measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums
 
@@ -150,6 +152,11 @@ class MergeOptions:
         Also compute the radiance's standard deviation, :attr:`HDRResult.sigma`
         (:mod:`.sigma`: noise model, exposure uncertainty and the curve's band); two more
         float32 sums the size of the radiance while merging.  Default False.
+    measure_exposures : bool
+        Rendered frames: measure the exposure ratios from the pixels through the model's
+        curve, the times setting only the scale (:mod:`.measured_exposures`; files get a
+        pre-pass, decoded at 1/2-1/8 when large); σ's exposure term becomes the
+        measurement's.  Default False.
     """
 
     reference: int | None = None
@@ -162,6 +169,7 @@ class MergeOptions:
     linear_exposures: str = "auto"
     calibrate_options: dict | None = None
     sigma: bool = False
+    measure_exposures: bool = False
 
 
 @dataclass
@@ -356,9 +364,17 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
     used, unchecked, ref, stuck, radius = _merge_plan(
         frames, model, fresh, exposures, ref, opts, linear=linear, warnings=warnings,
         diagnostics=diagnostics)
+    sigma_t = None
+    if opts.measure_exposures and not linear:
+        label = {"given": "given times", "exif": "EXIF exposures"}.get(
+            exposure_source.split("+")[0], "model's exposures")
+        exposures, sigma_t = _measured_exposures(frames, model, exposures, used, unchecked,
+                                                 stuck, opts, label, warnings, diagnostics,
+                                                 progress)
+        exposure_source += "+pixels"
     sums = MergeSums(frames.shape, exposures, ref, used, unchecked)
     if opts.sigma:
-        sums.sigma = SigmaSums(frames.shape, model)
+        sums.sigma = SigmaSums(frames.shape, model, exposure_log_sigma=sigma_t)
         diagnostics["sigma_curve_band"] = sums.sigma.has_band
     need_x = deghost and len(used) > 1
     weighing = FrameWeighing(weighting, noise, opts.clip_margin, linear, stuck, radius, need_x,
@@ -372,6 +388,22 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
                      sigma=None if sums.sigma is None else _sigma_result(sums, diagnostics),
                      unchecked=sums.unchecked_pixels(unmeasured))
+
+
+def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts, label,
+                        warnings, diagnostics, progress):
+    """:func:`.measured_exposures.measure_response_exposures` on the checked merged frames:
+    (exposures, σ's exposure term), the summary in ``diagnostics["measured_exposures"]``
+    and a warning naming the times the pixels moved."""
+    checked = [k for k in used if k not in unchecked]
+    out, summary = measure_response_exposures(frames, model, exposures, checked,
+                                              clip_margin=opts.clip_margin, stuck=stuck,
+                                              progress=progress)
+    diagnostics["measured_exposures"] = summary
+    moved = measured_warning(summary, label)
+    if moved:
+        warnings.append(moved)
+    return out, (summary["log_sigma"] if measured_exposures.SIGMA_FROM_FIT else None)
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:

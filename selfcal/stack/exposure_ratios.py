@@ -106,7 +106,7 @@ def _pair_log_ratio(vi, vj, both, statistic: str):
 
 def raw_exposure_ratios(raws, *, low: float = 0.02, high: float = 0.9,
                         min_count: int = 100, max_side: int = 512, select=None,
-                        statistic: str = "median"):
+                        statistic: str = "median", max_gap: int | None = None):
     """Relative exposures of aligned raw frames from the ratios of their values.
 
     [Lin2011] §5: "with RAW images, the exposure ratio can be directly computed by dividing
@@ -179,7 +179,7 @@ def raw_exposure_ratios(raws, *, low: float = 0.02, high: float = 0.9,
                       & ((v > 0) if statistic == "median" else True))
     edges, spreads = [], []
     for i in range(n):
-        for j in range(i + 1, n):
+        for j in range(i + 1, n if max_gap is None else min(n, i + 1 + max_gap)):
             both = chosen[i] & chosen[j]
             cnt = int(both.sum())
             if cnt < min_count or not ((values[i][both] > 0) & (values[j][both] > 0)).any():

@@ -1,0 +1,89 @@
+"""Exposures of a rendered bracket measured from its pixels (selfcal.hdr.measured_exposures):
+simulator ground truth with times off by 12-20 %, from arrays and from files."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import selfcal  # noqa: E402
+from selfcal import sim  # noqa: E402
+from selfcal.hdr import MergeOptions  # noqa: E402
+from selfcal.hdr.measured_exposures import MIN_LOG_SIGMA, _prepass_reduce  # noqa: E402
+from selfcal.stack.frames import StackFrames  # noqa: E402
+from test_hdr import true_model, truth_radiance  # noqa: E402
+
+#: The given times are the true exposures times these (off by 12-20 %).
+OFF = np.array([1.15, 0.88, 1.0, 1.18, 0.85, 1.12])
+
+
+@pytest.fixture(scope="module")
+def stack():
+    scene = sim.make_scene(256, 1024, dynamic_range_stops=14.0, saturation=0.5, seed=5)
+    return sim.simulate_stack(scene, sim.default_pipeline(gamut="smooth", seed=5),
+                              sim.stacks.DEMO_EXPOSURE_TIMES, jitter=0.0, jpeg_quality=92,
+                              seed=5)
+
+
+def _relative(e, true):
+    """Exposures over the truth, divided by their geometric mean (the scale is the times')."""
+    r = np.asarray(e, float) / np.asarray(true, float)
+    return r / np.exp(np.mean(np.log(r)))
+
+
+def _radiance_error(result, truth):
+    """Median relative error of the measured pixels after one global scale."""
+    ok = ~result.unmeasured
+    rad, tr = result.radiance[ok].astype(float), truth[ok]
+    keep = (rad > 0) & (tr > 0)
+    g = np.exp(np.median(np.log(rad[keep] / tr[keep])))
+    return float(np.median(np.abs(rad[keep] / (g * tr[keep]) - 1.0)))
+
+
+def test_measured_exposures_recover_the_truth_from_arrays(stack):
+    true = np.asarray(stack.true_exposures, float)
+    times = list(true * OFF)
+    model = true_model(stack)
+    truth = truth_radiance(stack)
+    plain = selfcal.merge_hdr(stack.images, times, model)
+    meas = selfcal.merge_hdr(stack.images, times, model,
+                             options=MergeOptions(measure_exposures=True, sigma=True))
+    assert np.abs(_relative(plain.exposures, true) - 1).max() > 0.1      # the times' error
+    assert np.abs(_relative(meas.exposures, true) - 1).max() < 0.015
+    # the scale stays the times': the median log difference is zero
+    assert abs(np.median(np.log(meas.exposures / np.asarray(times)))) < 1e-9
+    assert _radiance_error(meas, truth) < 0.7 * _radiance_error(plain, truth)
+    summary = meas.diagnostics["measured_exposures"]
+    assert summary["reduce"] == 1
+    assert summary["log_sigma"] >= MIN_LOG_SIGMA
+    assert meas.exposure_source == "given+pixels"
+    assert any("measured from the pixels" in w for w in meas.warnings)
+    assert max(abs(d) for d in summary["differences"]) > 0.1
+    # the default leaves the times alone
+    np.testing.assert_allclose(plain.exposures, times)
+
+
+def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path, monkeypatch):
+    from selfcal.hdr import measured_exposures
+
+    monkeypatch.setattr(measured_exposures, "PREPASS_MIN_SIDE", 512)
+    true = np.asarray(stack.true_exposures, float)
+    times = list(true * OFF)
+    paths = stack.write(tmp_path, fmt="jpg")
+    assert _prepass_reduce(StackFrames(paths, False)) == 2   # 1024 px -> 512
+    meas = selfcal.merge_hdr(paths, times, true_model(stack),
+                             options=MergeOptions(measure_exposures=True))
+    # block means of codes, linearised: biased on texture, still well within the times'
+    assert np.abs(_relative(meas.exposures, true) - 1).max() < 0.03
+    assert meas.diagnostics["measured_exposures"]["reduce"] == 2
+
+
+def test_times_that_are_right_are_barely_moved(stack):
+    true = np.asarray(stack.true_exposures, float)
+    meas = selfcal.merge_hdr(stack.images, list(true), true_model(stack),
+                             options=MergeOptions(measure_exposures=True))
+    assert np.abs(meas.exposures / true - 1).max() < 0.015
