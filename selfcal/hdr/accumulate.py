@@ -207,7 +207,7 @@ class MergeSums:
         """``num`` becomes the radiance ``num / den``; unmeasured channels are filled.
 
         Returns the bool mask of the pixels no frame measured (:func:`_fill_strip`).
-        ``den`` is released.
+        ``den`` is released, or becomes the radiance's σ (:meth:`.sigma.SigmaSums.finish_strip`).
         """
         hh, ww = self.num.shape[:2]
         unmeasured = np.zeros((hh, ww), dtype=bool)
@@ -222,12 +222,12 @@ class MergeSums:
             hole = ds <= 0
             if self.unchecked_den is not None:
                 self.unchecked_mask[s] = _any_channel(self.unchecked_den[s] > 0.5 * ds)
-            if self.sigma is not None:
-                self.sigma.finish_strip(s, ds)
             # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
             # masked division is several times slower
             with np.errstate(divide="ignore", invalid="ignore"):
                 np.divide(ns, ds, out=ns)
+            if self.sigma is not None:
+                self.sigma.finish_strip(s, ds)      # σ over den, which is done with
             hole_px = _any_channel(hole)
             if hole_px.any():
                 unmeasured[s] = hole_px
@@ -238,6 +238,8 @@ class MergeSums:
         # strips are disjoint, and numpy releases the GIL
         with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
             list(pool.map(strip, self.strips))
+        if self.sigma is not None:
+            self.sigma.sigma = self.den
         self.den = self.unchecked_den = None
         return unmeasured
 

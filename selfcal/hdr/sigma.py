@@ -44,10 +44,12 @@ the merge's diagnostics say so.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 
 import numpy as np
 
+from ..io.images import import_cv2
 from ..stack.frames import apply_lut
 from .weights import noise_variance
 
@@ -81,15 +83,19 @@ class SigmaSums:
 
     def __init__(self, shape, model, exposure_log_sigma: float | None = None):
         hh, ww = shape
-        self.var = np.zeros((hh, ww, 3), dtype=np.float32)
-        self.cur = np.zeros((hh, ww, 3), dtype=np.float32)
         self.model = model
         self.sigma_t = (_exposure_log_sigma() if exposure_log_sigma is None
                         else float(exposure_log_sigma))
         self.has_band = getattr(model, "inverse_log_sigma", None) is not None
+        # [..., 0] = Σ w² (V + X² σ_t²), [..., 1] = Σ w X σ_g (only with a band): side by
+        # side, so that one lookup and one addition per strip serve both
+        self.terms = 2 if self.has_band else 1
+        self.sums = np.zeros((hh, ww, 3, self.terms), dtype=np.float32)
+        self.sigma = None               # σ, in the merge's weight sums once finished
         self.previous = None            # the last frame's sampled (X, U), NaN where unmeasured
         self.z = []                     # |z| of the pairs so far
         self.kappa = 1.0
+        self._local = threading.local()
 
     def _band_at(self, max_code: int) -> np.ndarray:
         """σ_g at every code (K, 3), zero without a band."""
@@ -116,8 +122,8 @@ class SigmaSums:
         # κ's pairs fit their own exposure ratio (g), which takes the exposure error out
         # of their difference: their U leaves σ_t out too
         tab.su_table = v.astype(np.float32)
-        tab.sv_table = (w * w * u).astype(np.float32)
-        tab.sc_table = (w * X * self._band_at(lin.max_code)).astype(np.float32)
+        both = [w * w * u, w * X * self._band_at(lin.max_code)][:self.terms]
+        tab.sigma_table = _packed(np.stack(both, axis=-1).astype(np.float32))
 
     def keep_sample(self, img, cover, tab) -> None:
         """Sample a frame (after its warp) and pair it with the previous one (see the
@@ -148,33 +154,48 @@ class SigmaSums:
         """One strip of one frame: ``codes`` already masked as the merge masked them (table
         path: invalid pixels at the maximum code, where the weights are zero); on the
         functional path ``valid`` (uint8) says which pixels count."""
+        sums = self.sums[s]
         if tab.lut:
-            np.add(self.var[s], apply_lut(codes, tab.sv_table), out=self.var[s])
-            np.add(self.cur[s], apply_lut(codes, tab.sc_table), out=self.cur[s])
+            # one lookup gives both terms (float32 pairs packed in a float64 table), into
+            # a reused buffer (fresh large arrays cost page faults)
+            terms = _lookup(codes, tab.sigma_table, self._buffer(codes.shape, tab.sigma_table))
+            np.add(sums, terms.view(np.float32).reshape(sums.shape), out=sums)
             return
         _, w, X, v = tab.evaluate(codes, need_x=True)
         # the functional path's variance carries the relative term: take it out
         v = np.maximum(v - (tab.noise.relative * np.maximum(X, 0)) ** 2, 0.0)
         keep = (valid > 0)[..., None]
-        self.var[s] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
+        sums[..., 0] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
+
+    def _buffer(self, shape, table) -> np.ndarray:
+        """This thread's lookup buffer for a strip of ``shape`` (reused across strips)."""
+        buf = getattr(self._local, "buf", None)
+        if buf is None or buf.shape[0] < shape[0] or buf.dtype != table.dtype:
+            buf = self._local.buf = np.empty(shape, dtype=table.dtype)
+        return buf[:shape[0]]
 
     def finish_strip(self, s: slice, den_strip) -> None:
-        """σ of one strip into ``var[s]``, from the sums and the merge's ``den`` (Σ w)
-        before its division (strips are disjoint: threads may share)."""
-        v, c = self.var[s], self.cur[s]
+        """σ of one strip from the sums and the merge's ``den`` (Σ w), written over
+        ``den_strip`` (the merge has divided by it already; strips are disjoint: threads
+        may share).  Once every strip is finished, the merge's ``den`` is σ."""
+        sums = self.sums[s]
+        unmeasured = ~(den_strip > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.float32(1.0) / den_strip
-            np.multiply(v, inv * inv * np.float32(self.kappa ** 2), out=v)
-            np.multiply(c, inv, out=c)
-            np.multiply(c, c, out=c)
-            np.add(v, c, out=v)
+            v = np.multiply(sums[..., 0], inv * inv * np.float32(self.kappa ** 2),
+                            out=den_strip)
+            if self.terms == 2:
+                c = np.multiply(sums[..., 1], inv, out=inv)
+                np.multiply(c, c, out=c)
+                np.add(v, c, out=v)
             np.sqrt(v, out=v)
-        v[~(den_strip > 0)] = np.inf
+        v[unmeasured] = np.inf
 
     def result(self) -> np.ndarray:
-        """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished."""
-        self.cur = None
-        return self.var
+        """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished (the
+        merge hands its ``den`` over: :attr:`sigma`); the sums are released."""
+        self.sums = None
+        return self.sigma
 
 
 def _pair_z(a, b) -> np.ndarray:
@@ -188,3 +209,21 @@ def _pair_z(a, b) -> np.ndarray:
     xa, xb = Xa.ravel()[both], Xb.ravel()[both]
     g = np.float32(np.median(xb / xa))
     return np.abs(g * xa - xb) / np.sqrt(g * g * Ua.ravel()[both] + Ub.ravel()[both])
+
+
+def _packed(pairs: np.ndarray) -> np.ndarray:
+    """A ``(K, 3, terms)`` float32 table as one ``(K, 3)`` table of ``terms * 4`` bytes per
+    value (float64 holding two float32 side by side), so that one lookup returns both."""
+    if pairs.shape[-1] == 1:
+        return np.ascontiguousarray(pairs[..., 0])
+    return np.ascontiguousarray(pairs).view(np.float64)[..., 0]
+
+
+def _lookup(codes: np.ndarray, table: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out[..., c] = table[codes[..., c], c]``, the table's bits copied as they are
+    (``cv2.LUT`` for uint8 codes, numpy indexing otherwise)."""
+    if codes.dtype == np.uint8:
+        return import_cv2().LUT(codes, table.reshape(1, 256, 3), dst=out)
+    for c in range(3):
+        out[..., c] = table[:, c][codes[..., c]]
+    return out
