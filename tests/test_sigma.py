@@ -107,7 +107,8 @@ def test_noise_scale_is_measured_and_recorded(merged):
 def test_packed_lookup_returns_both_tables_bit_for_bit():
     # σ's two terms ride in one float64 table (two float32 side by side): the lookup must
     # copy their bits, zeros, denormals and extremes included
-    from selfcal.hdr.sigma import _lookup, _packed
+    from selfcal.hdr.weights import packed_lookup as _lookup
+    from selfcal.hdr.weights import packed_table as _packed
 
     rng = np.random.default_rng(3)
     pairs = (rng.standard_normal((256, 3, 2)) * 10.0 ** rng.integers(-40, 38, (256, 3, 2))

@@ -27,7 +27,7 @@ from ..io.images import import_cv2
 from ..stack.align import _negligible, warp_to_reference
 from ..stack.frames import STRIP_PIXELS, Lineariser, StackFrames, clip_limits, max_code_of
 from .deghost import _ghost_mask, _neighbour_residual, _small_log_luma
-from .weights import NoiseModel, _FrameTables
+from .weights import NoiseModel, _FrameTables, packed_lookup
 
 __all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "WHITE_FOLLOWS"]
 
@@ -166,12 +166,20 @@ class MergeSums:
             bufs = _thread_buffers(self._local, self.rows, self.width, img.dtype)
             if n_valid < valid.size:
                 buf = bufs["codes"][:rows_s]
-                np.copyto(buf, codes)
-                cv2.bitwise_or(buf, (max_code,) * 3 + (0,), dst=buf,
-                               mask=cv2.bitwise_not(valid))
+                if max_code == 255:
+                    # codes | 255 where invalid, one pass with a 3-channel mask
+                    inv = cv2.bitwise_not(valid)
+                    cv2.bitwise_or(codes, cv2.merge([inv] * 3, dst=bufs["mask"][:rows_s]),
+                                   dst=buf)
+                else:
+                    np.copyto(buf, codes)
+                    cv2.bitwise_or(buf, (max_code,) * 3 + (0,), dst=buf,
+                                   mask=cv2.bitwise_not(valid))
                 codes = buf
-            a, w, _, _ = tab.evaluate(codes, need_x=False,
-                                      out=(bufs["a"][:rows_s], bufs["w"][:rows_s]))
+            # one lookup gives (weighted, weight) side by side (weights.packed_table)
+            aw = packed_lookup(codes, tab.aw_table, bufs["aw"][:rows_s])
+            aw = aw.view(np.float32).reshape(aw.shape + (2,))
+            a, w = aw[..., 0], aw[..., 1]
             np.add(num[s], a, out=num[s])
             np.add(den[s], w, out=den[s])
         else:
@@ -389,12 +397,12 @@ def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
 
 
 def _thread_buffers(local, rows: int, width: int, dtype) -> dict:
-    """Per-thread strip buffers (codes, weighted values, weights)."""
+    """Per-thread strip buffers (codes, their mask, (weighted value, weight) pairs)."""
     bufs = getattr(local, "bufs", None)
     if bufs is None or bufs["codes"].dtype != dtype:
         bufs = local.bufs = {"codes": np.empty((rows, width, 3), dtype=dtype),
-                             "a": np.empty((rows, width, 3), dtype=np.float32),
-                             "w": np.empty((rows, width, 3), dtype=np.float32)}
+                             "mask": np.empty((rows, width, 3), dtype=np.uint8),
+                             "aw": np.empty((rows, width, 3), dtype=np.float64)}
     return bufs
 
 

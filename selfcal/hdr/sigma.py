@@ -49,9 +49,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..io.images import import_cv2
 from ..stack.frames import apply_lut
-from .weights import noise_variance
+from .weights import noise_variance, packed_lookup, packed_table
 
 __all__ = ["SigmaSums"]
 
@@ -123,7 +122,7 @@ class SigmaSums:
         # of their difference: their U leaves σ_t out too
         tab.su_table = v.astype(np.float32)
         both = [w * w * u, w * X * self._band_at(lin.max_code)][:self.terms]
-        tab.sigma_table = _packed(np.stack(both, axis=-1).astype(np.float32))
+        tab.sigma_table = packed_table(np.stack(both, axis=-1).astype(np.float32))
 
     def keep_sample(self, img, cover, tab) -> None:
         """Sample a frame (after its warp) and pair it with the previous one (see the
@@ -158,7 +157,7 @@ class SigmaSums:
         if tab.lut:
             # one lookup gives both terms (float32 pairs packed in a float64 table), into
             # a reused buffer (fresh large arrays cost page faults)
-            terms = _lookup(codes, tab.sigma_table, self._buffer(codes.shape, tab.sigma_table))
+            terms = packed_lookup(codes, tab.sigma_table, self._buffer(codes.shape, tab.sigma_table))
             np.add(sums, terms.view(np.float32).reshape(sums.shape), out=sums)
             return
         _, w, X, v = tab.evaluate(codes, need_x=True)
@@ -210,20 +209,3 @@ def _pair_z(a, b) -> np.ndarray:
     g = np.float32(np.median(xb / xa))
     return np.abs(g * xa - xb) / np.sqrt(g * g * Ua.ravel()[both] + Ub.ravel()[both])
 
-
-def _packed(pairs: np.ndarray) -> np.ndarray:
-    """A ``(K, 3, terms)`` float32 table as one ``(K, 3)`` table of ``terms * 4`` bytes per
-    value (float64 holding two float32 side by side), so that one lookup returns both."""
-    if pairs.shape[-1] == 1:
-        return np.ascontiguousarray(pairs[..., 0])
-    return np.ascontiguousarray(pairs).view(np.float64)[..., 0]
-
-
-def _lookup(codes: np.ndarray, table: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """``out[..., c] = table[codes[..., c], c]``, the table's bits copied as they are
-    (``cv2.LUT`` for uint8 codes, numpy indexing otherwise)."""
-    if codes.dtype == np.uint8:
-        return import_cv2().LUT(codes, table.reshape(1, 256, 3), dst=out)
-    for c in range(3):
-        out[..., c] = table[:, c][codes[..., c]]
-    return out
