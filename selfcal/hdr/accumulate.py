@@ -39,6 +39,9 @@ WHITE_FOLLOWS = 0.5
 #: interpolated values above _OUTSIDE count as outside (for the fill of unmeasured pixels).
 _CLIPPED = 100
 _OUTSIDE = 177
+#: The fill gathers a strip's unmeasured pixels when they are fewer than this fraction
+#: of it (fancy indexing costs more per pixel than a pass over the strip).
+_GATHER_BELOW = 0.2
 
 
 @dataclass(frozen=True)
@@ -186,12 +189,14 @@ class MergeSums:
             a, w, _, _ = tab.evaluate(codes, need_x=False)
             cv2.add(num[s], a, dst=num[s], mask=valid)
             cv2.add(den[s], w, dst=den[s], mask=valid)
-        if self.sigma is not None:
-            self.sigma.add(s, codes, tab, valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
         if tab.unchecked:
             kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
             np.add(self.unchecked_den[s], kept, out=self.unchecked_den[s])
+        if self.sigma is not None:
+            # (a and w are done with: σ's lookup reuses their buffer)
+            self.sigma.add(s, codes, tab, valid,
+                           buffer=bufs["aw"][:rows_s] if tab.lut else None)
         return n_valid, excluded
 
     def unchecked_pixels(self, unmeasured: np.ndarray) -> np.ndarray | None:
@@ -239,9 +244,17 @@ class MergeSums:
             hole_px = _any_channel(hole)
             if hole_px.any():
                 unmeasured[s] = hole_px
-                fill = _fill_strip(s, self.kept, self.tables, self.darkest, self.brightest,
-                                   self.ref)
-                np.copyto(ns, fill, where=hole)
+                # few holes (the usual case): only those pixels, gathered, filled and put
+                # back; many: the whole strip
+                at = np.nonzero(hole_px) if hole_px.mean() < _GATHER_BELOW else None
+                fill = _fill_strip(s, at, self.kept, self.tables, self.darkest,
+                                   self.brightest, self.ref)
+                if at is None:
+                    np.copyto(ns, fill, where=hole)
+                else:
+                    values = ns[at]
+                    np.copyto(values, fill[:, 0], where=hole[at])
+                    ns[at] = values
 
         # strips are disjoint, and numpy releases the GIL
         with ThreadPoolExecutor(max_workers=max(1, min(4, os.cpu_count() or 1))) as pool:
@@ -415,23 +428,28 @@ def _any_channel(mask3: np.ndarray) -> np.ndarray:
     return mask3[..., 0] | mask3[..., 1] | mask3[..., 2]
 
 
-def _fill_strip(s, kept, tables, darkest, brightest, ref):
+def _fill_strip(s, at, kept, tables, darkest, brightest, ref):
     """Values for pixels no frame measured: darkest frame for highlights, else brightest.
 
-    A pixel is a highlight when some channel of the brightest frame is clipped at white
-    there (the darkest frame's codes may be JPEG ringing below white).  Where the chosen
-    frame was warped and does not reach the pixel, the reference frame's value is used.
+    ``at``: None for the whole strip ``s`` (values shaped like it), or the (rows, columns)
+    of some of its pixels (values n × 1 × 3).  A pixel is a highlight when some channel of
+    the brightest frame is clipped at white there (the darkest frame's codes may be JPEG
+    ringing below white).  Where the chosen frame was warped and does not reach the pixel,
+    the reference frame's value is used.
     """
-    dcodes, dcover = kept[darkest]
-    bcodes, bcover = kept[brightest]
-    high = tables[brightest].white(bcodes[s]) > 0
-    fill = np.where(high[..., None], tables[darkest].radiance(dcodes[s]),
-                    tables[brightest].radiance(bcodes[s]))
+    def pick(a):
+        # a strip, or n × 1 (× 3): an image for the tables' lookups
+        return a[s] if at is None else a[s][at][:, None]
+
+    dcover, bcover = kept[darkest][1], kept[brightest][1]
+    high = tables[brightest].white(pick(kept[brightest][0])) > 0
+    fill = np.where(high[..., None], tables[darkest].radiance(pick(kept[darkest][0])),
+                    tables[brightest].radiance(pick(kept[brightest][0])))
     outside = np.zeros(high.shape, dtype=bool)
     if dcover is not None:
-        outside |= high & (dcover[s] > _OUTSIDE)
+        outside |= high & (pick(dcover) > _OUTSIDE)
     if bcover is not None:
-        outside |= ~high & (bcover[s] > _OUTSIDE)
+        outside |= ~high & (pick(bcover) > _OUTSIDE)
     if outside.any():
-        fill[outside] = tables[ref].radiance(kept[ref][0][s])[outside]
+        fill[outside] = tables[ref].radiance(pick(kept[ref][0]))[outside]
     return fill

@@ -149,15 +149,17 @@ class SigmaSums:
             self.kappa = float(np.clip(np.median(z) / 0.6745, 0.25, 4.0))
         return self.kappa
 
-    def add(self, s: slice, codes, tab, valid=None) -> None:
+    def add(self, s: slice, codes, tab, valid=None, buffer=None) -> None:
         """One strip of one frame: ``codes`` already masked as the merge masked them (table
         path: invalid pixels at the maximum code, where the weights are zero); on the
-        functional path ``valid`` (uint8) says which pixels count."""
+        functional path ``valid`` (uint8) says which pixels count.  ``buffer``: optional
+        scratch space of 24 bytes per pixel for the lookup (default: this thread's)."""
         sums = self.sums[s]
         if tab.lut:
             # one lookup gives both terms (float32 pairs packed in a float64 table), into
             # a reused buffer (fresh large arrays cost page faults)
-            terms = packed_lookup(codes, tab.sigma_table, self._buffer(codes.shape, tab.sigma_table))
+            out = self._buffer(codes.shape, tab.sigma_table.dtype, buffer)
+            terms = packed_lookup(codes, tab.sigma_table, out)
             np.add(sums, terms.view(np.float32).reshape(sums.shape), out=sums)
             return
         _, w, X, v = tab.evaluate(codes, need_x=True)
@@ -166,12 +168,15 @@ class SigmaSums:
         keep = (valid > 0)[..., None]
         sums[..., 0] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
 
-    def _buffer(self, shape, table) -> np.ndarray:
-        """This thread's lookup buffer for a strip of ``shape`` (reused across strips)."""
-        buf = getattr(self._local, "buf", None)
-        if buf is None or buf.shape[0] < shape[0] or buf.dtype != table.dtype:
-            buf = self._local.buf = np.empty(shape, dtype=table.dtype)
-        return buf[:shape[0]]
+    def _buffer(self, shape, dtype, buffer=None) -> np.ndarray:
+        """A lookup buffer of ``shape`` and ``dtype``: in ``buffer`` (contiguous, large
+        enough), else this thread's own (reused across strips)."""
+        n = int(np.prod(shape))
+        if buffer is None:
+            buffer = getattr(self._local, "buf", None)
+            if buffer is None or buffer.nbytes < n * np.dtype(dtype).itemsize:
+                buffer = self._local.buf = np.empty(shape, dtype=dtype)
+        return buffer.reshape(-1).view(dtype)[:n].reshape(shape)
 
     def finish_strip(self, s: slice, den_strip) -> None:
         """σ of one strip from the sums and the merge's ``den`` (Σ w), written over
