@@ -25,7 +25,8 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import import_cv2
 from ..stack.align import _negligible, warp_to_reference
-from ..stack.frames import STRIP_PIXELS, Lineariser, StackFrames, clip_limits, max_code_of
+from ..stack.frames import (STRIP_PIXELS, Lineariser, StackFrames, apply_lut, clip_limits,
+                            max_code_of)
 from .deghost import _ghost_mask, _neighbour_residual, _small_log_luma
 from .weights import NoiseModel, _FrameTables, packed_lookup
 
@@ -39,6 +40,8 @@ WHITE_FOLLOWS = 0.5
 #: interpolated values above _OUTSIDE count as outside (for the fill of unmeasured pixels).
 _CLIPPED = 100
 _OUTSIDE = 177
+#: Up to this many unchecked frames keep their codes rather than a float32 weight sum.
+_UNCHECKED_CODES = 2
 #: The fill gathers a strip's unmeasured pixels when they are fewer than this fraction
 #: of it (fancy indexing costs more per pixel than a pass over the strip).
 _GATHER_BELOW = 0.2
@@ -118,13 +121,33 @@ class MergeSums:
         self._local = threading.local()
         #: the radiance's σ in the making (:class:`.sigma.SigmaSums`), or None
         self.sigma = None
-        #: frames merged with a time the pixels could not check, their Σ w per pixel and
-        #: channel, and the pixels where they carry most of the weight (only when there
-        #: are some)
+        #: frames merged with a time the pixels could not check; their Σ w per pixel and
+        #: channel, either as a float32 sum or (table path, at most
+        #: :data:`_UNCHECKED_CODES` such frames) as each one's masked codes and tables,
+        #: a quarter of the memory, looked up at the end (:meth:`keep_unchecked`); and
+        #: the pixels where they carry most of the weight (only when there are some)
         self.unchecked = set(unchecked)
-        self.unchecked_den = (np.zeros((hh, ww, 3), dtype=np.float32) if self.unchecked
-                              else None)
+        self.unchecked_den = None
+        self.unchecked_codes: list[tuple] = []   # (tables, codes) in merge order
         self.unchecked_mask = None
+
+    def keep_unchecked(self, tab: _FrameTables, shape, dtype, max_code) -> None:
+        """Where an unchecked frame's weights will be kept (call before its strips)."""
+        if tab.lut and len(self.unchecked) <= _UNCHECKED_CODES:
+            # the maximum code (zero weight) where a strip leaves it
+            tab.unchecked_codes = np.full(shape, max_code, dtype=dtype)
+            self.unchecked_codes.append((tab, tab.unchecked_codes))
+        elif self.unchecked_den is None:
+            self.unchecked_den = np.zeros(self.num.shape, dtype=np.float32)
+
+    def _unchecked_weight(self, s: slice):
+        """Σ w of the unchecked frames on strip ``s`` (float32, in merge order)."""
+        if self.unchecked_den is not None:
+            return self.unchecked_den[s]
+        total = np.zeros(self.num[s].shape, dtype=np.float32)
+        for tab, codes in self.unchecked_codes:
+            np.add(total, apply_lut(codes[s], tab.w_table), out=total)
+        return total
 
     def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
         """One strip of one frame into the sums (strips are disjoint: threads may share).
@@ -191,8 +214,11 @@ class MergeSums:
             cv2.add(den[s], w, dst=den[s], mask=valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
         if tab.unchecked:
-            kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
-            np.add(self.unchecked_den[s], kept, out=self.unchecked_den[s])
+            if getattr(tab, "unchecked_codes", None) is not None:
+                np.copyto(tab.unchecked_codes[s], codes)    # as masked for the lookup
+            else:
+                kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
+                np.add(self.unchecked_den[s], kept, out=self.unchecked_den[s])
         if self.sigma is not None:
             # (a and w are done with: σ's lookup reuses their buffer)
             self.sigma.add(s, codes, tab, valid,
@@ -227,14 +253,14 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.calibrate_noise()
 
-        if self.unchecked_den is not None:
+        if self.unchecked:
             self.unchecked_mask = np.zeros((hh, ww), dtype=bool)
 
         def strip(s):
             ns, ds = self.num[s], self.den[s]
             hole = ds <= 0
-            if self.unchecked_den is not None:
-                self.unchecked_mask[s] = _any_channel(self.unchecked_den[s] > 0.5 * ds)
+            if self.unchecked:
+                self.unchecked_mask[s] = _any_channel(self._unchecked_weight(s) > 0.5 * ds)
             # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
             # masked division is several times slower
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -262,6 +288,9 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.sigma = self.den
         self.den = self.unchecked_den = None
+        for tab, _ in self.unchecked_codes:
+            tab.unchecked_codes = None
+        self.unchecked_codes = []
         return unmeasured
 
 
@@ -313,6 +342,8 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
             tab.unchecked = k in sums.unchecked
+            if tab.unchecked:
+                sums.keep_unchecked(tab, img.shape, img.dtype, lin.max_code)
             sums.tables[k] = tab
             if sums.sigma is not None:
                 sums.sigma.prepare(tab)
