@@ -730,7 +730,7 @@ def test_shortest_frame_only_pixels_within_five_percent(highlights):
     assert np.max(np.abs(y / y_true - 1)) > 0.05
 
 
-def test_frame_too_far_from_the_bracket_is_merged_unchecked():
+def test_frame_too_far_from_the_bracket_is_merged_unchecked(monkeypatch):
     """A frame far beyond the bracket (ntu's 8 s one): the right half of the scene is 2⁻¹⁷
     of the left, black in the four bracketed frames and measured by the long frame alone,
     which is white on the left.  The calibration ignores that frame (no unclipped sample
@@ -765,6 +765,15 @@ def test_frame_too_far_from_the_bracket_is_merged_unchecked():
     scale = float(np.median(result.radiance[checked] / truth[checked]))
     err = np.abs(result.radiance[flagged] / (scale * truth[flagged]) - 1)
     assert np.median(err) < 0.06, np.median(err)
+
+    # the unchecked frame's weights from its kept codes (the default) and from a float32
+    # sum (more than _UNCHECKED_CODES such frames) flag the same pixels
+    from selfcal.hdr import accumulate
+
+    monkeypatch.setattr(accumulate, "_UNCHECKED_CODES", 0)
+    summed = merge_hdr(list(st.images) + far.images, list(st.exposure_times) + [512.0])
+    np.testing.assert_array_equal(result.unchecked, summed.unchecked)
+    np.testing.assert_array_equal(result.radiance, summed.radiance)
 
 
 def test_frame_the_calibration_ignores_as_a_duplicate_is_not_merged(stack):

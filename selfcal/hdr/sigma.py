@@ -23,8 +23,15 @@ Together::
 
     Var E = Σ_j w_j² (V_j + X_j² σ_t²) / (Σ_j w_j)²  +  (Σ_j w_j X_j σ_g(I_j) / Σ_j w_j)²
 
-Each frame contributes through two tables on its codes (like the merge's own), so the σ
-costs two lookups and two additions per frame and two float32 sums.
+Each frame contributes through two tables on its codes (like the merge's own), packed
+side by side in one table of float32 pairs, so that σ costs one lookup and one addition
+per strip and frame (:func:`.weights.packed_table`, ours); the two sums are float32,
+side by side (``H×W×3×2``, 24 bytes a pixel), and σ is written over the merge's own weight
+sum Σ w once it has divided by it (:meth:`SigmaSums.finish_strip`), so the result costs no
+further array.  Float16 sums relative to the merge's numerator would halve that memory but
+must be renormalised with the numerator frame after frame: prototyped with OpenCV's
+fastest calls, about 480 ms a 24 MP frame on one thread against 116 ms for these sums
+(the merge's own lookup and sums: about 200 ms), so not done.
 
 The noise model's constants are fixed, but cameras are not: one JPEG engine smooths its
 noise away, another sharpens it.  So the independent part (noise and exposures) is scaled
@@ -44,12 +51,13 @@ the merge's diagnostics say so.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import replace
 
 import numpy as np
 
 from ..stack.frames import apply_lut
-from .weights import noise_variance
+from .weights import noise_variance, packed_lookup, packed_table
 
 __all__ = ["SigmaSums"]
 
@@ -68,7 +76,8 @@ def _exposure_log_sigma() -> float:
 
 
 class SigmaSums:
-    """``Σ w² (V + X² σ_t²)`` and ``Σ w X σ_g`` per pixel and channel, and σ at the end.
+    """``Σ w² (V + X² σ_t²)`` and ``Σ w X σ_g`` per pixel and channel (``sums[..., 0]``
+    and ``sums[..., 1]``; the second only with a band), and σ at the end.
 
     Parameters
     ----------
@@ -81,15 +90,19 @@ class SigmaSums:
 
     def __init__(self, shape, model, exposure_log_sigma: float | None = None):
         hh, ww = shape
-        self.var = np.zeros((hh, ww, 3), dtype=np.float32)
-        self.cur = np.zeros((hh, ww, 3), dtype=np.float32)
         self.model = model
         self.sigma_t = (_exposure_log_sigma() if exposure_log_sigma is None
                         else float(exposure_log_sigma))
         self.has_band = getattr(model, "inverse_log_sigma", None) is not None
+        # [..., 0] = Σ w² (V + X² σ_t²), [..., 1] = Σ w X σ_g (only with a band): side by
+        # side, so that one lookup and one addition per strip serve both
+        self.terms = 2 if self.has_band else 1
+        self.sums = np.zeros((hh, ww, 3, self.terms), dtype=np.float32)
+        self.sigma = None               # σ, in the merge's weight sums once finished
         self.previous = None            # the last frame's sampled (X, U), NaN where unmeasured
         self.z = []                     # |z| of the pairs so far
         self.kappa = 1.0
+        self._local = threading.local()
 
     def _band_at(self, max_code: int) -> np.ndarray:
         """σ_g at every code (K, 3), zero without a band."""
@@ -116,8 +129,8 @@ class SigmaSums:
         # κ's pairs fit their own exposure ratio (g), which takes the exposure error out
         # of their difference: their U leaves σ_t out too
         tab.su_table = v.astype(np.float32)
-        tab.sv_table = (w * w * u).astype(np.float32)
-        tab.sc_table = (w * X * self._band_at(lin.max_code)).astype(np.float32)
+        both = [w * w * u, w * X * self._band_at(lin.max_code)][:self.terms]
+        tab.sigma_table = packed_table(np.stack(both, axis=-1).astype(np.float32))
 
     def keep_sample(self, img, cover, tab) -> None:
         """Sample a frame (after its warp) and pair it with the previous one (see the
@@ -144,37 +157,58 @@ class SigmaSums:
             self.kappa = float(np.clip(np.median(z) / 0.6745, 0.25, 4.0))
         return self.kappa
 
-    def add(self, s: slice, codes, tab, valid=None) -> None:
+    def add(self, s: slice, codes, tab, valid=None, buffer=None) -> None:
         """One strip of one frame: ``codes`` already masked as the merge masked them (table
         path: invalid pixels at the maximum code, where the weights are zero); on the
-        functional path ``valid`` (uint8) says which pixels count."""
+        functional path ``valid`` (uint8) says which pixels count.  ``buffer``: optional
+        scratch space of 24 bytes per pixel for the lookup (default: this thread's)."""
+        sums = self.sums[s]
         if tab.lut:
-            np.add(self.var[s], apply_lut(codes, tab.sv_table), out=self.var[s])
-            np.add(self.cur[s], apply_lut(codes, tab.sc_table), out=self.cur[s])
+            # one lookup gives both terms (float32 pairs packed in a float64 table), into
+            # a reused buffer (fresh large arrays cost page faults)
+            out = self._buffer(codes.shape, tab.sigma_table.dtype, buffer)
+            terms = packed_lookup(codes, tab.sigma_table, out)
+            np.add(sums, terms.view(np.float32).reshape(sums.shape), out=sums)
             return
         _, w, X, v = tab.evaluate(codes, need_x=True)
         # the functional path's variance carries the relative term: take it out
         v = np.maximum(v - (tab.noise.relative * np.maximum(X, 0)) ** 2, 0.0)
         keep = (valid > 0)[..., None]
-        self.var[s] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
+        sums[..., 0] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
+
+    def _buffer(self, shape, dtype, buffer=None) -> np.ndarray:
+        """A lookup buffer of ``shape`` and ``dtype``: in ``buffer`` (contiguous, large
+        enough), else this thread's own (reused across strips)."""
+        n = int(np.prod(shape))
+        if buffer is None:
+            buffer = getattr(self._local, "buf", None)
+            if buffer is None or buffer.nbytes < n * np.dtype(dtype).itemsize:
+                buffer = self._local.buf = np.empty(shape, dtype=dtype)
+        return buffer.reshape(-1).view(dtype)[:n].reshape(shape)
 
     def finish_strip(self, s: slice, den_strip) -> None:
-        """σ of one strip into ``var[s]``, from the sums and the merge's ``den`` (Σ w)
-        before its division (strips are disjoint: threads may share)."""
-        v, c = self.var[s], self.cur[s]
+        """σ of one strip from the sums and the merge's ``den`` (Σ w), written over
+        ``den_strip`` (the merge has divided by it already; strips are disjoint: threads
+        may share).  Once every strip is finished, the merge's ``den`` is σ."""
+        sums = self.sums[s]
+        unmeasured = ~(den_strip > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
             inv = np.float32(1.0) / den_strip
-            np.multiply(v, inv * inv * np.float32(self.kappa ** 2), out=v)
-            np.multiply(c, inv, out=c)
-            np.multiply(c, c, out=c)
-            np.add(v, c, out=v)
+            scale = np.multiply(inv, inv)
+            np.multiply(scale, np.float32(self.kappa ** 2), out=scale)
+            v = np.multiply(sums[..., 0], scale, out=den_strip)
+            if self.terms == 2:
+                c = np.multiply(sums[..., 1], inv, out=inv)
+                np.multiply(c, c, out=c)
+                np.add(v, c, out=v)
             np.sqrt(v, out=v)
-        v[~(den_strip > 0)] = np.inf
+        np.copyto(v, np.inf, where=unmeasured)
 
     def result(self) -> np.ndarray:
-        """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished."""
-        self.cur = None
-        return self.var
+        """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished (the
+        merge hands its ``den`` over: :attr:`sigma`); the sums are released."""
+        self.sums = None
+        return self.sigma
 
 
 def _pair_z(a, b) -> np.ndarray:
@@ -188,3 +222,4 @@ def _pair_z(a, b) -> np.ndarray:
     xa, xb = Xa.ravel()[both], Xb.ravel()[both]
     g = np.float32(np.median(xb / xa))
     return np.abs(g * xa - xb) / np.sqrt(g * g * Ua.ravel()[both] + Ub.ravel()[both])
+

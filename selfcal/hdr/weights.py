@@ -230,6 +230,8 @@ class _FrameTables:
         self.w_table = w.astype(np.float32)
         self.x_table = (x / self.e).astype(np.float32)
         self.a_table = (w * x / self.e).astype(np.float32)
+        #: (weighted, weight) side by side: the merge's one lookup per strip
+        self.aw_table = packed_table(np.stack([self.a_table, self.w_table], axis=-1))
         if need_variance:
             var = noise_variance(x, lin.slope, self.e, noise, code_std=lin.code_std(),
                                  code_error=self.code_error)
@@ -320,3 +322,24 @@ class _FrameTables:
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())
         return a, w, X, v.astype(np.float32)
+
+
+def packed_table(tables: np.ndarray) -> np.ndarray:
+    """A ``(K, 3, n)`` float32 table (n = 1 or 2) as one ``(K, 3)`` table of ``4 n``-byte
+    values (n = 2: a float64 holding the two float32 side by side), so that one lookup
+    (:func:`packed_lookup`) returns both: a lookup costs about the same for 4 or 8 bytes
+    (ours)."""
+    if tables.shape[-1] == 1:
+        return np.ascontiguousarray(tables[..., 0], dtype=np.float32)
+    return np.ascontiguousarray(tables, dtype=np.float32).view(np.float64)[..., 0]
+
+
+def packed_lookup(codes: np.ndarray, table: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """``out[..., c] = table[codes[..., c], c]``, the table's bits copied as they are
+    (``cv2.LUT`` for uint8 codes, numpy indexing otherwise); ``out.view(np.float32)``
+    then holds the float32 values side by side."""
+    if codes.dtype == np.uint8:
+        return import_cv2().LUT(codes, table.reshape(1, 256, 3), dst=out)
+    for c in range(3):
+        out[..., c] = table[:, c][codes[..., c]]
+    return out
