@@ -136,18 +136,9 @@ class MergeSums:
         self.unchecked_codes: list[tuple] = []   # (tables, codes) in merge order
         self.unchecked_mask = None
 
-    def keep_unchecked(self, tab: _FrameTables, shape, dtype, max_code, *,
-                       last: bool = False) -> None:
-        """Where an unchecked frame's weights will be kept (call before its strips).
-
-        The sole unchecked frame, merged last (the usual case: the longest frame, too far
-        from the rest of the bracket), keeps nothing: ``den`` is final after its strips,
-        so :meth:`add_strip` flags its pixels there.
-        """
-        if last and len(self.unchecked) == 1:
-            tab.flags_unchecked = True
-            self.unchecked_mask = np.zeros(shape[:2], dtype=bool)
-        elif tab.lut and len(self.unchecked) <= _UNCHECKED_CODES:
+    def keep_unchecked(self, tab: _FrameTables, shape, dtype, max_code) -> None:
+        """Where an unchecked frame's weights will be kept (call before its strips)."""
+        if tab.lut and len(self.unchecked) <= _UNCHECKED_CODES:
             # the maximum code (zero weight) where a strip leaves it
             tab.unchecked_codes = np.full(shape, max_code, dtype=dtype)
             self.unchecked_codes.append((tab, tab.unchecked_codes))
@@ -228,10 +219,7 @@ class MergeSums:
             cv2.add(den[s], w, dst=den[s], mask=valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
         if tab.unchecked:
-            if getattr(tab, "flags_unchecked", False):
-                kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
-                self.unchecked_mask[s] = _any_channel(kept > 0.5 * den[s])
-            elif getattr(tab, "unchecked_codes", None) is not None:
+            if getattr(tab, "unchecked_codes", None) is not None:
                 np.copyto(tab.unchecked_codes[s], codes)    # as masked for the lookup
             else:
                 kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
@@ -270,15 +258,13 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.calibrate_noise()
 
-        # flagged while merging (keep_unchecked's last frame), or from the kept weights here
-        flag_here = bool(self.unchecked) and self.unchecked_mask is None
-        if flag_here:
+        if self.unchecked:
             self.unchecked_mask = np.zeros((hh, ww), dtype=bool)
 
         def strip(s):
             ns, ds = self.num[s], self.den[s]
             hole = ds <= 0
-            if flag_here:
+            if self.unchecked:
                 self.unchecked_mask[s] = _any_channel(self._unchecked_weight(s) > 0.5 * ds)
             # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
             # masked division is several times slower
@@ -362,8 +348,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
                           else WHITE_FOLLOWS)
             tab.unchecked = k in sums.unchecked
             if tab.unchecked:
-                sums.keep_unchecked(tab, img.shape, img.dtype, lin.max_code,
-                                    last=done == n - 1)
+                sums.keep_unchecked(tab, img.shape, img.dtype, lin.max_code)
             sums.tables[k] = tab
             if sums.sigma is not None:
                 sums.sigma.prepare(tab)
