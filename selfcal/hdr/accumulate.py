@@ -41,9 +41,9 @@ _CLIPPED = 100
 _OUTSIDE = 177
 #: Pixels in a strip of the merge: a quarter of :data:`selfcal.stack.frames.STRIP_PIXELS`,
 #: so that each thread's strip buffers (24 bytes a pixel for the (weighted, weight)
-#: pairs) stay in the last-level cache beside the other threads' (ours: 17 × 24 MP JPEGs
-#: from files on two cores, the merge took 12.0-12.4 CPU seconds against 12.9-16.2 with
-#: 1 << 20, on a machine other jobs shared).
+#: pairs) stay in the last-level cache beside the other threads'.  Chosen on CPU seconds
+#: of an uncommitted harness on a machine other jobs shared, a few per cent below 1 << 20
+#: and within its noise: no committed figure separates the two.
 _STRIP_PIXELS = 1 << 18
 #: Up to this many unchecked frames keep their codes rather than a float32 weight sum.
 _UNCHECKED_CODES = 2
