@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import table  # noqa: E402
+from common import best_of, table  # noqa: E402
 from bench_hdr_oddeven import TUNING, sorted_frames, stack_list  # noqa: E402
 
 REDUCES = (2, 4, 8)
@@ -59,15 +59,6 @@ def log_spread(a, b):
     d = np.log(np.asarray(a, float)) - np.log(np.asarray(b, float))
     d = np.abs(d - np.mean(d))
     return float(np.median(d)), float(np.max(d))
-
-
-def best_of(call, repeats):
-    out = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        call()
-        out.append(time.perf_counter() - t0)
-    return min(out)
 
 
 def run_stack(name, paths, times, repeats):

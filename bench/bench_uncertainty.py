@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import data_dir, table  # noqa: E402
+from common import best_of, data_dir, table  # noqa: E402
 
 BODY = slice(26, 230)
 INNER = slice(1, 255)
@@ -310,12 +310,7 @@ def cost_report(repeats: int = 3) -> list:
     from selfcal.response import bands
 
     def best(call):
-        out = []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            call()
-            out.append(time.perf_counter() - t0)
-        return min(out)
+        return best_of(call, repeats)
 
     demo = sim.demo_stack(0)
     times = list(demo.exposure_times)

@@ -79,6 +79,16 @@ class Timer:
         self.seconds = time.perf_counter() - self.t0
 
 
+def best_of(call, repeats: int) -> float:
+    """The shortest of ``repeats`` wall-clock timings of ``call()`` (seconds)."""
+    out = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        call()
+        out.append(time.perf_counter() - t0)
+    return min(out)
+
+
 def table(headers, rows) -> str:
     """A plain-text table (also valid Markdown)."""
     cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
