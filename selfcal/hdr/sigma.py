@@ -52,7 +52,6 @@ the merge's diagnostics say so.
 
 from __future__ import annotations
 
-import threading
 from dataclasses import replace
 
 import numpy as np
@@ -103,7 +102,6 @@ class SigmaSums:
         self.previous = None            # the last frame's sampled (X, U), NaN where unmeasured
         self.z = []                     # |z| of the pairs so far
         self.kappa = 1.0
-        self._local = threading.local()
 
     def _band_at(self, max_code: int) -> np.ndarray:
         """σ_g at every code (K, 3), zero without a band."""
@@ -162,11 +160,11 @@ class SigmaSums:
         """One strip of one frame: ``codes`` already masked as the merge masked them (table
         path: invalid pixels at the maximum code, where the weights are zero); on the
         functional path ``valid`` (uint8) says which pixels count.  ``buffer``: optional
-        scratch space of 24 bytes per pixel for the lookup (default: this thread's)."""
+        scratch space of 24 bytes per pixel for the lookup (default: a new array)."""
         sums = self.sums[s]
         if tab.lut:
             # one lookup gives both terms (float32 pairs packed in a float64 table), into
-            # a reused buffer (fresh large arrays cost page faults)
+            # the merge's reused strip buffer (fresh large arrays cost page faults)
             out = self._buffer(codes.shape, tab.sigma_table.dtype, buffer)
             terms = packed_lookup(codes, tab.sigma_table, out)
             np.add(sums, terms.view(np.float32).reshape(sums.shape), out=sums)
@@ -177,14 +175,13 @@ class SigmaSums:
         keep = (valid > 0)[..., None]
         sums[..., 0] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
 
-    def _buffer(self, shape, dtype, buffer=None) -> np.ndarray:
+    @staticmethod
+    def _buffer(shape, dtype, buffer=None) -> np.ndarray:
         """A lookup buffer of ``shape`` and ``dtype``: in ``buffer`` (contiguous, large
-        enough), else this thread's own (reused across strips)."""
-        n = int(np.prod(shape))
+        enough: the merge's own strip buffer), else a new one."""
         if buffer is None:
-            buffer = getattr(self._local, "buf", None)
-            if buffer is None or buffer.nbytes < n * np.dtype(dtype).itemsize:
-                buffer = self._local.buf = np.empty(shape, dtype=dtype)
+            return np.empty(shape, dtype=dtype)
+        n = int(np.prod(shape))
         return buffer.reshape(-1).view(dtype)[:n].reshape(shape)
 
     def finish_strip(self, s: slice, den_strip) -> None:
