@@ -132,7 +132,7 @@ def test_sigma_sums_against_an_independent_float64_sum(model):
     # summed in float64 from the same tables (relative error of float32 sums: < 1e-5)
     from dataclasses import replace
 
-    from selfcal.hdr.accumulate import _frame_limits
+    from selfcal.hdr.accumulate import frame_limits
     from selfcal.hdr.sigma import SigmaSums
     from selfcal.hdr.weights import DEFAULT_NOISE, _FrameTables, noise_variance
     from selfcal.stack.frames import Lineariser
@@ -140,7 +140,7 @@ def test_sigma_sums_against_an_independent_float64_sum(model):
     rng = np.random.default_rng(4)
     h, w, times = 23, 31, [0.01, 0.04, 0.16]
     lin = Lineariser(model, False, 255)
-    lo, hi, floor = _frame_limits(255, 2.0, False, None)
+    lo, hi, floor = frame_limits(255, 2.0, False, None)
     sums = SigmaSums((h, w), model)
     sums.kappa = 1.7
     var = np.zeros((h, w, 3))

@@ -29,7 +29,7 @@ from ..stack.frames import Lineariser, StackFrames, apply_lut, clip_limits, max_
 from .deghost import _ghost_mask, _neighbour_residual, _small_log_luma
 from .weights import NoiseModel, _FrameTables, packed_lookup
 
-__all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "WHITE_FOLLOWS"]
+__all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "frame_limits", "WHITE_FOLLOWS"]
 
 #: A pixel some shorter frame saw clipped white is clipped in a longer frame where any of
 #: its channels is at least this fraction of the maximum code there (ours).
@@ -336,7 +336,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             if lin is None:
                 mc = max_code_of(img)
                 lin = Lineariser(model, linear, mc)
-                lo, hi, floor = _frame_limits(mc, clip_margin, linear, stuck)
+                lo, hi, floor = frame_limits(mc, clip_margin, linear, stuck)
             elif max_code_of(img) != lin.max_code:
                 raise InputError(f"sample type {img.dtype} differs from the other frames",
                                  frames.sources[k])
@@ -421,7 +421,7 @@ def _read_ahead(frames: StackFrames, order, loaded: dict):
             img = None  # noqa: F841 -- the caller's frame is released before the next
 
 
-def _frame_limits(max_code, clip_margin: float, linear: bool, stuck):
+def frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     """Per channel (lo, hi, floor limit or None) for :class:`.weights._FrameTables`.
 
     The clip limits of :func:`selfcal.stack.frames.clip_limits` (a pixel with any channel at

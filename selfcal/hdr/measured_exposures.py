@@ -34,7 +34,7 @@ import numpy as np
 from ..io.images import read_image
 from ..stack.exposure_ratios import split_thumbnails
 from ..stack.frames import Lineariser, apply_lut, max_code_of
-from .accumulate import _frame_limits
+from .accumulate import frame_limits
 from .linear_exposures import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
 
@@ -89,7 +89,7 @@ def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
     img = read_image(item, reduce=reduce) if frames.paths[k] is not None else np.asarray(item)
     mc = max_code_of(img)
     lin = Lineariser(model, False, mc)
-    lo, hi, floor = _frame_limits(mc, clip_margin, False, stuck)
+    lo, hi, floor = frame_limits(mc, clip_margin, False, stuck)
     if lin.kind == "lut":
         x = apply_lut(img, lin.table.astype(np.float32))
     else:
