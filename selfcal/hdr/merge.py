@@ -366,11 +366,9 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
         diagnostics=diagnostics)
     sigma_t = None
     if opts.measure_exposures and not linear:
-        label = {"given": "given times", "exif": "EXIF exposures"}.get(
-            exposure_source.split("+")[0], "model's exposures")
         exposures, sigma_t = _measured_exposures(frames, model, exposures, used, unchecked,
-                                                 stuck, opts, label, warnings, diagnostics,
-                                                 progress)
+                                                 stuck, opts, exposure_source, warnings,
+                                                 diagnostics, progress)
         exposure_source += "+pixels"
     sums = MergeSums(frames.shape, exposures, ref, used, unchecked)
     if opts.sigma:
@@ -390,8 +388,8 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                      unchecked=sums.unchecked_pixels(unmeasured))
 
 
-def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts, label,
-                        warnings, diagnostics, progress):
+def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
+                        exposure_source, warnings, diagnostics, progress):
     """:func:`.measured_exposures.measure_response_exposures` on the checked merged frames:
     (exposures, σ's exposure term), the summary in ``diagnostics["measured_exposures"]``
     and a warning naming the times the pixels moved."""
@@ -400,6 +398,8 @@ def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts, 
                                               clip_margin=opts.clip_margin, stuck=stuck,
                                               progress=progress)
     diagnostics["measured_exposures"] = summary
+    label = {"given": "given times", "exif": "EXIF exposures"}.get(
+        exposure_source.split("+")[0], "model's exposures")
     moved = measured_warning(summary, label)
     if moved:
         warnings.append(moved)
