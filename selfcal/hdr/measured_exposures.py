@@ -46,8 +46,8 @@ __all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PRE
 #: linearised, are biased where a block holds texture (``bench/bench_measured_exposures.py``,
 #: BENCHMARKS "Exposures measured from the pixels": Sony's 3008-pixel frames at 1/2
 #: within a median 0.0006-0.0045 in log of the full-size measurement, one of them off by
-#: 0.082 at 1/8).  1500 was chosen on the tuning stacks with the pixels' trend
-#: (Fujifilm's 1500-pixel frames off by 0.017 at 1/2).
+#: 0.082 at 1/8).  1500 was chosen on the tuning stacks with the pixels' trend (a
+#: development run: Fujifilm's 1500-pixel frames were off at 1/2).
 PREPASS_REDUCE = 8
 PREPASS_MIN_SIDE = 1500
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
