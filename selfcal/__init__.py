@@ -15,6 +15,7 @@ The camera simulator with ground truth lives in :mod:`selfcal.sim`.
 from __future__ import annotations
 
 from . import errors
+from .version import __version__
 from .errors import (
     CalibrationError,
     InputError,
@@ -32,7 +33,6 @@ from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # pa
 from .io.raw import RawImage, read_raw_linear  # linear camera raw (rawpy/LibRaw)
 from .hdr import MergeOptions, merge_hdr  # HDR radiance maps (selfcal.hdr)
 
-__version__ = "0.1.0"
 
 __all__ = [
     "calibrate",

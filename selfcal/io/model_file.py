@@ -1,7 +1,9 @@
 """Versioned JSON model files: the envelope and the JSON helpers both model kinds use.
 
-Every model file is a JSON object ``{"format": "selfcal-model", "version": 2, "kind": ...}``
-plus the fields of its kind.  Version 2 adds the optional ``inverse_log_sigma`` of a response
+Every model file is a JSON object ``{"format": "selfcal-model", "version": 2,
+"selfcal_version": "1.0.0", "kind": ...}`` plus the fields of its kind: ``version`` is the
+file format's (what a reader checks), ``selfcal_version`` the release that wrote the file
+(for people and bug reports; files written before 1.0.0 lack it and still load).  Version 2 adds the optional ``inverse_log_sigma`` of a response
 model (its confidence band, :mod:`selfcal.response.bands`); version 1 files still load
 (without a band).  Loading validates the envelope (:func:`read_model_dict`) and
 the content (:func:`check_response_content`, :func:`check_pipeline_content`: every field's
@@ -20,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelFileError
+from ..version import __version__
 from .images import write_bytes_atomic
 
 FORMAT = "selfcal-model"
@@ -46,7 +49,7 @@ def jsonable(obj):
 
 def save_model_dict(path, content: dict, *, force: bool = False) -> Path:
     """Write ``content`` (which carries its ``kind``) in the versioned envelope, atomically."""
-    doc = {"format": FORMAT, "version": VERSION, **content}
+    doc = {"format": FORMAT, "version": VERSION, "selfcal_version": __version__, **content}
     data = json.dumps(doc, indent=1, allow_nan=False).encode()
     return write_bytes_atomic(path, data, force=force)
 

@@ -6,7 +6,7 @@ solver's settings), its fit (residuals; δ of Lin et al., ICCV 2011, Eq. 12, whe
 present), its verdict (:mod:`selfcal.response.verdict`: ok / doubtful / unusable with
 reasons), its warnings and a compact table of its curves, as plain values (JSON-able).
 :func:`format_description` turns that into text.  The library never prints: the command
-line (``cli/show_commands.py``) does.
+line (``selfcal_cli/show_commands.py``) does.
 
 For a :class:`~selfcal.response.ResponseModel` the curves are f⁻¹ per channel at a few
 codes; for a :class:`~selfcal.pipeline.PipelineModel` the colour matrix M (Gong et al.,

@@ -3,7 +3,7 @@ exceptions and warnings into messages and exit codes.
 
 Each command lives in its own module (``calibrate_commands``, ``hdr_commands``,
 ``pipeline_commands``) and registers itself here; what they share is in ``common``.
-Nothing numerical lives in ``cli/``.
+Nothing numerical lives in ``selfcal_cli/``.
 """
 
 from __future__ import annotations

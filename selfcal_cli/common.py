@@ -1,7 +1,7 @@
 """What the ``selfcal`` subcommands share: exit codes, messages, progress bars, argument
 types and the check of outputs before any work starts.
 
-Nothing numerical lives in ``cli/``; this module sits below every command module and
+Nothing numerical lives in ``selfcal_cli/``; this module sits below every command module and
 imports none of them.
 """
 
