@@ -64,7 +64,7 @@ sphinx_gallery_conf = {
     "filename_pattern": r"/plot_",
     "download_all_examples": False,
     "remove_config_comments": True,
-    "within_subsection_order": "FileNameSortKey",
+    "within_subsection_order": "FileNameSortKey",     # plot_1_..., plot_2_...
     "abort_on_example_error": True,
     "plot_gallery": "True",
     "image_scrapers": ("matplotlib",),
