@@ -63,6 +63,8 @@ sphinx_gallery_conf = {
     "gallery_dirs": "auto_examples",
     "filename_pattern": r"/plot_",
     "download_all_examples": False,
+    # no execution-times pages: they load DataTables and jQuery from CDNs when viewed
+    "write_computation_times": False,
     "remove_config_comments": True,
     "within_subsection_order": "FileNameSortKey",     # plot_1_..., plot_2_...
     "abort_on_example_error": True,

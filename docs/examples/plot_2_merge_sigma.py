@@ -88,3 +88,9 @@ fig.colorbar(im, ax=axes[2], shrink=0.85)
 for ax in axes:
     ax.set_axis_off()
 plt.show()
+
+# %%
+# Remove the temporary folder.
+import shutil  # noqa: E402
+
+shutil.rmtree(out)

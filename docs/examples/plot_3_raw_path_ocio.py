@@ -107,3 +107,9 @@ axes[3].axhline(0, color="k", lw=0.6)
 axes[3].set(xlabel="model.to_raw (linear raw)", ylabel="PyOpenColorIO − model",
             title="JPEG → scene-linear through OCIO")
 plt.show()
+
+# %%
+# Remove the temporary folder.
+import shutil  # noqa: E402
+
+shutil.rmtree(out)

@@ -87,3 +87,9 @@ for ax, cam in zip(np.atleast_1d(axes), result.cameras):
     ax.set_title(Path(cam["plot"]).name, fontsize=9)
     ax.set_axis_off()
 plt.show()
+
+# %%
+# Remove the temporary folder.
+import shutil  # noqa: E402
+
+shutil.rmtree(tmp)
