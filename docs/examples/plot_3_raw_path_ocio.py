@@ -105,7 +105,7 @@ for c, colour in enumerate(("tab:red", "tab:green", "tab:blue")):
                  ".", ms=2, color=colour, alpha=0.5)
 axes[3].axhline(0, color="k", lw=0.6)
 axes[3].set(xlabel="model.to_raw (linear raw)", ylabel="PyOpenColorIO − model",
-            title="JPEG → scene-linear through OCIO")
+            title="JPEG → linear: OCIO vs model")
 plt.show()
 
 # %%
