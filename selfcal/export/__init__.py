@@ -1,7 +1,7 @@
 """Calibrations as files colour pipelines load.
 
 * :mod:`selfcal.export.cube` -- ``.cube`` tables: the 1D table of a response model, the
-  3D-only table of a pipeline model ([CubeLUT]); its names are re-exported here;
+  3D-only table of a pipeline model ([CubeLUT]_); its names are re-exported here;
 * :mod:`selfcal.export.shaper` -- a pipeline model as a 1D shaper chosen from the model
   before a 3D table, written as a Resolve ``.cube`` ([RESOLVE]);
 * :mod:`selfcal.export.clf` -- the same tables, and a response model's 1D table, in the
