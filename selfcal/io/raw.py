@@ -27,6 +27,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -344,7 +345,7 @@ def read_raw_linear(path, *, half_size: bool = False) -> RawImage:
                     f"the raw file's white level {white.tolist()} is not above its black "
                     f"level {black.tolist()}", path)
             ref = float(span.max())
-            params = dict(
+            params: dict[str, Any] = dict(
                 gamma=(1, 1), no_auto_bright=True, use_camera_wb=False, use_auto_wb=False,
                 user_wb=[1.0, 1.0, 1.0, 1.0], output_color=rawpy.ColorSpace.raw,
                 output_bps=16, adjust_maximum_thr=0.0, user_flip=0,
