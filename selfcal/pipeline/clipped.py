@@ -25,6 +25,8 @@ the correction is kept only if it predicts held-out clipped samples better.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from ..errors import InputError
@@ -44,7 +46,8 @@ MIN_CLIPPED = 3
 def clipped_mask(rendered) -> np.ndarray:
     """``True`` where a rendered pixel (``(..., 3)`` in ``[0, 1]``) has a clipped channel."""
     p = np.asarray(rendered)
-    return ((p <= CLIP_LO) | (p >= CLIP_HI)).any(axis=-1)
+    # an array for (N, 3) and (H, W, 3) input (a single (3,) colour gives a numpy bool)
+    return cast(np.ndarray, ((p <= CLIP_LO) | (p >= CLIP_HI)).any(axis=-1))
 
 
 def _kernel(a: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:

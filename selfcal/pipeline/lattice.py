@@ -356,7 +356,7 @@ def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=
     if smoothness == "auto" and labels is not None and np.unique(labels[ok]).size >= 2:
         scores = {float(s): _leave_group_out(z, res, labels[ok], system(s), rhs)
                   for s in smoothness_grid}
-        smoothness = min(scores, key=scores.get)
+        smoothness = min(scores, key=scores.__getitem__)
         lut.validation = scores
     elif smoothness == "auto":
         scores = {}
@@ -367,7 +367,7 @@ def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=
             h = np.asarray(z.multiply(np.asarray(z @ a_inv)).sum(axis=1)).ravel()
             loo = (res - fitted) / np.maximum(1.0 - h, 1e-6)[:, None]
             scores[float(s)] = float(np.sqrt(np.mean(loo ** 2)))
-        smoothness = min(scores, key=scores.get)
+        smoothness = min(scores, key=scores.__getitem__)
         lut.validation = scores
     r = np.asarray(spsolve(system(smoothness), rhs)).reshape(-1, 3)
     if not np.all(np.isfinite(r)):

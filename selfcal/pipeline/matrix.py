@@ -265,6 +265,7 @@ def _fast_row(constraints: np.ndarray, min_radius_deg: float = FAST_MIN_RADIUS_D
     if tie.any():
         row = _resolve_ties(us[tie], ws[tie], constraints, best)
     else:  # the best centres were split and no leaf centre hit the best count again
+        assert best_u is not None       # set on the first pass (any count beats -1)
         row = _resolve_ties(best_u, None, constraints, best)
     return row, best, evaluated
 

@@ -29,9 +29,12 @@ load without it (the mask is then None).
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError, ModelFileError, SelfcalError
 from ..io.model_file import jsonable, save_model_dict
@@ -65,9 +68,9 @@ class ForwardStages:
         Forward gamut correction ``R_f`` (§3.4).
     """
 
-    matrix: object
-    tone_curves: object
-    lut: object
+    matrix: npt.ArrayLike
+    tone_curves: MonotonePolynomial
+    lut: LatticeLUT
 
 
 @dataclass(frozen=True)
@@ -87,10 +90,10 @@ class BackwardStages:
         with a clipped channel, or None.
     """
 
-    inverse_tone_curves: object
-    lut: object
-    rbf: object = None
-    clipped_corrections: object = None
+    inverse_tone_curves: MonotonePolynomial
+    lut: LatticeLUT
+    rbf: RBFColourMapping | None = None
+    clipped_corrections: Mapping[str, ClippedCorrection | None] | None = None
 
 
 #: The keyword arguments of ``PipelineModel`` before the stages were grouped, in their old
@@ -106,7 +109,8 @@ _LEGACY_ARGUMENTS = {
 }
 
 
-def _legacy_stages(positional, keywords: dict, given: dict):
+def _legacy_stages(positional: tuple, keywords: dict,
+                   given: dict) -> tuple[ForwardStages, BackwardStages]:
     """The stages from ``PipelineModel``'s old arguments (positional in the old order, and
     keywords), each with a DeprecationWarning naming the stage field that replaces it;
     ``given`` (the new keyword-only arguments) is updated with old positional values."""
@@ -118,7 +122,7 @@ def _legacy_stages(positional, keywords: dict, given: dict):
         if key not in _LEGACY_ARGUMENTS or _LEGACY_ARGUMENTS[key] is None or key in old:
             raise TypeError(f"PipelineModel() got an unexpected keyword argument {key!r}")
     old.update(keywords)
-    parts = {"forward_stages": {}, "backward_stages": {}}
+    parts: dict[str, dict[str, Any]] = {"forward_stages": {}, "backward_stages": {}}
     for key, value in old.items():
         target = _LEGACY_ARGUMENTS[key]
         if target is None:
@@ -206,12 +210,14 @@ class PipelineModel:
     """
 
     def __init__(self, forward_stages: ForwardStages | None = None,
-                 backward_stages: BackwardStages | None = None, *legacy_args,
-                 backward: str = "lut", diagnostics=None, bake_size: int = BAKE_SIZE,
-                 training_colours: TrainingColours | None = None, **legacy):
+                 backward_stages: BackwardStages | None = None, *legacy_args: Any,
+                 backward: str = "lut", diagnostics: Mapping[str, Any] | None = None,
+                 bake_size: int = BAKE_SIZE,
+                 training_colours: TrainingColours | None = None, **legacy: Any) -> None:
         if legacy_args or legacy or not isinstance(forward_stages, ForwardStages):
-            given = {"backward": backward, "diagnostics": diagnostics, "bake_size": bake_size,
-                     "training_colours": training_colours}
+            given: dict[str, Any] = {"backward": backward, "diagnostics": diagnostics,
+                                     "bake_size": bake_size,
+                                     "training_colours": training_colours}
             positional = () if forward_stages is None else (forward_stages, backward_stages,
                                                             *legacy_args)
             forward_stages, backward_stages = _legacy_stages(positional, legacy, given)
@@ -239,7 +245,7 @@ class PipelineModel:
         self.backward = backward
         self.diagnostics = dict(diagnostics or {})
         self.bake_size = int(bake_size)
-        self.clipped_corrections = {}
+        self.clipped_corrections: dict[str, ClippedCorrection | None] = {}
         for v, corr in dict(clipped_corrections or {}).items():
             if v not in BACKWARD_VARIANTS:
                 raise InputError(f"clipped-pixel correction for an unknown variant {v!r}")
@@ -327,6 +333,7 @@ class PipelineModel:
         if variant == "lut":
             rho = e @ self.matrix_inverse.T
             return rho + self.backward_lut.residual(rho)
+        assert self.rbf is not None     # _check_variant: "rbf" needs one
         return self.rbf(e) @ self.matrix_inverse.T
 
     def _e_box(self):
@@ -425,6 +432,7 @@ class PipelineModel:
         """
         if variant not in self._clipped_tables:
             corr = self.clipped_corrections[variant]
+            assert corr is not None     # called for variants with a correction only
             codes = np.arange(256, dtype=np.float64) / 255.0
             table = np.empty((3, 2, 256, 256, 3))
             for k in range(3):

@@ -164,7 +164,7 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     for s in smoothing_grid:
         score(s)
     if refine and out:
-        best = min(out, key=out.get)
+        best = min(out, key=out.__getitem__)
         for s in (best / np.sqrt(10), best * np.sqrt(10)):
             score(s)
     return out
@@ -239,5 +239,5 @@ def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
     if not scores:
         raise CalibrationError("the RBF colour mapping cannot be fitted: the control points "
                                "are degenerate (e.g. on a plane)")
-    best = min(scores, key=scores.get)
+    best = min(scores, key=scores.__getitem__)
     return RBFColourMapping(e, target, best, validation=scores)

@@ -201,7 +201,7 @@ def _cross_validated(x, y, w, degree, domain, folds=None) -> MonotonePolynomial:
             raise InputError(f"folds has {fold.shape[0]} labels for {n} samples")
     domain = _fit_domain(x, y, domain)
     chosen = np.empty(3)
-    scores = [dict() for _ in range(3)]
+    scores: list[dict[float, float]] = [dict() for _ in range(3)]
     for lam in SMOOTHNESS_GRID:
         sq = np.zeros(3)
         cnt = np.zeros(3)
@@ -223,15 +223,17 @@ def _cross_validated(x, y, w, degree, domain, folds=None) -> MonotonePolynomial:
         for k in range(3):
             scores[k][lam] = float(np.sqrt(sq[k] / max(cnt[k], 1)))
     for k in range(3):
-        chosen[k] = min(scores[k], key=scores[k].get)
+        chosen[k] = min(scores[k], key=scores[k].__getitem__)
     coefs = np.empty((3, degree + 1))
     for k in range(3):
         fit = monotone_tone_curves(x, y, smoothness=float(chosen[k]), degree=degree,
                                    domain=domain, weights=w)
         coefs[k] = fit.coefficients[k]
     out = MonotonePolynomial(coefficients=coefs, domain=domain)
-    out.smoothness = chosen.tolist()
-    out.validation = [{str(k): v for k, v in sc.items()} for sc in scores]
+    # the cross-validated fit says what it chose (an attribute the plain fit has not: read
+    # with getattr by the pipeline's diagnostics)
+    out.smoothness = chosen.tolist()  # type: ignore[attr-defined]
+    out.validation = [{str(k): v for k, v in sc.items()} for sc in scores]  # type: ignore[attr-defined]
     return out
 
 
