@@ -29,6 +29,7 @@ import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -125,7 +126,7 @@ EXR_COMPRESSIONS = ("piz", "zip", "zips", "rle", "none")
 
 
 def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
-                   inputs=(), compression: str = "piz") -> Path:
+                   inputs=(), compression: str = "piz") -> RadianceFile:
     """Write an RGB radiance map as OpenEXR, Radiance HDR or float TIFF, atomically.
 
     Parameters
@@ -206,9 +207,9 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
             raise OutputWriteError(f"{path}: OpenCV could not write it (no {suffix} encoder?)")
         if scale != 1.0:
             tmp = Path(tmp)
-            data = _exr_add_attribute(tmp.read_bytes(), SCALE_ATTRIBUTE, "double",
-                                      struct.pack("<d", scale), path)
-            tmp.write_bytes(data)
+            exr = _exr_add_attribute(tmp.read_bytes(), SCALE_ATTRIBUTE, "double",
+                                     struct.pack("<d", scale), path)
+            tmp.write_bytes(exr)
     return RadianceFile(path, scale)
 
 
@@ -577,7 +578,7 @@ def _write_tiff(path, data, *, force, inputs, extratags=(), metadata=None):
     import tifffile
 
     # metadata (a dict) goes into ImageDescription as JSON, next to tifffile's "shape"
-    extra = {} if metadata is None else {"metadata": dict(metadata)}
+    extra: dict[str, Any] = {} if metadata is None else {"metadata": dict(metadata)}
     with atomic_output(path, force=force, inputs=inputs) as tmp:
         try:
             tifffile.imwrite(tmp, data, photometric="rgb", extratags=list(extratags),

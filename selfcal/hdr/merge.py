@@ -355,6 +355,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                                                                 model, fresh, warnings)
     ref = _reference_frame(exposures, opts.reference, len(frames))
     if transforms is not None:
+        assert ref0 is not None     # an aligned calibration says its reference
         transforms = _relative_to(transforms, ref0, ref)
     elif align and len(frames) > 1:
         transforms = estimate_alignment(frames, exposures, model, method=align, reference=ref,
@@ -408,6 +409,7 @@ def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
     """:attr:`HDRResult.sigma`, with the noise scale κ it used in the diagnostics."""
+    assert sums.sigma is not None   # the merge kept σ sums
     diagnostics["sigma_noise_scale"] = round(sums.sigma.kappa, 4)
     return sums.sigma.result()
 
@@ -664,6 +666,7 @@ def linearize_images(images, model, *, progress=None):
         lin = Lineariser(model, False, max_code_of(img))
         if lin.kind == "lut":
             out = np.empty(img.shape, dtype=np.float32)
+            assert lin.table is not None    # made for the frame's max code
             table = lin.table.astype(np.float32)
             rows = max(8, STRIP_PIXELS // img.shape[1])
             for y in range(0, img.shape[0], rows):

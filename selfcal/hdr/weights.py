@@ -196,6 +196,11 @@ class _FrameTables:
     or below it, that channel only (a black floor).
     """
 
+    #: set by the merge (:mod:`selfcal.hdr.accumulate`): the code above which a pixel is
+    #: bright, and an unchecked frame's masked codes (None when they are not kept)
+    bright: float
+    unchecked_codes: np.ndarray | None
+
     def __init__(self, lin: Lineariser, exposure: float, weighting, noise: NoiseModel,
                  lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0,
                  floor=None):
@@ -214,6 +219,7 @@ class _FrameTables:
         self.unchecked = False      # merged with a time the pixels could not check
         if lin.table is None:
             return
+        assert lin.max_code is not None and lin.slope is not None   # made with the table
         if USE_CODE_ERROR and lin.kind == "lut":
             from ..response.code_error import code_error_at
 
@@ -315,6 +321,7 @@ class _FrameTables:
         if not need_x:
             return a, w, None, None
         if self.lin.table is not None:
+            assert self.lin.slope is not None       # made with the table
             slope = apply_lut(codes, self.lin.slope.astype(np.float32))
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())

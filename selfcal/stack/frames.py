@@ -174,8 +174,8 @@ class Lineariser:
             raise InputError("the model must have inverse_response(codes) (a ResponseModel) "
                              "or to_raw(rendered) (a pipeline model)")
         self.model = model
-        self.table = None       # (K, 3) f⁻¹ at every code, float64
-        self.slope = None       # (K, 3) d f⁻¹ / dz at every code
+        self.table: np.ndarray | None = None    # (K, 3) f⁻¹ at every code, float64
+        self.slope: np.ndarray | None = None    # (K, 3) d f⁻¹ / dz at every code
         if max_code is None:
             return
         codes = np.arange(max_code + 1)
