@@ -79,7 +79,8 @@ class _Thunk:
 
     def __init__(self, fn, args):
         self.fn, self.args = fn, args
-        self.status, self.value, self.exc = "pending", None, None
+        self.status, self.value = "pending", None
+        self.exc: Exception | None = None
 
     def run(self):
         if self.status == "pending":
@@ -94,6 +95,7 @@ class _Thunk:
     def result(self):
         self.run()
         if self.status == "error":
+            assert self.exc is not None     # the status says it was kept
             raise self.exc
         return self.value
 
@@ -332,11 +334,11 @@ def run_batch(roots, out_dir, *, scheduler=None, cluster: ClusterOptions | None 
     sweep_partial(out_dir)
     journal = Journal(out_dir)
     rows = _Journaled(rows, journal)
-    cluster = {"scheduler": scheduler, "workers": cluster.workers,
-               "memory_limit": cluster.memory_limit, "processes": cluster.processes,
-               "client": cluster.client}
+    spec = {"scheduler": scheduler, "workers": cluster.workers,
+            "memory_limit": cluster.memory_limit, "processes": cluster.processes,
+            "client": cluster.client}
     try:
-        _execute(result, cluster, todo, cameras, fits, options, rows, len(plans), progress)
+        _execute(result, spec, todo, cameras, fits, options, rows, len(plans), progress)
     except KeyboardInterrupt:        # Ctrl-C, or SIGTERM as the CLI turns it
         rows += interrupted_rows(todo, rows)
         _conclude(result, list(rows), cameras, fits, plans, library)

@@ -347,7 +347,8 @@ def _walk(roots, exclude) -> list:
 def _pair_raws(files, unassigned):
     """``[(rendered, raw or None)]`` by folder and stem (case-insensitive); unpaired raws
     and files of other kinds go to ``unassigned`` with the reason."""
-    rendered, raws = {}, {}
+    rendered: dict[tuple[Path, str], Path] = {}
+    raws: dict[tuple[Path, str], Path] = {}
     for f in files:
         suffix = f.suffix.lower()
         key = (f.parent, f.stem.lower())

@@ -13,6 +13,7 @@ helpers in :mod:`selfcal.io.model_file` stay below them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +27,9 @@ from ..response.model import ResponseModel
 __all__ = ["load_model"]
 
 #: kind -> (content check, model class)
-_KINDS = {"response": (check_response_content, ResponseModel),
-          "pipeline": (check_pipeline_content, PipelineModel)}
+_KINDS: dict[str, tuple[Callable[..., None], type[ResponseModel] | type[PipelineModel]]] = {
+    "response": (check_response_content, ResponseModel),
+    "pipeline": (check_pipeline_content, PipelineModel)}
 
 
 def load_model(path):

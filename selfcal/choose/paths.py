@@ -31,9 +31,10 @@ from ..errors import CalibrationError, InputError, options_from_keywords
 from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info,
                          read_image, read_image_size)
 from ..io.raw import read_raw_exposure_info
-from ..pipeline import PipelineOptions, fit_pipeline
+from ..pipeline import PipelineModel, PipelineOptions, fit_pipeline
 from ..pipeline.pairs import collect_pair_samples
 from ..response.calibrate import ResponseOptions, calibrate_response
+from ..response.model import ResponseModel
 from ..stack.linear_evidence import linear_evidence
 from .exposure_plan import (ResponsePlan, SessionReport, distinct_exposures, file_names,
                             noun, plan_response, seconds_text, times_by_frame)
@@ -89,8 +90,8 @@ class CalibrationResult:
 
     taken: tuple
     reasons: list
-    response: object = None
-    pipeline: object = None
+    response: ResponseModel | None = None
+    pipeline: PipelineModel | None = None
     groups: InputGroups = field(default_factory=InputGroups)
     response_frames: list = field(default_factory=list)
     exposure_source: str | None = None

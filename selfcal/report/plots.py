@@ -107,7 +107,7 @@ def plot_response(model, path, *, truth=None, force: bool = False):
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout(rect=(0, 0, 1, 1 - top / (4.4 + top)))
-    colour = VERDICT_COLOURS.get(diagnostics.get("verdict"), "black")
+    colour = VERDICT_COLOURS.get(diagnostics.get("verdict", ""), "black")
     fig.text(0.01, 0.995, header[0], ha="left", va="top", fontsize=10, weight="bold",
              color=colour)
     if len(header) > 1:

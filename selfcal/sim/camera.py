@@ -150,7 +150,7 @@ class CameraPipeline:
     """
 
     matrix: np.ndarray
-    curves: tuple
+    curves: tuple[ToneCurve, ...] | ToneCurve
     gamut: str = "smooth"
     knee: float = 0.8
     strength: float = 1.0
@@ -173,6 +173,13 @@ class CameraPipeline:
                 raise InputError("white_balance must be three positive gains, got "
                                  f"{self.white_balance!r}")
             self.white_balance = g
+
+    @property
+    def _curves(self) -> tuple[ToneCurve, ...]:
+        """The three curves (``curves`` is made a tuple of three by ``__post_init__``)."""
+        curves = self.curves
+        assert isinstance(curves, tuple)
+        return curves
 
     def colour_correct(self, raw) -> np.ndarray:
         """``M ρ``, or ``M min(g ρ, 1)`` with white-balance gains ``g``: the input of Γ."""
@@ -207,7 +214,7 @@ class CameraPipeline:
             raise InputError(f"expected RGB data with a last axis of 3, got shape {raw.shape}")
         mapped = self.apply_gamut(self.colour_correct(raw))
         out = np.empty_like(mapped)
-        for ch, curve in enumerate(self.curves):
+        for ch, curve in enumerate(self._curves):
             out[..., ch] = curve.forward(mapped[..., ch])
         return out
 
@@ -223,14 +230,14 @@ class CameraPipeline:
             float64, shape ``(len(codes), 3)``.
         """
         y = np.clip(np.asarray(codes, dtype=np.float64).ravel() / float(max_code), 0.0, 1.0)
-        return np.stack([c.inverse(y) for c in self.curves], axis=1)
+        return np.stack([c.inverse(y) for c in self._curves], axis=1)
 
     def to_dict(self) -> dict:
         """JSON-serialisable description (see :meth:`from_dict`)."""
         d = {
             "model": "P = f(Gamma(M rho))",
             "matrix": self.matrix.tolist(),
-            "curves": [c.to_dict() for c in self.curves],
+            "curves": [c.to_dict() for c in self._curves],
             "gamut": self.gamut,
             "knee": self.knee,
             "strength": self.strength,

@@ -188,7 +188,7 @@ def _tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
     """16/8-bit RGB TIFF with ExposureTime, FNumber, ISO in IFD0 (as TIFF/EP and DNG do)."""
     import tifffile
 
-    tags = []
+    tags: list[tuple[int, int, int, tuple[int, int] | int, bool]] = []
     if time is not None:
         tags.append((33434, 5, 1, _rational(time), False))          # ExposureTime
     if f_number is not None:

@@ -339,7 +339,9 @@ def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, rep
     return SyntheticStack(images=images, exposure_times=nominal, true_exposures=true,
                           radiance=scene, raws=raws, pipeline=pipeline,
                           bit_depth=output.bit_depth, exposure_scale=exposure_scale,
-                          seed=seed, jpeg_quality=int(jpeg_quality) if use_jpeg else None,
+                          seed=seed,
+                          jpeg_quality=(int(jpeg_quality) if use_jpeg and jpeg_quality is not None
+                                        else None),
                           jitter=jitter, _encoded=encoded if use_jpeg else None,
                           chroma_subsampling=output.chroma_subsampling if use_jpeg else None,
                           sharpening=output.sharpening)

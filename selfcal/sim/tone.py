@@ -259,7 +259,7 @@ class ToneCurve:
 
     def to_dict(self) -> dict:
         """JSON-serialisable description: the parameters for analytic curves, else the table."""
-        d = {"name": self.name, "kind": self.kind}
+        d: dict[str, object] = {"name": self.name, "kind": self.kind}
         if self.kind == "table":
             d["irradiance"] = self._x.tolist()
             d["brightness"] = self._y.tolist()
