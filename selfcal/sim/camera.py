@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 from .tone import ToneCurve
@@ -181,14 +182,14 @@ class CameraPipeline:
         assert isinstance(curves, tuple)
         return curves
 
-    def colour_correct(self, raw) -> np.ndarray:
+    def colour_correct(self, raw: npt.ArrayLike) -> np.ndarray:
         """``M ρ``, or ``M min(g ρ, 1)`` with white-balance gains ``g``: the input of Γ."""
         raw = np.asarray(raw, dtype=np.float64)
         if self.white_balance is not None:
             raw = np.minimum(raw * self.white_balance, 1.0)
         return raw @ self.matrix.T
 
-    def apply_gamut(self, x) -> np.ndarray:
+    def apply_gamut(self, x: np.ndarray) -> np.ndarray:
         """Apply Γ to colour-corrected RGB ``x = M ρ`` (shape ``(..., 3)``)."""
         if self.gamut == "smooth":
             return gamut_compress(x, knee=self.knee, strength=self.strength)
@@ -218,7 +219,7 @@ class CameraPipeline:
             out[..., ch] = curve.forward(mapped[..., ch])
         return out
 
-    def inverse_response(self, codes, max_code: int = 255) -> np.ndarray:
+    def inverse_response(self, codes: npt.ArrayLike, max_code: int = 255) -> np.ndarray:
         """The true per-channel inverse response ``f_c^-1(code / max_code)``.
 
         This is the ground truth for the JPEG-only calibrators ([Lin2011] §5):
@@ -296,7 +297,8 @@ def _default_curves() -> tuple:
             ToneCurve.film(contrast=1.03, toe=0.11, shoulder=0.81, exposure=0.95))
 
 
-def default_pipeline(*, gamut: str = "smooth", curves=None, seed: int = 0) -> CameraPipeline:
+def default_pipeline(*, gamut: str = "smooth",
+                     curves: tuple[ToneCurve, ...] | ToneCurve | None = None, seed: int = 0) -> CameraPipeline:
     """A plausible camera pipeline ``P = f(Γ(M ρ))`` ([Gong2018], Eq. 1).
 
     Parameters
