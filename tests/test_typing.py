@@ -38,10 +38,11 @@ def _missing_annotations(func, name: str) -> list[str]:
 
 
 def _own_methods(cls) -> dict[str, object]:
-    """The public methods (and ``__init__``) that ``cls`` or its selfcal bases define."""
+    """The public methods (and ``__init__``) that ``cls`` or its selfcal bases define (not
+    those of ``object``, ``Exception`` and other bases from outside)."""
     found: dict[str, object] = {}
     for klass in reversed(cls.__mro__):
-        if not klass.__module__.startswith("selfcal"):
+        if klass is not cls and not klass.__module__.startswith("selfcal"):
             continue
         for attr, value in vars(klass).items():
             if attr.startswith("_") and attr != "__init__":

@@ -31,10 +31,14 @@ import logging
 import os
 import uuid
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 from ..errors import OutputExistsError, SelfcalError, options_from_keywords
+from ..typing import PathLike, Progress
 from .discover import DEFAULT_MAX_GAP, discover
 from .faults import Journal, interrupted_rows, sweep_partial
 from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_row,
@@ -63,7 +67,7 @@ class ClusterError(SelfcalError):
     which and what to do)."""
 
 
-def require_dask():
+def require_dask() -> ModuleType:
     """The ``distributed`` module, or :class:`ClusterError` saying how to install it."""
     try:
         import distributed
@@ -269,9 +273,10 @@ class ClusterOptions:
     client: object = None
 
 
-def run_batch(roots, out_dir, *, scheduler=None, cluster: ClusterOptions | None = None,
-              options: BatchOptions | None = None, redo: bool = False, progress=None,
-              **old_keywords) -> BatchResult:
+def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | None = None,
+              cluster: ClusterOptions | None = None, options: BatchOptions | None = None,
+              redo: bool = False, progress: Progress | None = None,
+              **old_keywords: Any) -> BatchResult:
     """Calibrate and merge every bracketed session under ``roots``, one curve per camera.
 
     Parameters

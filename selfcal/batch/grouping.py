@@ -30,7 +30,10 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -343,7 +346,9 @@ def _merge(into: _Open, other: _Open, open_: list, why: str) -> None:
     open_.remove(other)
 
 
-def group_by_content(frames, thumbs, rule: GroupingRule = GroupingRule()):
+def group_by_content(frames: Sequence[Any], thumbs: Sequence[np.ndarray | None],
+                     rule: GroupingRule = GroupingRule()
+                     ) -> tuple[list[ContentGroup], list[tuple[Path, str]]]:
     """Group frames into bracketed sessions by what they show (time as a hint).
 
     Parameters

@@ -39,7 +39,7 @@ import time
 import warnings as _warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from ..errors import CalibrationError, SelfcalError, SelfcalWarning
 from ..io.model_file import jsonable
@@ -406,7 +406,7 @@ def _choose_model(plan: SessionPlan, prep: SessionPrep, camera: CameraFit | None
     if agree is None and prep.samples is not None:
         from ..choose.loading import load_model
 
-        shared = load_model(camera.model_path)
+        shared = cast("ResponseModel", load_model(camera.model_path))  # the camera's curve
         agree = agreement_with(prep.samples, shared.intensity, shared.inverse)
     if agree is None:
         out["model_reason"] = "no samples for the agreement test"

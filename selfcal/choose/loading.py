@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ModelFileError, SelfcalError
+from ..typing import PathLike
 from ..io.model_file import check_pipeline_content, check_response_content, read_model_dict
 from ..pipeline.model import PipelineModel
 from ..pipeline.nus import is_nus_model_folder, load_nus_pipeline
@@ -32,7 +33,7 @@ _KINDS: dict[str, tuple[Callable[..., None], type[ResponseModel] | type[Pipeline
     "pipeline": (check_pipeline_content, PipelineModel)}
 
 
-def load_model(path):
+def load_model(path: PathLike) -> ResponseModel | PipelineModel:
     """Load a model file written by selfcal, or an NUS model folder.
 
     The envelope and every field of the content are checked before the model is built,

@@ -74,7 +74,9 @@ References
 from __future__ import annotations
 
 import warnings as _pywarnings
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 
@@ -96,6 +98,7 @@ from ..stack.frames import (
     stuck_code_levels,
 )
 from ..stack.samples import collect_samples
+from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import _misalignment_warning, _poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
@@ -241,9 +244,12 @@ class HDRResult:
 # the merge
 # --------------------------------------------------------------------------------------
 
-def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
-              align=False, deghost: bool = False, linear: bool = False,
-              options: MergeOptions | None = None, progress=None, **old_keywords) -> HDRResult:
+def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None = None,
+              model: object = None, *, weighting: str | Callable = "noise",
+              align: Literal[False] | str = False, deghost: bool = False,
+              linear: bool = False,
+              options: MergeOptions | None = None, progress: Progress | None = None,
+              **old_keywords: Any) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -633,7 +639,8 @@ def _relative_to(transforms, ref0: int, ref: int):
 # linearised frames
 # --------------------------------------------------------------------------------------
 
-def linearize_images(images, model, *, progress=None):
+def linearize_images(images: Sequence[ImageInput], model: object, *,
+                     progress: Progress | None = None) -> Iterator[tuple[str, np.ndarray]]:
     """Linearise frames one at a time: ``f⁻¹(I)`` per channel (Lin et al., ICCV 2011, §5).
 
     A generator, so a long list of large frames never sits in memory at once.  Values are

@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 from ..stack.frames import apply_lut, Lineariser
@@ -48,7 +49,7 @@ from ..io.images import import_cv2
 __all__ = ["NoiseModel", "noise_variance", "weight_hat"]
 
 
-def weight_hat(z):
+def weight_hat(z: npt.ArrayLike) -> np.ndarray:
     """Debevec & Malik's hat (triangle) weighting on the normalised code ``z`` in [0, 1].
 
     ``w(z) = 2 min(z, 1 - z)``: 1 at mid-grey, 0 at black and white (Debevec & Malik,
@@ -128,8 +129,9 @@ DEFAULT_NOISE = NoiseModel(relative=0.03)
 USE_CODE_ERROR = True
 
 
-def noise_variance(x, slope, exposure: float, noise: NoiseModel = NoiseModel(), *,
-                   code_std: float | None = None, code_error=None):
+def noise_variance(x: np.ndarray, slope: np.ndarray, exposure: float,
+                   noise: NoiseModel = NoiseModel(), *, code_std: float | None = None,
+                   code_error: np.ndarray | None = None) -> np.ndarray:
     """Variance of the radiance estimate ``X = f⁻¹(z) / e`` of one frame.
 
     ``Var[X] = (shot · x + read² + (slope · σ_z)² + (relative · x)²) / e²`` with
@@ -326,6 +328,7 @@ class _FrameTables:
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())
         else:
+            assert slope is not None        # linear data: ones (above)
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())
         return a, w, X, v.astype(np.float32)

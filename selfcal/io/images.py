@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeGuard, TypeVar
 
 import numpy as np
 
@@ -45,7 +45,7 @@ def import_cv2():
     return cv2
 
 
-def is_path(x) -> bool:
+def is_path(x: object) -> TypeGuard[PathLike]:
     """True for what names a file (``str`` or ``os.PathLike``), False for an array."""
     return isinstance(x, (str, os.PathLike))
 

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..typing import PathLike
 from .images import ExposureInfo, _rational
 
 __all__ = ["RAW_SUFFIXES", "RawImage", "read_raw_linear", "read_raw_exposure_info",
@@ -270,7 +271,7 @@ def _channel_levels(raw) -> tuple[np.ndarray, np.ndarray]:
     return black, white
 
 
-def read_raw_linear(path, *, half_size: bool = False) -> RawImage:
+def read_raw_linear(path: PathLike, *, half_size: bool = False) -> RawImage:
     """Read a camera raw file (or a 16-bit linear TIFF) as linear camera RGB in ``[0, 1]``.
 
     The sensor values ρ of Gong et al., rank-based radiometric calibration [Gong2018],

@@ -8,10 +8,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, fields, replace
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CalibrationError, InputError, options_from_keywords
 from ..stack.samples import hsv_saturation
+from ..typing import Progress
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
 from .lattice import LUT_SMOOTHNESS, LatticeLUT, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
@@ -241,7 +245,7 @@ class PipelineOptions:
                              f"{self.matrix_method!r}")
 
     @classmethod
-    def split(cls, keywords: dict):
+    def split(cls, keywords: dict) -> tuple[PipelineOptions, dict]:
         """``(options, rest)``: the fields of this class among ``keywords`` as options (on
         top of ``keywords["options"]`` when given), and the other keywords -- for callers
         that take :func:`fit_pipeline`'s knobs by name, such as :func:`selfcal.calibrate`.
@@ -485,9 +489,10 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit,
     }
 
 
-def fit_pipeline(raw_samples, rendered_samples, options: PipelineOptions | None = None, *,
-                 n_train=None, seed: int = 0, groups=None, progress=None,
-                 **legacy) -> PipelineModel:
+def fit_pipeline(raw_samples: npt.ArrayLike, rendered_samples: npt.ArrayLike,
+                 options: PipelineOptions | None = None, *, n_train: int | None = None,
+                 seed: int = 0, groups: npt.ArrayLike | None = None,
+                 progress: Progress | None = None, **legacy: Any) -> PipelineModel:
     """Fit a camera pipeline, raw -> rendered and back, from corresponding samples.
 
     The rank-based radiometric calibration of [Gong2018] with the RBF inverse

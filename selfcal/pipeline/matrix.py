@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CalibrationError, InputError
 
@@ -308,8 +309,9 @@ def rank_based_row(raw: np.ndarray, rendered: np.ndarray, channel: int, *,
             "constraints": int(d.shape[0]), "evaluated": int(evaluated)}
 
 
-def rank_based_matrix(raw, rendered, *, method: str = "fast",
-                      n_directions: int = LITERAL_DIRECTIONS, return_info: bool = False):
+def rank_based_matrix(raw: npt.ArrayLike, rendered: npt.ArrayLike, *, method: str = "fast",
+                      n_directions: int = LITERAL_DIRECTIONS, return_info: bool = False
+                      ) -> np.ndarray | tuple[np.ndarray, list[dict]]:
     """The colour correction matrix ``M`` up to row scales, from rank order.
 
     [Gong2018] §3.2, Eq. 4-8: each row ``M_k`` is the unit direction satisfying the most

@@ -31,6 +31,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -38,6 +39,7 @@ import numpy.typing as npt
 
 from ..errors import InputError, ModelFileError, SelfcalError
 from ..io.model_file import jsonable, save_model_dict
+from ..typing import PathLike
 from .clipped import CLIP_HI, CLIP_LO, ClippedCorrection, clipped_mask
 from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
@@ -261,7 +263,7 @@ class PipelineModel:
         self._clipped_tables: dict = {}
 
     # ------------------------------------------------------------------ trust
-    def outside_training(self, colours, kind: str = "raw"):
+    def outside_training(self, colours: npt.ArrayLike, kind: str = "raw") -> np.ndarray | None:
         """Where the model is extrapolating: colours far from every training colour.
 
         True where a ``(..., 3)`` raw (``kind="raw"``, the input of :meth:`render`) or
@@ -281,7 +283,8 @@ class PipelineModel:
         return self.training_colours.outside(colours, kind)
 
     # ------------------------------------------------------------------ forward
-    def render(self, raw, *, return_mask: bool = False):
+    def render(self, raw: npt.ArrayLike, *, return_mask: bool = False
+               ) -> np.ndarray | tuple[np.ndarray, np.ndarray | None]:
         """Forward model: linear raw -> rendered, ``y = f(M ρ)``, ``P = y + R_f(g(y))``.
 
         [Gong2018] Eq. 1b with §3.2-3.4.
@@ -322,7 +325,7 @@ class PipelineModel:
             raise InputError("this model has no RBF colour mapping")
         return variant
 
-    def backward_exact(self, e, variant: str | None = None) -> np.ndarray:
+    def backward_exact(self, e: npt.ArrayLike, variant: str | None = None) -> np.ndarray:
         """The backward model at linearised colours ``e = f⁻¹(P)``, evaluated directly.
 
         ``"lut"``: ``ρ̂ = M⁻¹ e``, ``ρ = ρ̂ + R_b(g(ρ̂))`` ([Gong2018] §3.5);
@@ -358,8 +361,8 @@ class PipelineModel:
         t = np.clip((e - lo) / (hi - lo), 0.0, 1.0)
         return t ** SHAPER_GAMMA * (self.bake_size - 1)
 
-    def to_raw(self, rendered, *, variant: str | None = None, exact: bool = False,
-               return_mask: bool = False):
+    def to_raw(self, rendered: npt.ArrayLike, *, variant: str | None = None, exact: bool = False,
+               return_mask: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray | None]:
         """Backward model: rendered (JPEG) -> linear raw.
 
         ``e = f⁻¹(P)`` per channel ([Gong2018] §3.5), then the chosen variant (see
@@ -508,7 +511,7 @@ class PipelineModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, *, path=None) -> "PipelineModel":
+    def from_dict(cls, d: dict, *, path: PathLike | None = None) -> "PipelineModel":
         """Rebuild a model from :meth:`to_dict` content; ModelFileError on bad content."""
         from ..io.model_file import check_pipeline_content
 
@@ -541,7 +544,7 @@ class PipelineModel:
             raise ModelFileError(f"pipeline model has a malformed field ({exc})",
                                  path) from None
 
-    def save(self, path, force: bool = False):
+    def save(self, path: PathLike, force: bool = False) -> Path:
         """Write the model as versioned JSON (kind ``"pipeline"``), atomically.
 
         Refuses to overwrite an existing file unless ``force``

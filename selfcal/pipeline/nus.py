@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from ..errors import InputError
+from ..typing import PathLike
 from .model import BAKE_SIZE, BackwardStages, ForwardStages, PipelineModel, _as_rgb_float
 from .nus_render import (NUS_RENDER_GAMMA, NUS_RENDER_REFINE, NUS_RENDER_SIZE, RAW_CODES,
                          LazyRenderTable)
@@ -250,7 +251,8 @@ class NUSCameraModel:
         return f"NUSCameraModel({str(self.folder)!r}, {self.direction}, wb={wb})"
 
 
-def read_nus_model(folder, direction: str = "raw2jpg", wb_code: int | None = 14):
+def read_nus_model(folder: PathLike, direction: str = "raw2jpg",
+                   wb_code: int | None = 14) -> NUSCameraModel:
     """Read an NUS in-camera model folder as a callable camera pipeline.
 
     The model of [Kim2012] / [Lin2011] §6, Eq. 9-11: a 3×3 transform per white-balance

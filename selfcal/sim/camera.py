@@ -298,7 +298,8 @@ def _default_curves() -> tuple:
 
 
 def default_pipeline(*, gamut: str = "smooth",
-                     curves: tuple[ToneCurve, ...] | ToneCurve | None = None, seed: int = 0) -> CameraPipeline:
+                     curves: tuple[ToneCurve, ...] | ToneCurve | None = None,
+                     seed: int = 0) -> CameraPipeline:
     """A plausible camera pipeline ``P = f(Γ(M ρ))`` ([Gong2018], Eq. 1).
 
     Parameters

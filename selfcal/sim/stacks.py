@@ -120,7 +120,8 @@ class SyntheticStack:
             codes = np.arange(self.max_code + 1)
         return self.pipeline.inverse_response(codes, self.max_code)
 
-    def write(self, folder: PathLike, *, fmt: str = "jpg", jpeg_quality: int = 95, force: bool = False,
+    def write(self, folder: PathLike, *, fmt: str = "jpg", jpeg_quality: int = 95,
+              force: bool = False,
               prefix: str = "frame") -> list[Path]:
         """Write the frames as image files with their nominal exposure data.
 
@@ -258,7 +259,8 @@ def _default_exposure_scale(scene: np.ndarray, nominal: np.ndarray) -> float:
     return 0.18 / (median * math.sqrt(nominal[0] * nominal[-1]))
 
 
-def simulate_stack(scene: np.ndarray, pipeline: CameraPipeline, exposure_times: npt.ArrayLike, *, jitter: float = 0.03, repeats: int = 1,
+def simulate_stack(scene: np.ndarray, pipeline: CameraPipeline, exposure_times: npt.ArrayLike, *,
+                   jitter: float = 0.03, repeats: int = 1,
                    sensor: SensorModel | None = None, jpeg_quality: int | None = 90,
                    output: FrameOutput | None = None, exposure_scale: float | None = None,
                    seed: int = 0) -> SyntheticStack:
@@ -406,7 +408,8 @@ def simulate_raw_jpeg_pair(scene: np.ndarray | None = None,
             "pipeline": pipeline, "radiance": scene, "exposure": float(exposure)}
 
 
-def handheld(images: Sequence[np.ndarray], *, fraction: float = 0.02, degrees: float = 0.5, seed: int = 0) -> list:
+def handheld(images: Sequence[np.ndarray], *, fraction: float = 0.02, degrees: float = 0.5,
+             seed: int = 0) -> list:
     """The frames of a stack as a handheld camera would have taken them (ours).
 
     Every frame but the middle one is turned by up to ``±degrees`` about its centre and
