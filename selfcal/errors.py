@@ -25,7 +25,7 @@ class InputError(SelfcalError, ValueError):
         The file concerned; it is put at the head of the message.
     """
 
-    def __init__(self, message: str, path=None):
+    def __init__(self, message: str, path: object = None) -> None:
         self.path = None if path is None else str(path)
         self.reason = message
         super().__init__(f"{self.path}: {message}" if self.path else message)

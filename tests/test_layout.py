@@ -20,7 +20,7 @@ MAX_PARAMETERS = 10
 #: The floors of the library, lowest first (README's table says the same).  A module may
 #: import modules of its own floor and of the floors below it.
 FLOORS = (
-    ("selfcal.errors", "selfcal.version"),
+    ("selfcal.errors", "selfcal.version", "selfcal.typing"),
     ("selfcal.io",),
     ("selfcal.stack",),
     ("selfcal.response", "selfcal.pipeline"),

@@ -15,8 +15,12 @@ from __future__ import annotations
 import io as _io
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..response.model import ResponseModel
 
 #: Points of a session's curve kept in its manifest row (codes 0, 1/32, ..., 1).
 CURVE_POINTS = 33
@@ -46,7 +50,7 @@ def _shared_curve(model_file: str):
     try:
         from ..choose.loading import load_model
 
-        m = load_model(model_file)
+        m = cast("ResponseModel", load_model(model_file))     # a camera's shared curve
         return _grey_curve(m.intensity, m.inverse)
     except Exception:  # noqa: BLE001 -- a plot never fails the batch
         return None

@@ -31,10 +31,14 @@ import logging
 import os
 import uuid
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 from ..errors import OutputExistsError, SelfcalError, options_from_keywords
+from ..typing import PathLike, Progress
 from .discover import DEFAULT_MAX_GAP, discover
 from .faults import Journal, interrupted_rows, sweep_partial
 from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_row,
@@ -63,7 +67,7 @@ class ClusterError(SelfcalError):
     which and what to do)."""
 
 
-def require_dask():
+def require_dask() -> ModuleType:
     """The ``distributed`` module, or :class:`ClusterError` saying how to install it."""
     try:
         import distributed
@@ -79,7 +83,8 @@ class _Thunk:
 
     def __init__(self, fn, args):
         self.fn, self.args = fn, args
-        self.status, self.value, self.exc = "pending", None, None
+        self.status, self.value = "pending", None
+        self.exc: Exception | None = None
 
     def run(self):
         if self.status == "pending":
@@ -94,6 +99,7 @@ class _Thunk:
     def result(self):
         self.run()
         if self.status == "error":
+            assert self.exc is not None     # the status says it was kept
             raise self.exc
         return self.value
 
@@ -267,9 +273,10 @@ class ClusterOptions:
     client: object = None
 
 
-def run_batch(roots, out_dir, *, scheduler=None, cluster: ClusterOptions | None = None,
-              options: BatchOptions | None = None, redo: bool = False, progress=None,
-              **old_keywords) -> BatchResult:
+def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | None = None,
+              cluster: ClusterOptions | None = None, options: BatchOptions | None = None,
+              redo: bool = False, progress: Progress | None = None,
+              **old_keywords: Any) -> BatchResult:
     """Calibrate and merge every bracketed session under ``roots``, one curve per camera.
 
     Parameters
@@ -332,11 +339,11 @@ def run_batch(roots, out_dir, *, scheduler=None, cluster: ClusterOptions | None 
     sweep_partial(out_dir)
     journal = Journal(out_dir)
     rows = _Journaled(rows, journal)
-    cluster = {"scheduler": scheduler, "workers": cluster.workers,
-               "memory_limit": cluster.memory_limit, "processes": cluster.processes,
-               "client": cluster.client}
+    spec = {"scheduler": scheduler, "workers": cluster.workers,
+            "memory_limit": cluster.memory_limit, "processes": cluster.processes,
+            "client": cluster.client}
     try:
-        _execute(result, cluster, todo, cameras, fits, options, rows, len(plans), progress)
+        _execute(result, spec, todo, cameras, fits, options, rows, len(plans), progress)
     except KeyboardInterrupt:        # Ctrl-C, or SIGTERM as the CLI turns it
         rows += interrupted_rows(todo, rows)
         _conclude(result, list(rows), cameras, fits, plans, library)

@@ -18,14 +18,17 @@ import hashlib
 import math
 import os
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
 from ..errors import InputError
+from ..typing import PathLike
 from ..io.images import IMAGE_SUFFIXES, effective_exposure_times
 from ..io.raw import RAW_SUFFIXES
 from .grouping import DEFAULT_MAX_GAP, SAME_EXPOSURE  # defined with the content grouping
+from .grouping import GroupingRule
 
 # EXIF 2.32 tags (IFD0 and the EXIF sub-IFD)
 _EXIF_IFD = 0x8769
@@ -147,7 +150,7 @@ def _exif_time(date_text: str, subsec: str) -> float | None:
     return seconds
 
 
-def read_frame_info(path, raw=None) -> FrameInfo:
+def read_frame_info(path: PathLike, raw: PathLike | None = None) -> FrameInfo:
     """Read a rendered frame's EXIF: body, lens, capture time, exposure, picture settings.
 
     Never raises for missing tags; the capture time falls back to the file's modification
@@ -347,7 +350,8 @@ def _walk(roots, exclude) -> list:
 def _pair_raws(files, unassigned):
     """``[(rendered, raw or None)]`` by folder and stem (case-insensitive); unpaired raws
     and files of other kinds go to ``unassigned`` with the reason."""
-    rendered, raws = {}, {}
+    rendered: dict[tuple[Path, str], Path] = {}
+    raws: dict[tuple[Path, str], Path] = {}
     for f in files:
         suffix = f.suffix.lower()
         key = (f.parent, f.stem.lower())
@@ -368,8 +372,9 @@ def _pair_raws(files, unassigned):
     return [(f, raws.get(key)) for key, f in rendered.items()]
 
 
-def discover(roots, *, exclude=(), max_gap: float = DEFAULT_MAX_GAP,
-             by_content: bool = True, rule=None, workers: int | None = None) -> Library:
+def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
+             max_gap: float = DEFAULT_MAX_GAP, by_content: bool = True,
+             rule: GroupingRule | None = None, workers: int | None = None) -> Library:
     """Find the bracketed sessions under ``roots``.
 
     Parameters
@@ -441,7 +446,8 @@ def _starts_new(session: list, f: FrameInfo, max_gap: float) -> bool:
                for g in session)
 
 
-def group_sessions(frames, *, max_gap: float = DEFAULT_MAX_GAP):
+def group_sessions(frames: Sequence[FrameInfo], *, max_gap: float = DEFAULT_MAX_GAP
+                   ) -> tuple[list[Session], list[tuple[Path, str]]]:
     """Group frames into bracketed sessions: per camera, consecutive in time.
 
     Per camera (:func:`camera_key`), frames are taken in capture order (ties by name); a

@@ -30,7 +30,10 @@ from __future__ import annotations
 
 import math
 from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -114,7 +117,7 @@ def _thumbnail_of(im, width: int = THUMB_WIDTH):
         th = max(1, round(tw * h / w))
         im.draft("RGB", (2 * tw, 2 * th))
         grey = im.convert("L") if im.mode in ("RGB", "L") else im.convert("RGB").convert("L")
-        return np.asarray(grey.resize((tw, th), Image.BOX), dtype=np.uint8)
+        return np.asarray(grey.resize((tw, th), Image.Resampling.BOX), dtype=np.uint8)
     except Exception:  # noqa: BLE001 -- truncated or corrupt pixels: no thumbnail
         return None
 
@@ -273,7 +276,7 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
     """Put frame ``f`` into an open session (or a new one), writing down why."""
     open_.sort(key=lambda s: s.end)
     recent = [s for s in open_ if f.time - s.end <= rule.window][-rule.open_sessions:]
-    scored = []
+    scored: list[tuple[_Open, tuple, str]] = []
     for s in reversed(recent):           # most recent first
         if s.has_exposure(f.relative_exposure):
             continue
@@ -297,7 +300,9 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
     last = open_[-1] if open_ else None
     gap = None if last is None else f.time - last.end
     entry = next((x for x in scored if x[0] is last), None)
-    if entry is not None and entry[2] in ("unknown", "between") and gap <= rule.max_gap:
+    # (a session that was scored is the last one: neither is None then, nor the gap)
+    if (entry is not None and last is not None and gap is not None
+            and entry[2] in ("unknown", "between") and gap <= rule.max_gap):
         what = ("thumbnails not comparable (too few pixels well exposed in both)"
                 if entry[2] == "unknown" else
                 f"thumbnail correlation {entry[1][0]:.3f} between the thresholds")
@@ -341,7 +346,9 @@ def _merge(into: _Open, other: _Open, open_: list, why: str) -> None:
     open_.remove(other)
 
 
-def group_by_content(frames, thumbs, rule: GroupingRule = GroupingRule()):
+def group_by_content(frames: Sequence[Any], thumbs: Sequence[np.ndarray | None],
+                     rule: GroupingRule = GroupingRule()
+                     ) -> tuple[list[ContentGroup], list[tuple[Path, str]]]:
     """Group frames into bracketed sessions by what they show (time as a hint).
 
     Parameters

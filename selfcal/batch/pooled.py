@@ -38,11 +38,15 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..errors import CalibrationError
+from ..response.basis import ResponseBasis
+from ..typing import ExposureTimes, ImageInput
 from ..stack.frames import DEFAULT_CLIP_MARGIN, stuck_code_levels
 from ..response.calibrate import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
@@ -100,7 +104,8 @@ class SessionSamples(FrameSamples):
     own_inverse: np.ndarray | None = None
 
 
-def session_samples(frames, exposure_times, *, session: str = "",
+def session_samples(frames: Sequence[ImageInput], exposure_times: ExposureTimes, *,
+                    session: str = "",
                     max_samples: int = POOL_SAMPLES, clip_margin: float = DEFAULT_CLIP_MARGIN,
                     saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
                     seed: int = 0) -> SessionSamples:
@@ -228,8 +233,9 @@ def _log_basis(basis, n_components: int):
     return basis, int(min(n_components, basis.n_components))
 
 
-def fit_shared_response(sessions, *, n_components: int = DEFAULT_N_COMPONENTS,
-                        basis=None, saturation_threshold: float =
+def fit_shared_response(sessions: Sequence[SessionSamples], *,
+                        n_components: int = DEFAULT_N_COMPONENTS,
+                        basis: ResponseBasis | None = None, saturation_threshold: float =
                         DEFAULT_SATURATION_THRESHOLD, clip_margin: float = DEFAULT_CLIP_MARGIN,
                         max_rank_gap: int = MAX_RANK_GAP) -> SharedFit:
     """Fit one f⁻¹ per channel to the Eq. 8 rows of several sessions (Lin et al. §5).
@@ -350,7 +356,8 @@ class PooledCalibration:
     stuck_codes: dict | None
 
 
-def pooled_calibration(sessions, *, rounds: int = 2, **options) -> PooledCalibration:
+def pooled_calibration(sessions: Sequence[SessionSamples], *, rounds: int = 2,
+                       **options: Any) -> PooledCalibration:
     """Fit a shared curve, flag the sessions that disagree, fit again without them.
 
     Each round fits :func:`fit_shared_response` to the sessions still pooled and measures
@@ -415,7 +422,8 @@ def session_agreement(s: SessionSamples, fit: SharedFit) -> dict:
     return agreement_with(s, fit.intensity, fit.inverse)
 
 
-def shared_model(pooled: PooledCalibration, sessions, *, camera: str = "") -> ResponseModel:
+def shared_model(pooled: PooledCalibration, sessions: Sequence[SessionSamples], *,
+                 camera: str = "") -> ResponseModel:
     """The shared curve as a :class:`selfcal.ResponseModel` (a model file like any other).
 
     Its sources are the pooled sessions' frames with their (fixed) exposure times, so

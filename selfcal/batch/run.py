@@ -39,13 +39,17 @@ import time
 import warnings as _warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 from ..errors import CalibrationError, SelfcalError, SelfcalWarning
 from ..io.model_file import jsonable
 from .camera_plot import camera_plot_writers, own_curve
 from .grouping import DEFAULT_MAX_GAP
-from .pooled import (POOL_SAMPLES, POOL_SESSIONS, agreement_with, disagrees,
+from .pooled import (POOL_SAMPLES, POOL_SESSIONS, SessionSamples, agreement_with, disagrees,
                      pooled_calibration, session_samples, shared_model)
+
+if TYPE_CHECKING:
+    from ..response.model import ResponseModel
 
 MANIFEST = "manifest.jsonl"
 MANIFEST_CSV = "manifest.csv"
@@ -118,7 +122,8 @@ class SessionPlan:
 
     def outputs(self, linearize: bool) -> dict:
         """The session's outputs by role (``model`` only when it is fitted alone)."""
-        out = {"radiance": self.folder / "radiance.exr", "preview": self.folder / "preview.jpg"}
+        out: dict[str, Path | list[Path]] = {"radiance": self.folder / "radiance.exr",
+                                             "preview": self.folder / "preview.jpg"}
         if linearize:
             out["linear"] = [self.folder / "linear" / (Path(f).stem + ".tif")
                              for f in self.frames]
@@ -151,8 +156,8 @@ class SessionPrep:
     session: str
     ok: bool
     error: str = ""
-    model: object = None
-    samples: object = None
+    model: ResponseModel | None = None
+    samples: SessionSamples | None = None
     warnings: list = field(default_factory=list)
     seconds: float = 0.0
     worker: str = ""
@@ -388,6 +393,7 @@ def finish_session(plan: SessionPlan, options: BatchOptions, prep: SessionPrep,
 def _choose_model(plan: SessionPlan, prep: SessionPrep, camera: CameraFit | None) -> dict:
     """Which model a session uses, and why: the manifest's model fields."""
     own = prep.model
+    assert own is not None      # a prepared session has its model
     out = {"verdict": own.diagnostics.get("verdict"), "pooled": False, "flagged": False,
            "agreement_shared": None, "agreement_own": None, "model_kind": "own",
            "model_reason": plan.alone_reason}
@@ -400,7 +406,7 @@ def _choose_model(plan: SessionPlan, prep: SessionPrep, camera: CameraFit | None
     if agree is None and prep.samples is not None:
         from ..choose.loading import load_model
 
-        shared = load_model(camera.model_path)
+        shared = cast("ResponseModel", load_model(camera.model_path))  # the camera's curve
         agree = agreement_with(prep.samples, shared.intensity, shared.inverse)
     if agree is None:
         out["model_reason"] = "no samples for the agreement test"
@@ -441,6 +447,7 @@ def _merge_and_write(plan: SessionPlan, options: BatchOptions, prep: SessionPrep
 
     with StagedOutputs(force=True, inputs=frames) as staged:
         if row["model_kind"] == "own":
+            assert prep.model is not None   # a prepared session has its model
             _refuse_unusable(prep.model, options)
             tmp = write(staged, plan.folder / "model.json",
                         lambda t: prep.model.save(t, force=True))

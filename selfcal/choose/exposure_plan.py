@@ -19,6 +19,7 @@ import sys
 import warnings as _warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import FrameType
 
 import numpy as np
 
@@ -81,7 +82,8 @@ class SessionReport:
     def warn(self, msg: str):
         self.warnings.append(msg)
         # attribute the warning to the caller's line, whichever piece of this module warns
-        level, frame = 1, sys._getframe(0)
+        level = 1
+        frame: FrameType | None = sys._getframe(0)
         while frame is not None and frame.f_code.co_filename == __file__:
             frame, level = frame.f_back, level + 1
         _warnings.warn(msg, SelfcalWarning, stacklevel=level)
@@ -223,7 +225,7 @@ def _times_from_raws(frames, raw_rel, eff, warn):
     for p in frames:
         if p in raw_rel:
             comps.setdefault(raw_rel[p][1], []).append(p)
-    times = {p: None for p in frames}
+    times: dict[Path, float | None] = {p: None for p in frames}
     kind = "raw"
     for members in comps.values():
         logs = {p: math.log(raw_rel[p][0]) for p in members}

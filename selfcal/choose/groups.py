@@ -9,10 +9,12 @@ and :func:`group_inputs`.  Whether a bracket of 16-bit TIFFs is linear data is
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import InputError
+from ..typing import PathLike
 from ..io.images import IMAGE_SUFFIXES
 from ..io.raw import RAW_SUFFIXES, TIFF_SUFFIXES, is_linear_tiff, is_raw_path
 
@@ -87,7 +89,7 @@ def _expand(paths, folders: dict) -> list[Path]:
     return out
 
 
-def group_inputs(paths) -> InputGroups:
+def group_inputs(paths: Sequence[PathLike]) -> InputGroups:
     """Sort input files into rendered frames, RAW+rendered pairs and unpaired raws.
 
     A raw file (suffix in :data:`selfcal.io.raw.RAW_SUFFIXES`) pairs with the rendered file

@@ -13,11 +13,13 @@ helpers in :mod:`selfcal.io.model_file` stay below them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import ModelFileError, SelfcalError
+from ..typing import PathLike
 from ..io.model_file import check_pipeline_content, check_response_content, read_model_dict
 from ..pipeline.model import PipelineModel
 from ..pipeline.nus import is_nus_model_folder, load_nus_pipeline
@@ -26,11 +28,12 @@ from ..response.model import ResponseModel
 __all__ = ["load_model"]
 
 #: kind -> (content check, model class)
-_KINDS = {"response": (check_response_content, ResponseModel),
-          "pipeline": (check_pipeline_content, PipelineModel)}
+_KINDS: dict[str, tuple[Callable[..., None], type[ResponseModel] | type[PipelineModel]]] = {
+    "response": (check_response_content, ResponseModel),
+    "pipeline": (check_pipeline_content, PipelineModel)}
 
 
-def load_model(path):
+def load_model(path: PathLike) -> ResponseModel | PipelineModel:
     """Load a model file written by selfcal, or an NUS model folder.
 
     The envelope and every field of the content are checked before the model is built,

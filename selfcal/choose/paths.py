@@ -23,7 +23,8 @@ import inspect
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -31,10 +32,12 @@ from ..errors import CalibrationError, InputError, options_from_keywords
 from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info,
                          read_image, read_image_size)
 from ..io.raw import read_raw_exposure_info
-from ..pipeline import PipelineOptions, fit_pipeline
+from ..pipeline import PipelineModel, PipelineOptions, fit_pipeline
 from ..pipeline.pairs import collect_pair_samples
 from ..response.calibrate import ResponseOptions, calibrate_response
+from ..response.model import ResponseModel
 from ..stack.linear_evidence import linear_evidence
+from ..typing import ExposureTimes, PathLike, Progress
 from .exposure_plan import (ResponsePlan, SessionReport, distinct_exposures, file_names,
                             noun, plan_response, seconds_text, times_by_frame)
 from .groups import InputGroups, group_inputs
@@ -89,8 +92,8 @@ class CalibrationResult:
 
     taken: tuple
     reasons: list
-    response: object = None
-    pipeline: object = None
+    response: ResponseModel | None = None
+    pipeline: PipelineModel | None = None
     groups: InputGroups = field(default_factory=InputGroups)
     response_frames: list = field(default_factory=list)
     exposure_source: str | None = None
@@ -205,10 +208,12 @@ class PairOptions:
     block: int | None = None
 
 
-def calibrate(paths, *, exposure_times=None, exposure_source: str = "auto", seed: int = 0,
+def calibrate(paths: Sequence[PathLike], *,
+              exposure_times: ExposureTimes | Mapping[PathLike, float | None] | None = None,
+              exposure_source: str = "auto", seed: int = 0,
               pairs: PairOptions | None = None, response_options: dict | None = None,
-              pipeline_options: dict | None = None, progress=None,
-              **options) -> CalibrationResult:
+              pipeline_options: dict | None = None, progress: Progress | None = None,
+              **options: Any) -> CalibrationResult:
     """Calibrate a camera from whatever files are given, taking the path(s) they support.
 
     * Rendered frames of one size at ≥ 2 distinct exposures → the response path,
@@ -578,9 +583,10 @@ def _as_list(x):
     return list(x)
 
 
-def calibrate_pipeline(raws, rendered, *, seed: int = 0, progress=None,
-                       max_samples: int = 20_000, raw_half_size: bool = True,
-                       block: int | None = None, **fit_options):
+def calibrate_pipeline(raws: Sequence[PathLike], rendered: Sequence[PathLike], *, seed: int = 0,
+                       progress: Progress | None = None, max_samples: int = 20_000,
+                       raw_half_size: bool = True, block: int | None = None,
+                       **fit_options: Any) -> PipelineModel:
     """Fit the camera pipeline (raw → rendered and back) to RAW+rendered pairs.
 
     The RAW path: Gong et al., *Rank-based radiometric calibration* [Gong2018], §3 (colour

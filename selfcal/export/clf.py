@@ -154,6 +154,7 @@ def write_model_clf(model, path, *, direction: str | None = None, size: int | No
     direction, size = check_export(model, direction, size)
     check_output_path(path, force=force, inputs=inputs)
     name = name or f"selfcal {direction}"
+    content: np.ndarray | ShaperLUT
     if direction == "linearize":
         rows, _, _ = cube_table(model, direction, size=size)
         content = rows

@@ -61,11 +61,16 @@ colour-science's ``read_LUT`` and apply the 3D tables with ffmpeg's ``lut3d``.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
 from ..errors import InputError
+from ..pipeline.model import PipelineModel
+from ..response.model import ResponseModel
+from ..typing import PathLike
 from ..io.images import atomic_output, check_output_path
 
 __all__ = ["DIRECTIONS", "DEFAULT_3D_SIZE", "cube_table", "write_cube", "read_cube_header",
@@ -128,7 +133,7 @@ def check_export(model, direction: str | None, size: int | None) -> tuple[str, i
     return direction, int(size)
 
 
-def model_code_range(model) -> tuple[int, int] | None:
+def model_code_range(model: ResponseModel | PipelineModel) -> tuple[int, int] | None:
     """The codes a model was fitted on, when it says (an NUS folder's
     ``jpg2raw_validRange.txt``: ``diagnostics["valid_range"]``), else None."""
     diag = getattr(model, "diagnostics", None) or {}
@@ -174,8 +179,9 @@ def _continue_outside(values: np.ndarray, x: np.ndarray, lo: float, hi: float):
     return values
 
 
-def cube_table(model, direction: str | None = None, *, size: int | None = None,
-               code_range=None):
+def cube_table(model: ResponseModel | PipelineModel, direction: str | None = None, *,
+               size: int | None = None, code_range: tuple[int, int] | None = None
+               ) -> tuple[np.ndarray, str, int]:
     """The rows of the ``.cube`` table of ``model`` (see the module docstring).
 
     Parameters
@@ -196,7 +202,7 @@ def cube_table(model, direction: str | None = None, *, size: int | None = None,
     direction, size = check_export(model, direction, size)
     x = np.linspace(0.0, 1.0, size)
     if direction == "linearize":
-        rows = model.linearize(np.repeat(x[:, None], 3, axis=1))
+        rows = cast(ResponseModel, model).linearize(np.repeat(x[:, None], 3, axis=1))
         return np.asarray(rows, dtype=np.float64), direction, size
     code_range = check_code_range(code_range, direction)
     lo, hi = (0.0, 1.0) if code_range is None else (code_range[0] / 255, code_range[1] / 255)
@@ -206,12 +212,13 @@ def cube_table(model, direction: str | None = None, *, size: int | None = None,
     b, g, r = np.meshgrid(xc, xc, xc, indexing="ij")
     nodes = np.stack([r, g, b], axis=-1).reshape(-1, 3)
     if direction == "to-raw":
-        rows = np.asarray(model.to_raw(nodes), dtype=np.float64)
+        rows = np.asarray(cast(PipelineModel, model).to_raw(nodes), dtype=np.float64)
         if lo > 0.0 or hi < 1.0:
             rows = _continue_outside(rows.reshape((size,) * 3 + (3,)), x, lo, hi)
             rows = rows.reshape(-1, 3)
     else:   # an NUS folder's render is itself a table: its nodes from the RBF
-        rows = getattr(model, "render_exact", model.render)(nodes)
+        render = getattr(model, "render_exact", cast(PipelineModel, model).render)
+        rows = np.asarray(render(nodes))
     return np.asarray(rows, dtype=np.float64), direction, size
 
 
@@ -219,9 +226,11 @@ def _title(text: str) -> str:
     return " ".join(str(text).replace('"', "'").split())[:200]
 
 
-def write_cube(model, path, *, direction: str | None = None, size: int | None = None,
-               title: str | None = None, force: bool = False, inputs=(),
-               code_range="model") -> Path:
+def write_cube(model: ResponseModel | PipelineModel, path: PathLike, *,
+               direction: str | None = None, size: int | None = None,
+               title: str | None = None, force: bool = False,
+               inputs: Iterable[PathLike] = (),
+               code_range: str | tuple[int, int] | None = "model") -> Path:
     """Write ``model`` as a ``.cube`` look-up table (Adobe Cube LUT Specification 1.0).
 
     Parameters
@@ -293,7 +302,7 @@ def write_cube(model, path, *, direction: str | None = None, size: int | None = 
     return path
 
 
-def read_cube_header(path) -> dict:
+def read_cube_header(path: PathLike) -> dict:
     """The keyword lines of a ``.cube`` file (``TITLE``, ``LUT_3D_SIZE``, ...) as strings.
 
     A small reader for checks and tests; it does not read the table.

@@ -49,12 +49,16 @@ import os
 import shutil
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..errors import InputError, OutputExistsError
 from .cube import check_export, cube_table
 from .clf import write_clf
-from .shaper import DEFAULT_SHAPER_SIZE, shaper_lut
+from .shaper import DEFAULT_SHAPER_SIZE, ShaperLUT, shaper_lut
 from ..io.images import OutputWriteError, first_blocker
+
+if TYPE_CHECKING:
+    import numpy as np
 
 __all__ = ["write_ocio_config", "check_ocio_folder", "ocio_colour_space_names", "CONFIG_NAME"]
 
@@ -244,6 +248,7 @@ def write_ocio_config(model, folder, *, camera: str = "camera", size: int | None
                                    size)
     check_ocio_folder(folder, force, inputs)
     names = ocio_colour_space_names(camera)
+    luts: dict[str, tuple[str, np.ndarray | ShaperLUT]]
     if kind == "pipeline":
         luts = {TO_LINEAR: ("to-raw", shaper_lut(model, "to-raw", size=size,
                                                  shaper_size=shaper_size)),

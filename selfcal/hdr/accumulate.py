@@ -19,6 +19,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,9 @@ from ..stack.align import _negligible, warp_to_reference
 from ..stack.frames import Lineariser, StackFrames, apply_lut, clip_limits, max_code_of
 from .deghost import _ghost_mask, _neighbour_residual, _small_log_luma
 from .weights import NoiseModel, _FrameTables, packed_lookup
+
+if TYPE_CHECKING:
+    from .sigma import SigmaSums
 
 __all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "frame_limits", "WHITE_FOLLOWS"]
 
@@ -103,7 +107,7 @@ class MergeSums:
         hh, ww = shape
         n = len(exposures)
         self.num = np.zeros((hh, ww, 3), dtype=np.float32)
-        self.den = np.zeros((hh, ww, 3), dtype=np.float32)
+        self.den: np.ndarray | None = np.zeros((hh, ww, 3), dtype=np.float32)
         self.count = np.zeros((hh, ww), dtype=np.uint8)
         self.ghost = np.zeros((hh, ww), dtype=bool)
         self.white = np.zeros((hh, ww), dtype=np.uint8)
@@ -125,16 +129,16 @@ class MergeSums:
         self.cv2 = import_cv2()
         self._local = threading.local()
         #: the radiance's σ in the making (:class:`.sigma.SigmaSums`), or None
-        self.sigma = None
+        self.sigma: SigmaSums | None = None
         #: frames merged with a time the pixels could not check; their Σ w per pixel and
         #: channel, either as a float32 sum or (table path, at most
         #: :data:`_UNCHECKED_CODES` such frames) as each one's masked codes and tables,
         #: a quarter of the memory, looked up at the end (:meth:`keep_unchecked`); and
         #: the pixels where they carry most of the weight (only when there are some)
         self.unchecked = set(unchecked)
-        self.unchecked_den = None
+        self.unchecked_den: np.ndarray | None = None
         self.unchecked_codes: list[tuple] = []   # (tables, codes) in merge order
-        self.unchecked_mask = None
+        self.unchecked_mask: np.ndarray | None = None
 
     def keep_unchecked(self, tab: _FrameTables, shape, dtype, max_code) -> None:
         """Where an unchecked frame's weights will be kept (call before its strips)."""
@@ -189,6 +193,7 @@ class MergeSums:
         if n_valid == 0:
             return 0, excluded
         num, den = self.num, self.den
+        assert den is not None      # until divide_and_fill
         if tab.lut:
             # invalid pixels -> the maximum code in every channel, where the tables
             # hold zero weight: then plain (unmasked) sums.  Strip buffers are reused
@@ -219,9 +224,11 @@ class MergeSums:
             cv2.add(den[s], w, dst=den[s], mask=valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
         if tab.unchecked:
-            if getattr(tab, "unchecked_codes", None) is not None:
-                np.copyto(tab.unchecked_codes[s], codes)    # as masked for the lookup
+            kept_codes = getattr(tab, "unchecked_codes", None)
+            if kept_codes is not None:
+                np.copyto(kept_codes[s], codes)    # as masked for the lookup
             else:
+                assert self.unchecked_den is not None   # keep_unchecked made it
                 kept = w if tab.lut else np.where(valid[..., None] > 0, w, 0)
                 np.add(self.unchecked_den[s], kept, out=self.unchecked_den[s])
         if self.sigma is not None:
@@ -240,7 +247,7 @@ class MergeSums:
     def frame_diagnostics(self, sources, *, deghost: bool) -> dict:
         """Per frame, the fraction of pixels used (and excluded by deghosting)."""
         npix = float(self.num.shape[0] * self.num.shape[1])
-        out = {"frame_used_fraction": [u / npix for u in self.used]}
+        out: dict[str, object] = {"frame_used_fraction": [u / npix for u in self.used]}
         if deghost:
             out["deghost_excluded_fraction"] = [e / npix for e in self.excluded]
             out["deghost_reference_agreement"] = {
@@ -258,14 +265,16 @@ class MergeSums:
         if self.sigma is not None:
             self.sigma.calibrate_noise()
 
-        if self.unchecked:
-            self.unchecked_mask = np.zeros((hh, ww), dtype=bool)
+        unchecked_mask = np.zeros((hh, ww), dtype=bool) if self.unchecked else None
+        self.unchecked_mask = unchecked_mask
+        den = self.den
+        assert den is not None      # released below
 
         def strip(s):
-            ns, ds = self.num[s], self.den[s]
+            ns, ds = self.num[s], den[s]
             hole = ds <= 0
-            if self.unchecked:
-                self.unchecked_mask[s] = _any_channel(self._unchecked_weight(s) > 0.5 * ds)
+            if unchecked_mask is not None:      # (there are unchecked frames)
+                unchecked_mask[s] = _any_channel(self._unchecked_weight(s) > 0.5 * ds)
             # a plain division (0/0 at the holes, overwritten by the fill below): numpy's
             # masked division is several times slower
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -415,6 +424,7 @@ def _read_ahead(frames: StackFrames, order, loaded: dict):
     with ThreadPoolExecutor(max_workers=1) as reader:
         ahead = reader.submit(load, order[0]) if order else None
         for i, k in enumerate(order):
+            assert ahead is not None        # submitted for every frame of order
             img = ahead.result()
             ahead = reader.submit(load, order[i + 1]) if i + 1 < len(order) else None
             yield k, img

@@ -27,12 +27,15 @@ import json
 import math
 import os
 import struct
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
+from ..typing import PathLike
 from ..io.images import OutputWriteError, import_cv2, atomic_output, write_image
 from ..response.curve_family import srgb_encode
 
@@ -124,8 +127,9 @@ def half_scale(radiance) -> float:
 EXR_COMPRESSIONS = ("piz", "zip", "zips", "rle", "none")
 
 
-def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
-                   inputs=(), compression: str = "piz") -> Path:
+def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
+                   half: bool = False, inputs: Iterable[PathLike] = (),
+                   compression: str = "piz") -> RadianceFile:
     """Write an RGB radiance map as OpenEXR, Radiance HDR or float TIFF, atomically.
 
     Parameters
@@ -206,9 +210,9 @@ def write_radiance(path, radiance, *, force: bool = False, half: bool = False,
             raise OutputWriteError(f"{path}: OpenCV could not write it (no {suffix} encoder?)")
         if scale != 1.0:
             tmp = Path(tmp)
-            data = _exr_add_attribute(tmp.read_bytes(), SCALE_ATTRIBUTE, "double",
-                                      struct.pack("<d", scale), path)
-            tmp.write_bytes(data)
+            exr = _exr_add_attribute(tmp.read_bytes(), SCALE_ATTRIBUTE, "double",
+                                     struct.pack("<d", scale), path)
+            tmp.write_bytes(exr)
     return RadianceFile(path, scale)
 
 
@@ -404,7 +408,7 @@ def read_sigma(path) -> np.ndarray:
     return arr * np.float32(scale) if scale != 1.0 else arr
 
 
-def read_radiance(path) -> np.ndarray:
+def read_radiance(path: PathLike) -> np.ndarray:
     """Read an EXR, RGBE or float TIFF radiance map as float32 ``HxWx3`` RGB.
 
     The stored values are multiplied by the scale recorded as :data:`SCALE_ATTRIBUTE`
@@ -434,8 +438,8 @@ def read_radiance(path) -> np.ndarray:
 # tone-mapped previews
 # --------------------------------------------------------------------------------------
 
-def tonemap_reinhard(radiance, *, key: float = 0.18, white: float | None = None,
-                     mask=None, rows: int = 512) -> np.ndarray:
+def tonemap_reinhard(radiance: np.ndarray, *, key: float = 0.18, white: float | None = None,
+                     mask: np.ndarray | None = None, rows: int = 512) -> np.ndarray:
     """Global photographic tone mapping (Reinhard et al., SIGGRAPH 2002, Eq. 1-4), to uint8.
 
     ``L`` is the Rec. 709 luminance; ``L̄`` its log-average over the (measured) pixels;
@@ -491,8 +495,9 @@ def tonemap_reinhard(radiance, *, key: float = 0.18, white: float | None = None,
     return out
 
 
-def write_preview(path, radiance, *, force: bool = False, inputs=(), key: float = 0.18,
-                  mask=None, jpeg_quality: int = 92) -> Path:
+def write_preview(path: PathLike, radiance: np.ndarray, *, force: bool = False,
+                  inputs: Iterable[PathLike] = (), key: float = 0.18,
+                  mask: np.ndarray | None = None, jpeg_quality: int = 92) -> Path:
     """Write a tone-mapped preview (JPEG or PNG) of a radiance map, atomically.
 
     The tone mapping is :func:`tonemap_reinhard` (Reinhard et al. 2002, global operator).
@@ -530,8 +535,10 @@ def _rational(x: float, max_den: int = 1_000_000):
     return fr.numerator, fr.denominator
 
 
-def write_linear(path, linear, *, float32: bool = False, force: bool = False, inputs=(),
-                 exposure_time=None, f_number=None, iso=None) -> Path:
+def write_linear(path: PathLike, linear: np.ndarray, *, float32: bool = False,
+                 force: bool = False, inputs: Iterable[PathLike] = (),
+                 exposure_time: float | None = None, f_number: float | None = None,
+                 iso: float | None = None) -> Path:
     """Write a linearised image as a 16-bit or float32 RGB TIFF, atomically.
 
     16-bit: ``round(clip(x, 0, 1) · 65535)`` (``f⁻¹(max code) = 1`` maps to 65535);
@@ -577,7 +584,7 @@ def _write_tiff(path, data, *, force, inputs, extratags=(), metadata=None):
     import tifffile
 
     # metadata (a dict) goes into ImageDescription as JSON, next to tifffile's "shape"
-    extra = {} if metadata is None else {"metadata": dict(metadata)}
+    extra: dict[str, Any] = {} if metadata is None else {"metadata": dict(metadata)}
     with atomic_output(path, force=force, inputs=inputs) as tmp:
         try:
             tifffile.imwrite(tmp, data, photometric="rgb", extratags=list(extratags),

@@ -91,6 +91,7 @@ def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
     lin = Lineariser(model, False, mc)
     lo, hi, floor = frame_limits(mc, clip_margin, False, stuck)
     if lin.kind == "lut":
+        assert lin.table is not None        # made for the frame's max code
         x = apply_lut(img, lin.table.astype(np.float32))
     else:
         x = lin.values(img)
@@ -177,8 +178,8 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
     scale = scale_to_times(rel, times)
     out = np.array(exposures, dtype=float)
     n = len(frames)
-    measured = [None] * n
-    differences = [None] * n
+    measured: list[float | None] = [None] * n
+    differences: list[float | None] = [None] * n
     if scale is not None:
         for q, k in enumerate(frame_set):
             if math.isfinite(rel[q]):

@@ -74,7 +74,9 @@ References
 from __future__ import annotations
 
 import warnings as _pywarnings
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Any, Literal
 
 import numpy as np
 
@@ -96,6 +98,7 @@ from ..stack.frames import (
     stuck_code_levels,
 )
 from ..stack.samples import collect_samples
+from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import _misalignment_warning, _poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
@@ -241,9 +244,12 @@ class HDRResult:
 # the merge
 # --------------------------------------------------------------------------------------
 
-def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
-              align=False, deghost: bool = False, linear: bool = False,
-              options: MergeOptions | None = None, progress=None, **old_keywords) -> HDRResult:
+def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None = None,
+              model: object = None, *, weighting: str | Callable = "noise",
+              align: Literal[False] | str = False, deghost: bool = False,
+              linear: bool = False,
+              options: MergeOptions | None = None, progress: Progress | None = None,
+              **old_keywords: Any) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -355,6 +361,7 @@ def merge_hdr(images, exposure_times=None, model=None, *, weighting="noise",
                                                                 model, fresh, warnings)
     ref = _reference_frame(exposures, opts.reference, len(frames))
     if transforms is not None:
+        assert ref0 is not None     # an aligned calibration says its reference
         transforms = _relative_to(transforms, ref0, ref)
     elif align and len(frames) > 1:
         transforms = estimate_alignment(frames, exposures, model, method=align, reference=ref,
@@ -408,6 +415,7 @@ def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
     """:attr:`HDRResult.sigma`, with the noise scale κ it used in the diagnostics."""
+    assert sums.sigma is not None   # the merge kept σ sums
     diagnostics["sigma_noise_scale"] = round(sums.sigma.kappa, 4)
     return sums.sigma.result()
 
@@ -631,7 +639,8 @@ def _relative_to(transforms, ref0: int, ref: int):
 # linearised frames
 # --------------------------------------------------------------------------------------
 
-def linearize_images(images, model, *, progress=None):
+def linearize_images(images: Sequence[ImageInput], model: object, *,
+                     progress: Progress | None = None) -> Iterator[tuple[str, np.ndarray]]:
     """Linearise frames one at a time: ``f⁻¹(I)`` per channel (Lin et al., ICCV 2011, §5).
 
     A generator, so a long list of large frames never sits in memory at once.  Values are
@@ -664,6 +673,7 @@ def linearize_images(images, model, *, progress=None):
         lin = Lineariser(model, False, max_code_of(img))
         if lin.kind == "lut":
             out = np.empty(img.shape, dtype=np.float32)
+            assert lin.table is not None    # made for the frame's max code
             table = lin.table.astype(np.float32)
             rows = max(8, STRIP_PIXELS // img.shape[1])
             for y in range(0, img.shape[0], rows):

@@ -97,10 +97,11 @@ class SigmaSums:
         # [..., 0] = Σ w² (V + X² σ_t²), [..., 1] = Σ w X σ_g (only with a band): side by
         # side, so that one lookup and one addition per strip serve both
         self.terms = 2 if self.has_band else 1
-        self.sums = np.zeros((hh, ww, 3, self.terms), dtype=np.float32)
-        self.sigma = None               # σ, in the merge's weight sums once finished
-        self.previous = None            # the last frame's sampled (X, U), NaN where unmeasured
-        self.z = []                     # |z| of the pairs so far
+        self.sums: np.ndarray | None = np.zeros((hh, ww, 3, self.terms), dtype=np.float32)
+        self.sigma: np.ndarray | None = None    # σ, in the merge's weight sums once finished
+        #: the last frame's sampled (X, U), NaN where unmeasured
+        self.previous: tuple[np.ndarray, np.ndarray] | None = None
+        self.z: list[np.ndarray] = []   # |z| of the pairs so far
         self.kappa = 1.0
 
     def _band_at(self, max_code: int) -> np.ndarray:
@@ -161,6 +162,7 @@ class SigmaSums:
         path: invalid pixels at the maximum code, where the weights are zero); on the
         functional path ``valid`` (uint8) says which pixels count.  ``buffer``: optional
         scratch space of 24 bytes per pixel for the lookup (default: a new array)."""
+        assert self.sums is not None    # until result()
         sums = self.sums[s]
         if tab.lut:
             # one lookup gives both terms (float32 pairs packed in a float64 table), into
@@ -188,6 +190,7 @@ class SigmaSums:
         """σ of one strip from the sums and the merge's ``den`` (Σ w), written over
         ``den_strip`` (the merge has divided by it already; strips are disjoint: threads
         may share).  Once every strip is finished, the merge's ``den`` is σ."""
+        assert self.sums is not None    # until result()
         sums = self.sums[s]
         unmeasured = ~(den_strip > 0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -206,6 +209,7 @@ class SigmaSums:
         """σ (float32 ``HxWx3``, the radiance's units) after every strip is finished (the
         merge hands its ``den`` over: :attr:`sigma`); the sums are released."""
         self.sums = None
+        assert self.sigma is not None   # handed over by the merge before
         return self.sigma
 
 

@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 from ..stack.frames import apply_lut, Lineariser
@@ -48,7 +49,7 @@ from ..io.images import import_cv2
 __all__ = ["NoiseModel", "noise_variance", "weight_hat"]
 
 
-def weight_hat(z):
+def weight_hat(z: npt.ArrayLike) -> np.ndarray:
     """Debevec & Malik's hat (triangle) weighting on the normalised code ``z`` in [0, 1].
 
     ``w(z) = 2 min(z, 1 - z)``: 1 at mid-grey, 0 at black and white (Debevec & Malik,
@@ -128,8 +129,9 @@ DEFAULT_NOISE = NoiseModel(relative=0.03)
 USE_CODE_ERROR = True
 
 
-def noise_variance(x, slope, exposure: float, noise: NoiseModel = NoiseModel(), *,
-                   code_std: float | None = None, code_error=None):
+def noise_variance(x: np.ndarray, slope: np.ndarray, exposure: float,
+                   noise: NoiseModel = NoiseModel(), *, code_std: float | None = None,
+                   code_error: np.ndarray | None = None) -> np.ndarray:
     """Variance of the radiance estimate ``X = f⁻¹(z) / e`` of one frame.
 
     ``Var[X] = (shot · x + read² + (slope · σ_z)² + (relative · x)²) / e²`` with
@@ -196,6 +198,11 @@ class _FrameTables:
     or below it, that channel only (a black floor).
     """
 
+    #: set by the merge (:mod:`selfcal.hdr.accumulate`): the code above which a pixel is
+    #: bright, and an unchecked frame's masked codes (None when they are not kept)
+    bright: float
+    unchecked_codes: np.ndarray | None
+
     def __init__(self, lin: Lineariser, exposure: float, weighting, noise: NoiseModel,
                  lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0,
                  floor=None):
@@ -214,6 +221,7 @@ class _FrameTables:
         self.unchecked = False      # merged with a time the pixels could not check
         if lin.table is None:
             return
+        assert lin.max_code is not None and lin.slope is not None   # made with the table
         if USE_CODE_ERROR and lin.kind == "lut":
             from ..response.code_error import code_error_at
 
@@ -315,10 +323,12 @@ class _FrameTables:
         if not need_x:
             return a, w, None, None
         if self.lin.table is not None:
+            assert self.lin.slope is not None       # made with the table
             slope = apply_lut(codes, self.lin.slope.astype(np.float32))
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())
         else:
+            assert slope is not None        # linear data: ones (above)
             v = noise_variance(x, slope, self.e, self.noise,
                                code_std=self.lin.code_std())
         return a, w, X, v.astype(np.float32)

@@ -14,11 +14,16 @@ import os
 import tempfile
 from dataclasses import dataclass
 from fractions import Fraction
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import Any, TypeGuard, TypeVar
 
 import numpy as np
 
 from ..errors import InputError, OutputExistsError, SelfcalError
+from ..typing import PathLike
+
+_T = TypeVar("_T")
 
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff"}
 JPEG_SUFFIXES = {".jpg", ".jpeg"}
@@ -40,7 +45,7 @@ def import_cv2():
     return cv2
 
 
-def is_path(x) -> bool:
+def is_path(x: object) -> TypeGuard[PathLike]:
     """True for what names a file (``str`` or ``os.PathLike``), False for an array."""
     return isinstance(x, (str, os.PathLike))
 
@@ -67,7 +72,7 @@ def _check_structure(path: Path, data: bytes) -> None:
         raise InputError("not an image file selfcal reads (JPEG, PNG or TIFF)", path)
 
 
-def read_image(path, *, reduce: int = 1) -> np.ndarray:
+def read_image(path: PathLike, *, reduce: int = 1) -> np.ndarray:
     """Read an image file as an RGB array, channel last.
 
     Parameters
@@ -123,7 +128,7 @@ def read_image(path, *, reduce: int = 1) -> np.ndarray:
     return image
 
 
-def read_image_size(path) -> tuple[int, int]:
+def read_image_size(path: PathLike) -> tuple[int, int]:
     """Return ``(height, width)`` of an image file from its header, without decoding it."""
     from PIL import Image
 
@@ -178,7 +183,7 @@ class ExposureInfo:
         return self.exposure_time * scale
 
 
-def format_exposure_time(t, *, unknown: str = "?") -> str:
+def format_exposure_time(t: float | None, *, unknown: str = "?") -> str:
     """Seconds as a photographer writes them, without the unit: ``1/250``, ``1/3.2``, ``2``.
 
     Times under a second are written as a reciprocal, rounded to an integer when within
@@ -195,7 +200,7 @@ def format_exposure_time(t, *, unknown: str = "?") -> str:
     return f"{t:.4g}"
 
 
-def effective_exposure_times(infos) -> list:
+def effective_exposure_times(infos: Sequence[ExposureInfo]) -> list[float | None]:
     """Exposure times scaled to the first timed frame's ISO and aperture.
 
     Pixel values scale with t · ISO / N², so a frame shot at another ISO or f-number is
@@ -226,7 +231,7 @@ def _rational(value) -> float | None:
     return result if np.isfinite(result) else None
 
 
-def read_exposure_info(path) -> ExposureInfo:
+def read_exposure_info(path: PathLike) -> ExposureInfo:
     """Read exposure time, f-number and ISO from a file's EXIF.
 
     Falls back to the APEX ShutterSpeedValue (t = 2^-Tv) when ExposureTime is missing.
@@ -316,7 +321,8 @@ def first_blocker(folder: Path):
     return folder, missing[::-1]
 
 
-def check_output_path(path, *, force: bool = False, inputs=(), create_folder: bool = False):
+def check_output_path(path: PathLike, *, force: bool = False, inputs: Iterable[PathLike] = (),
+                      create_folder: bool = False) -> None:
     """Check before any work that ``path`` can be written; raise what writing it would.
 
     The checks: not one of ``inputs``; not a directory; not an existing file unless
@@ -375,7 +381,8 @@ def _temporary_beside(path: Path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_output(path, *, force: bool = False, inputs=()):
+def atomic_output(path: PathLike, *, force: bool = False,
+                  inputs: Iterable[PathLike] = ()) -> Iterator[Path]:
     """Context manager giving a temporary path that is renamed onto ``path`` on success.
 
     The temporary file sits in the same folder (a rename, never a copy); on any failure it
@@ -457,7 +464,7 @@ class StagedOutputs:
     ['model.json', 'notes.txt']
     """
 
-    def __init__(self, *, force: bool = False, inputs=()):
+    def __init__(self, *, force: bool = False, inputs: Iterable[PathLike] = ()) -> None:
         self.force = force
         self.inputs = [Path(p) for p in inputs]
         self._staged: list[tuple[Path, Path]] = []
@@ -488,7 +495,7 @@ class StagedOutputs:
         self._staged.append((tmp, target))
         return tmp
 
-    def write(self, target, writer):
+    def write(self, target: PathLike, writer: Callable[[Path], _T]) -> _T:
         """Call ``writer(tmp)`` to write ``target``'s content to a temporary file (the
         writer must be allowed to replace ``tmp``, e.g. ``force=True``); returns what the
         writer returns."""
@@ -544,7 +551,8 @@ class StagedOutputs:
         self._created_dirs = []
 
 
-def write_bytes_atomic(path, data: bytes, *, force: bool = False, inputs=()) -> Path:
+def write_bytes_atomic(path: PathLike, data: bytes, *, force: bool = False,
+                       inputs: Iterable[PathLike] = ()) -> Path:
     """Write ``data`` to ``path`` atomically (see :func:`atomic_output`)."""
     with atomic_output(path, force=force, inputs=inputs) as tmp:
         Path(tmp).write_bytes(data)
@@ -552,7 +560,8 @@ def write_bytes_atomic(path, data: bytes, *, force: bool = False, inputs=()) -> 
 
 
 def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
-                 exposure_time=None, f_number=None, iso=None) -> bytes:
+                 exposure_time: float | None = None, f_number: float | None = None,
+                 iso: float | None = None) -> bytes:
     """Encode an RGB array (uint8, uint16 or float32) into the bytes of a ``suffix`` file.
 
     JPEG and PNG take uint8 (PNG and TIFF also uint16); TIFF also takes float32.  When any
@@ -596,7 +605,8 @@ def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
     return data
 
 
-def write_image(path, image: np.ndarray, *, force: bool = False, inputs=(), **kwargs) -> Path:
+def write_image(path: PathLike, image: np.ndarray, *, force: bool = False,
+                inputs: Iterable[PathLike] = (), **kwargs: Any) -> Path:
     """Encode ``image`` by the suffix of ``path`` and write it atomically.
 
     See :func:`encode_image` for the formats and keyword arguments.

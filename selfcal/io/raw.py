@@ -27,10 +27,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import InputError
+from ..typing import PathLike
 from .images import ExposureInfo, _rational
 
 __all__ = ["RAW_SUFFIXES", "RawImage", "read_raw_linear", "read_raw_exposure_info",
@@ -269,7 +271,7 @@ def _channel_levels(raw) -> tuple[np.ndarray, np.ndarray]:
     return black, white
 
 
-def read_raw_linear(path, *, half_size: bool = False) -> RawImage:
+def read_raw_linear(path: PathLike, *, half_size: bool = False) -> RawImage:
     """Read a camera raw file (or a 16-bit linear TIFF) as linear camera RGB in ``[0, 1]``.
 
     The sensor values ρ of Gong et al., rank-based radiometric calibration [Gong2018],
@@ -344,7 +346,7 @@ def read_raw_linear(path, *, half_size: bool = False) -> RawImage:
                     f"the raw file's white level {white.tolist()} is not above its black "
                     f"level {black.tolist()}", path)
             ref = float(span.max())
-            params = dict(
+            params: dict[str, Any] = dict(
                 gamma=(1, 1), no_auto_bright=True, use_camera_wb=False, use_auto_wb=False,
                 user_wb=[1.0, 1.0, 1.0, 1.0], output_color=rawpy.ColorSpace.raw,
                 output_bps=16, adjust_maximum_thr=0.0, user_flip=0,

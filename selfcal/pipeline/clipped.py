@@ -25,7 +25,11 @@ the correction is kept only if it predicts held-out clipped samples better.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+from typing import cast
+
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
@@ -44,7 +48,8 @@ MIN_CLIPPED = 3
 def clipped_mask(rendered) -> np.ndarray:
     """``True`` where a rendered pixel (``(..., 3)`` in ``[0, 1]``) has a clipped channel."""
     p = np.asarray(rendered)
-    return ((p <= CLIP_LO) | (p >= CLIP_HI)).any(axis=-1)
+    # an array for (N, 3) and (H, W, 3) input (a single (3,) colour gives a numpy bool)
+    return cast(np.ndarray, ((p <= CLIP_LO) | (p >= CLIP_HI)).any(axis=-1))
 
 
 def _kernel(a: np.ndarray, b: np.ndarray, h: float) -> np.ndarray:
@@ -77,8 +82,8 @@ class ClippedCorrection:
         Leave-one-out RMSE per ``"h,κ"`` tried and for ``"none"`` (no correction).
     """
 
-    def __init__(self, points, residuals, bandwidth: float, prior_weight: float,
-                 validation=None):
+    def __init__(self, points: npt.ArrayLike, residuals: npt.ArrayLike, bandwidth: float,
+                 prior_weight: float, validation: Mapping[str, float] | None = None) -> None:
         self.points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         self.residuals = np.ascontiguousarray(residuals, dtype=np.float64).reshape(-1, 3)
         self.bandwidth = float(bandwidth)
@@ -103,7 +108,7 @@ class ClippedCorrection:
                                                        + k.sum(axis=1))[:, None]
         return out
 
-    def face(self, channel: int, value: float, grid) -> np.ndarray:
+    def face(self, channel: int, value: float, grid: npt.ArrayLike) -> np.ndarray:
         """``δ`` on a face of the rendered cube: channel ``channel`` at ``value``, the
         other two (in increasing order) at every pair of ``grid`` values.
 
@@ -143,8 +148,10 @@ class ClippedCorrection:
                    float(d["prior_weight"]), d.get("validation") or {})
 
 
-def clipped_pixel_correction(rendered, residuals, *, bandwidths=BANDWIDTHS,
-                             prior_weights=PRIOR_WEIGHTS):
+def clipped_pixel_correction(rendered: npt.ArrayLike, residuals: npt.ArrayLike, *,
+                             bandwidths: Sequence[float] = BANDWIDTHS,
+                             prior_weights: Sequence[float] = PRIOR_WEIGHTS
+                             ) -> tuple[ClippedCorrection | None, dict]:
     """Learn ``E[ρ | P]`` at clipped codes from clipped training samples (leave-one-out).
 
     For the backward model ([Gong2018] §3.5; [Lin2011] Eq. 10-11), fitted on

@@ -8,16 +8,20 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, fields, replace
 
+from typing import Any
+
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CalibrationError, InputError, options_from_keywords
 from ..stack.samples import hsv_saturation
+from ..typing import Progress
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
-from .lattice import LUT_SMOOTHNESS, lattice_regression_lut
+from .lattice import LUT_SMOOTHNESS, LatticeLUT, lattice_regression_lut
 from .matrix import rank_based_matrix, row_scales
 from .model import BAKE_SIZE, BACKWARD_VARIANTS, BackwardStages, ForwardStages, PipelineModel
-from .rbf import N_CONTROL_POINTS, rbf_inverse_colour_mapping
-from .tone import SMOOTHNESS, monotone_tone_curves
+from .rbf import N_CONTROL_POINTS, RBFColourMapping, rbf_inverse_colour_mapping
+from .tone import SMOOTHNESS, MonotonePolynomial, monotone_tone_curves
 from .trust import TrainingColours
 
 #: Default β of the neutral weighting of the forward tone-curve samples (None: equal
@@ -224,12 +228,12 @@ class PipelineOptions:
     set_size: int = 200
     matrix_method: str = "fast"
     smoothness: float = SMOOTHNESS
-    lut_smoothness: object = "auto"
-    inverse_smoothness: object = "auto"
+    lut_smoothness: float | str = "auto"
+    inverse_smoothness: float | str = "auto"
     backward: str = "auto"
     n_centres: int = N_CONTROL_POINTS
     bake_size: int = BAKE_SIZE
-    neutral_weighting: object = NEUTRAL_WEIGHTING
+    neutral_weighting: float | None = NEUTRAL_WEIGHTING
 
     def __post_init__(self):
         if self.backward not in ("auto",) + BACKWARD_VARIANTS:
@@ -241,7 +245,7 @@ class PipelineOptions:
                              f"{self.matrix_method!r}")
 
     @classmethod
-    def split(cls, keywords: dict):
+    def split(cls, keywords: dict) -> tuple[PipelineOptions, dict]:
         """``(options, rest)``: the fields of this class among ``keywords`` as options (on
         top of ``keywords["options"]`` when given), and the other keywords -- for callers
         that take :func:`fit_pipeline`'s knobs by name, such as :func:`selfcal.calibrate`.
@@ -320,8 +324,8 @@ class _ForwardFit:
     """Steps 1-3 of :func:`fit_pipeline`: the chosen matrix set and its forward pipeline."""
 
     matrix: np.ndarray
-    curves: object           # MonotonePolynomial, the tone curves f (Eq. 9)
-    lut: object              # LatticeLUT, the forward gamut correction (§3.4)
+    curves: MonotonePolynomial  # the tone curves f (Eq. 9)
+    lut: LatticeLUT          # the forward gamut correction (§3.4)
     rmse: float              # training RMSE of the whole forward pipeline, [0, 1] scale
     rmse_without_lut: float
     chosen_set: int
@@ -343,7 +347,8 @@ def _search_matrix_sets(raw, rendered, *, n_sets, set_size, matrix_method, smoot
     n = raw.shape[0]
     size = int(set_size) if n > int(set_size) else max(3, int(round(0.8 * n)))
     best = None
-    set_errors, failures = [], []
+    set_errors: list[float | None] = []
+    failures: list = []
     for s in range(int(n_sets)):
         idx = rng.choice(n, size, replace=False)
         try:
@@ -383,9 +388,9 @@ def _refit_forward_lut(raw, rendered, fwd: _ForwardFit, groups=None):
 class _BackwardFit:
     """Steps 4-5 of :func:`fit_pipeline`: both backward variants and the one chosen."""
 
-    inverse_curves: object   # MonotonePolynomial, f⁻¹
-    lut: object              # LatticeLUT, the backward LUT (§3.5)
-    rbf: object              # RBFColourMapping h⁻¹ ([Lin2011] Eq. 10), or None
+    inverse_curves: MonotonePolynomial  # f⁻¹
+    lut: LatticeLUT          # the backward LUT (§3.5)
+    rbf: RBFColourMapping | None  # h⁻¹ ([Lin2011] Eq. 10)
     held_out_unclipped: dict
     corrections: dict
     correction_scores: dict
@@ -484,9 +489,10 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit,
     }
 
 
-def fit_pipeline(raw_samples, rendered_samples, options: PipelineOptions | None = None, *,
-                 n_train=None, seed: int = 0, groups=None, progress=None,
-                 **legacy) -> PipelineModel:
+def fit_pipeline(raw_samples: npt.ArrayLike, rendered_samples: npt.ArrayLike,
+                 options: PipelineOptions | None = None, *, n_train: int | None = None,
+                 seed: int = 0, groups: npt.ArrayLike | None = None,
+                 progress: Progress | None = None, **legacy: Any) -> PipelineModel:
     """Fit a camera pipeline, raw -> rendered and back, from corresponding samples.
 
     The rank-based radiometric calibration of [Gong2018] with the RBF inverse

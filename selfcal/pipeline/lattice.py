@@ -34,8 +34,10 @@ LUTs (forward and backward) and, unless ``backward="lut"``, the RBF ``h⁻¹`` b
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
@@ -49,7 +51,7 @@ STRETCH_GAMMA = 1.5
 LUT_SMOOTHNESS = 3e-3
 
 
-def highlight_stretch(x, gamma: float = STRETCH_GAMMA) -> np.ndarray:
+def highlight_stretch(x: npt.ArrayLike, gamma: float = STRETCH_GAMMA) -> np.ndarray:
     """The highlight-stretching function ``g`` of [Gong2018] §3.4 (their Fig. 3).
 
     ``g(x) = (exp(γ x) - 1) / (exp(γ) - 1)`` on ``[0, 1]`` (inputs are clipped): increasing,
@@ -175,18 +177,18 @@ class LatticeLUT:
     def size(self) -> int:
         return self.nodes.shape[0]
 
-    def coordinates(self, x) -> np.ndarray:
+    def coordinates(self, x: npt.ArrayLike) -> np.ndarray:
         """``g((x - lo) / (hi - lo))`` in ``[0, 1]³`` (the lattice coordinates)."""
         x = np.asarray(x, dtype=np.float64)
         return highlight_stretch((x - self.lo) / (self.hi - self.lo), self.gamma)
 
-    def affine_features(self, x) -> np.ndarray:
+    def affine_features(self, x: npt.ArrayLike) -> np.ndarray:
         """``t - 1/2`` with ``t = (x - lo) / (hi - lo)`` clipped to [0, 1] (the linear term's
         inputs)."""
         x = np.asarray(x, dtype=np.float64)
         return np.clip((x - self.lo) / (self.hi - self.lo), 0.0, 1.0) - 0.5
 
-    def residual(self, x) -> np.ndarray:
+    def residual(self, x: npt.ArrayLike) -> np.ndarray:
         """The correction ``R(g(t)) + (t - 1/2) A`` at ``(..., 3)`` inputs (float64)."""
         from .dense import trilinear_lookup
 
@@ -260,9 +262,12 @@ class LatticeOptions:
     smoothness_grid: tuple = SMOOTHNESS_GRID
 
 
-def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=None,
-                           lo=None, hi=None, smoothness=LUT_SMOOTHNESS, groups=None,
-                           **legacy) -> LatticeLUT:
+def lattice_regression_lut(x: npt.ArrayLike, y: npt.ArrayLike,
+                           options: LatticeOptions | None = None, *,
+                           base: npt.ArrayLike | None = None, lo: npt.ArrayLike | None = None,
+                           hi: npt.ArrayLike | None = None,
+                           smoothness: float | str = LUT_SMOOTHNESS,
+                           groups: npt.ArrayLike | None = None, **legacy: Any) -> LatticeLUT:
     """Fit a ``size³`` lattice-regression LUT ``y ≈ base + R(g(x))`` ([Gong2018] §3.4-3.5).
 
     Lattice regression ([GarciaGupta2009]): the node values minimise
@@ -356,7 +361,7 @@ def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=
     if smoothness == "auto" and labels is not None and np.unique(labels[ok]).size >= 2:
         scores = {float(s): _leave_group_out(z, res, labels[ok], system(s), rhs)
                   for s in smoothness_grid}
-        smoothness = min(scores, key=scores.get)
+        smoothness = min(scores, key=scores.__getitem__)
         lut.validation = scores
     elif smoothness == "auto":
         scores = {}
@@ -367,7 +372,7 @@ def lattice_regression_lut(x, y, options: LatticeOptions | None = None, *, base=
             h = np.asarray(z.multiply(np.asarray(z @ a_inv)).sum(axis=1)).ravel()
             loo = (res - fitted) / np.maximum(1.0 - h, 1e-6)[:, None]
             scores[float(s)] = float(np.sqrt(np.mean(loo ** 2)))
-        smoothness = min(scores, key=scores.get)
+        smoothness = min(scores, key=scores.__getitem__)
         lut.validation = scores
     r = np.asarray(spsolve(system(smoothness), rhs)).reshape(-1, 3)
     if not np.all(np.isfinite(r)):

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CalibrationError, InputError
 
@@ -265,6 +266,7 @@ def _fast_row(constraints: np.ndarray, min_radius_deg: float = FAST_MIN_RADIUS_D
     if tie.any():
         row = _resolve_ties(us[tie], ws[tie], constraints, best)
     else:  # the best centres were split and no leaf centre hit the best count again
+        assert best_u is not None       # set on the first pass (any count beats -1)
         row = _resolve_ties(best_u, None, constraints, best)
     return row, best, evaluated
 
@@ -307,8 +309,9 @@ def rank_based_row(raw: np.ndarray, rendered: np.ndarray, channel: int, *,
             "constraints": int(d.shape[0]), "evaluated": int(evaluated)}
 
 
-def rank_based_matrix(raw, rendered, *, method: str = "fast",
-                      n_directions: int = LITERAL_DIRECTIONS, return_info: bool = False):
+def rank_based_matrix(raw: npt.ArrayLike, rendered: npt.ArrayLike, *, method: str = "fast",
+                      n_directions: int = LITERAL_DIRECTIONS, return_info: bool = False
+                      ) -> np.ndarray | tuple[np.ndarray, list[dict]]:
     """The colour correction matrix ``M`` up to row scales, from rank order.
 
     [Gong2018] §3.2, Eq. 4-8: each row ``M_k`` is the unit direction satisfying the most

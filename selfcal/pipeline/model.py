@@ -29,12 +29,17 @@ load without it (the mask is then None).
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError, ModelFileError, SelfcalError
 from ..io.model_file import jsonable, save_model_dict
+from ..typing import PathLike
 from .clipped import CLIP_HI, CLIP_LO, ClippedCorrection, clipped_mask
 from .dense import CodeTable, grid_points, trilinear_lookup
 from .lattice import LatticeLUT
@@ -65,9 +70,9 @@ class ForwardStages:
         Forward gamut correction ``R_f`` (§3.4).
     """
 
-    matrix: object
-    tone_curves: object
-    lut: object
+    matrix: npt.ArrayLike
+    tone_curves: MonotonePolynomial
+    lut: LatticeLUT
 
 
 @dataclass(frozen=True)
@@ -87,10 +92,10 @@ class BackwardStages:
         with a clipped channel, or None.
     """
 
-    inverse_tone_curves: object
-    lut: object
-    rbf: object = None
-    clipped_corrections: object = None
+    inverse_tone_curves: MonotonePolynomial
+    lut: LatticeLUT
+    rbf: RBFColourMapping | None = None
+    clipped_corrections: Mapping[str, ClippedCorrection | None] | None = None
 
 
 #: The keyword arguments of ``PipelineModel`` before the stages were grouped, in their old
@@ -106,7 +111,8 @@ _LEGACY_ARGUMENTS = {
 }
 
 
-def _legacy_stages(positional, keywords: dict, given: dict):
+def _legacy_stages(positional: tuple, keywords: dict,
+                   given: dict) -> tuple[ForwardStages, BackwardStages]:
     """The stages from ``PipelineModel``'s old arguments (positional in the old order, and
     keywords), each with a DeprecationWarning naming the stage field that replaces it;
     ``given`` (the new keyword-only arguments) is updated with old positional values."""
@@ -118,7 +124,7 @@ def _legacy_stages(positional, keywords: dict, given: dict):
         if key not in _LEGACY_ARGUMENTS or _LEGACY_ARGUMENTS[key] is None or key in old:
             raise TypeError(f"PipelineModel() got an unexpected keyword argument {key!r}")
     old.update(keywords)
-    parts = {"forward_stages": {}, "backward_stages": {}}
+    parts: dict[str, dict[str, Any]] = {"forward_stages": {}, "backward_stages": {}}
     for key, value in old.items():
         target = _LEGACY_ARGUMENTS[key]
         if target is None:
@@ -206,12 +212,14 @@ class PipelineModel:
     """
 
     def __init__(self, forward_stages: ForwardStages | None = None,
-                 backward_stages: BackwardStages | None = None, *legacy_args,
-                 backward: str = "lut", diagnostics=None, bake_size: int = BAKE_SIZE,
-                 training_colours: TrainingColours | None = None, **legacy):
+                 backward_stages: BackwardStages | None = None, *legacy_args: Any,
+                 backward: str = "lut", diagnostics: Mapping[str, Any] | None = None,
+                 bake_size: int = BAKE_SIZE,
+                 training_colours: TrainingColours | None = None, **legacy: Any) -> None:
         if legacy_args or legacy or not isinstance(forward_stages, ForwardStages):
-            given = {"backward": backward, "diagnostics": diagnostics, "bake_size": bake_size,
-                     "training_colours": training_colours}
+            given: dict[str, Any] = {"backward": backward, "diagnostics": diagnostics,
+                                     "bake_size": bake_size,
+                                     "training_colours": training_colours}
             positional = () if forward_stages is None else (forward_stages, backward_stages,
                                                             *legacy_args)
             forward_stages, backward_stages = _legacy_stages(positional, legacy, given)
@@ -239,7 +247,7 @@ class PipelineModel:
         self.backward = backward
         self.diagnostics = dict(diagnostics or {})
         self.bake_size = int(bake_size)
-        self.clipped_corrections = {}
+        self.clipped_corrections: dict[str, ClippedCorrection | None] = {}
         for v, corr in dict(clipped_corrections or {}).items():
             if v not in BACKWARD_VARIANTS:
                 raise InputError(f"clipped-pixel correction for an unknown variant {v!r}")
@@ -255,7 +263,7 @@ class PipelineModel:
         self._clipped_tables: dict = {}
 
     # ------------------------------------------------------------------ trust
-    def outside_training(self, colours, kind: str = "raw"):
+    def outside_training(self, colours: npt.ArrayLike, kind: str = "raw") -> np.ndarray | None:
         """Where the model is extrapolating: colours far from every training colour.
 
         True where a ``(..., 3)`` raw (``kind="raw"``, the input of :meth:`render`) or
@@ -275,7 +283,8 @@ class PipelineModel:
         return self.training_colours.outside(colours, kind)
 
     # ------------------------------------------------------------------ forward
-    def render(self, raw, *, return_mask: bool = False):
+    def render(self, raw: npt.ArrayLike, *, return_mask: bool = False
+               ) -> np.ndarray | tuple[np.ndarray, np.ndarray | None]:
         """Forward model: linear raw -> rendered, ``y = f(M ρ)``, ``P = y + R_f(g(y))``.
 
         [Gong2018] Eq. 1b with §3.2-3.4.
@@ -316,7 +325,7 @@ class PipelineModel:
             raise InputError("this model has no RBF colour mapping")
         return variant
 
-    def backward_exact(self, e, variant: str | None = None) -> np.ndarray:
+    def backward_exact(self, e: npt.ArrayLike, variant: str | None = None) -> np.ndarray:
         """The backward model at linearised colours ``e = f⁻¹(P)``, evaluated directly.
 
         ``"lut"``: ``ρ̂ = M⁻¹ e``, ``ρ = ρ̂ + R_b(g(ρ̂))`` ([Gong2018] §3.5);
@@ -327,6 +336,7 @@ class PipelineModel:
         if variant == "lut":
             rho = e @ self.matrix_inverse.T
             return rho + self.backward_lut.residual(rho)
+        assert self.rbf is not None     # _check_variant: "rbf" needs one
         return self.rbf(e) @ self.matrix_inverse.T
 
     def _e_box(self):
@@ -351,8 +361,8 @@ class PipelineModel:
         t = np.clip((e - lo) / (hi - lo), 0.0, 1.0)
         return t ** SHAPER_GAMMA * (self.bake_size - 1)
 
-    def to_raw(self, rendered, *, variant: str | None = None, exact: bool = False,
-               return_mask: bool = False):
+    def to_raw(self, rendered: npt.ArrayLike, *, variant: str | None = None, exact: bool = False,
+               return_mask: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray | None]:
         """Backward model: rendered (JPEG) -> linear raw.
 
         ``e = f⁻¹(P)`` per channel ([Gong2018] §3.5), then the chosen variant (see
@@ -425,6 +435,7 @@ class PipelineModel:
         """
         if variant not in self._clipped_tables:
             corr = self.clipped_corrections[variant]
+            assert corr is not None     # called for variants with a correction only
             codes = np.arange(256, dtype=np.float64) / 255.0
             table = np.empty((3, 2, 256, 256, 3))
             for k in range(3):
@@ -500,7 +511,7 @@ class PipelineModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, *, path=None) -> "PipelineModel":
+    def from_dict(cls, d: dict, *, path: PathLike | None = None) -> "PipelineModel":
         """Rebuild a model from :meth:`to_dict` content; ModelFileError on bad content."""
         from ..io.model_file import check_pipeline_content
 
@@ -533,7 +544,7 @@ class PipelineModel:
             raise ModelFileError(f"pipeline model has a malformed field ({exc})",
                                  path) from None
 
-    def save(self, path, force: bool = False):
+    def save(self, path: PathLike, force: bool = False) -> Path:
         """Write the model as versioned JSON (kind ``"pipeline"``), atomically.
 
         Refuses to overwrite an existing file unless ``force``

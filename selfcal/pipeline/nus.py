@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from ..errors import InputError
+from ..typing import PathLike
 from .model import BAKE_SIZE, BackwardStages, ForwardStages, PipelineModel, _as_rgb_float
 from .nus_render import (NUS_RENDER_GAMMA, NUS_RENDER_REFINE, NUS_RENDER_SIZE, RAW_CODES,
                          LazyRenderTable)
@@ -250,7 +251,8 @@ class NUSCameraModel:
         return f"NUSCameraModel({str(self.folder)!r}, {self.direction}, wb={wb})"
 
 
-def read_nus_model(folder, direction: str = "raw2jpg", wb_code: int | None = 14):
+def read_nus_model(folder: PathLike, direction: str = "raw2jpg",
+                   wb_code: int | None = 14) -> NUSCameraModel:
     """Read an NUS in-camera model folder as a callable camera pipeline.
 
     The model of [Kim2012] / [Lin2011] §6, Eq. 9-11: a 3×3 transform per white-balance
@@ -359,13 +361,17 @@ class NUSPipelineModel(PipelineModel):
         self.camera = camera
         self.render_size = int(render_size)
         self.render_refine = int(render_refine)
-        self._forward = None
-        self._tone_table = None
+        self._forward: LazyRenderTable | None = None
+        self._tone_table: np.ndarray | None = None
         wb = "base" if camera.wb_code is None else f"{camera.wb_code} " \
             f"({WB_NAMES.get(camera.wb_code, '?')})"
-        super().__init__(ForwardStages(matrix=camera.transform, tone_curves=None, lut=None),
-                         BackwardStages(inverse_tone_curves=_NUSInverseTone(camera), lut=None,
-                                        rbf=camera._maps["jpg2raw"]),
+        # the NUS model renders and inverts with its own tables (the methods below): its
+        # stages stand in for fitted ones (f⁻¹ and h⁻¹ of its own kinds, no tone curves
+        # or LUTs), which the type checker rightly says they are not
+        inverse, rbf = _NUSInverseTone(camera), camera._maps["jpg2raw"]
+        forward = ForwardStages(camera.transform, None, None)  # type: ignore[arg-type]
+        backward_stages = BackwardStages(inverse, None, rbf)  # type: ignore[arg-type]
+        super().__init__(forward, backward_stages,
                          backward="rbf",
                          diagnostics={"source": "NUS model folder", "folder": str(camera.folder),
                                       "white_balance": wb, "valid_range": camera.valid_range},
@@ -436,6 +442,7 @@ class NUSPipelineModel(PipelineModel):
             x = _as_rgb_float(x, "raw")          # uint16 is used as the 16-bit code
         table = self._forward_table()
         tone = self._tone_table
+        assert tone is not None     # made with the table
         shape = x.shape
         flat = x.reshape(-1, 3)
         out = np.empty(flat.shape, dtype=np.float32)
@@ -448,17 +455,19 @@ class NUSPipelineModel(PipelineModel):
             if flat.dtype == np.uint16:
                 q = chunk.astype(np.intp)
             else:   # OpenCV (one channel): rounded to int32, then clipped to the codes
-                q = cv2.multiply(chunk.reshape(1, 3 * n), float(top), dtype=cv2.CV_32S)
-                cv2.max(q, 0, dst=q)
-                cv2.min(q, RAW_CODES - 1, dst=q)
+                # (OpenCV's type stubs omit its scalar operands)
+                q = cv2.multiply(chunk.reshape(1, 3 * n), float(top),  # type: ignore[call-overload]
+                                 dtype=cv2.CV_32S)
+                cv2.max(q, 0, dst=q)                # type: ignore[call-overload]
+                cv2.min(q, RAW_CODES - 1, dst=q)    # type: ignore[call-overload]
                 q = q.reshape(n, 3).astype(np.intp)
             mapped = table(q)                      # (n, 4): 65535 h + 0.5 + 65536 c
             # clipped per column with OpenCV (10x numpy's clip with array bounds)
             img = mapped.reshape(1, n, 4)
-            cv2.min(cv2.max(img, lo, dst=img), hi, dst=img)
+            cv2.min(cv2.max(img, lo, dst=img), hi, dst=img)  # type: ignore[call-overload]
             tone.take(mapped[:, :3].astype(np.intp), out=out[s:s + _CHUNK])
-        out = out.reshape(shape)
-        return (out, None) if return_mask else out
+        result = out.reshape(shape)
+        return (result, None) if return_mask else result
 
     def to_dict(self) -> dict:
         raise InputError("an NUS model folder is used from its folder; it is not saved as a "

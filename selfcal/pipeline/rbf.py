@@ -18,7 +18,10 @@ JPEG noise makes exact interpolation of 1,500 nearby points oscillate.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping, Sequence
+
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CalibrationError, InputError
 
@@ -43,7 +46,8 @@ class RBFColourMapping:
         Leave-one-out RMSE per smoothing value tried (empty when not selected).
     """
 
-    def __init__(self, centres, values, smoothing: float = 0.0, validation=None):
+    def __init__(self, centres: npt.ArrayLike, values: npt.ArrayLike, smoothing: float = 0.0,
+                 validation: Mapping[float, float] | None = None) -> None:
         from scipy.interpolate import RBFInterpolator
 
         self.centres = np.ascontiguousarray(centres, dtype=np.float64)
@@ -164,16 +168,18 @@ def rbf_leave_one_out(centres, values, smoothing_grid=SMOOTHING_GRID,
     for s in smoothing_grid:
         score(s)
     if refine and out:
-        best = min(out, key=out.get)
+        best = min(out, key=out.__getitem__)
         for s in (best / np.sqrt(10), best * np.sqrt(10)):
             score(s)
     return out
 
 
-def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
-                               smoothing="auto", smoothing_grid=SMOOTHING_GRID,
-                               error_transform=None, seed: int = 0,
-                               groups=None) -> RBFColourMapping:
+def rbf_inverse_colour_mapping(e: np.ndarray, target: np.ndarray, *,
+                               n_centres: int = N_CONTROL_POINTS, smoothing: float | str = "auto",
+                               smoothing_grid: Sequence[float] = SMOOTHING_GRID,
+                               error_transform: Callable[[np.ndarray], np.ndarray] | None = None,
+                               seed: int = 0,
+                               groups: npt.ArrayLike | None = None) -> RBFColourMapping:
     """Fit the inverse colour mapping ``h⁻¹: e -> T E`` of [Lin2011], Eq. 10-11.
 
     ``h⁻¹(e) = Σ_i w_i ||e - e_i|| + affine(e)`` through the control pairs
@@ -239,5 +245,5 @@ def rbf_inverse_colour_mapping(e, target, *, n_centres: int = N_CONTROL_POINTS,
     if not scores:
         raise CalibrationError("the RBF colour mapping cannot be fitted: the control points "
                                "are degenerate (e.g. on a plane)")
-    best = min(scores, key=scores.get)
+    best = min(scores, key=scores.__getitem__)
     return RBFColourMapping(e, target, best, validation=scores)

@@ -196,6 +196,7 @@ def _coarse_search(lev: _Level, s_lo, s_hi, n_max=48):
             m2[0, 2] += m[0, 0] * dx
             m2[1, 2] += m[1, 1] * dy
             best = (resp, m2)
+    assert best is not None     # n >= 3 scales were tried
     return _from_level(best[1], lev)
 
 

@@ -23,6 +23,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import CalibrationError, InputError
 
@@ -127,7 +128,7 @@ class MonotonePolynomial:
             self._power_cache = self.coefficients @ conv
         return self._power_cache
 
-    def channel(self, x, k: int) -> np.ndarray:
+    def channel(self, x: npt.ArrayLike, k: int) -> np.ndarray:
         """Evaluate channel ``k`` at ``x`` (any shape), float64 (Horner in the power basis;
         exact enough for degree 7 on ``[0, 1]``)."""
         t = self._t(x, k)
@@ -201,7 +202,7 @@ def _cross_validated(x, y, w, degree, domain, folds=None) -> MonotonePolynomial:
             raise InputError(f"folds has {fold.shape[0]} labels for {n} samples")
     domain = _fit_domain(x, y, domain)
     chosen = np.empty(3)
-    scores = [dict() for _ in range(3)]
+    scores: list[dict[float, float]] = [dict() for _ in range(3)]
     for lam in SMOOTHNESS_GRID:
         sq = np.zeros(3)
         cnt = np.zeros(3)
@@ -223,15 +224,18 @@ def _cross_validated(x, y, w, degree, domain, folds=None) -> MonotonePolynomial:
         for k in range(3):
             scores[k][lam] = float(np.sqrt(sq[k] / max(cnt[k], 1)))
     for k in range(3):
-        chosen[k] = min(scores[k], key=scores[k].get)
+        chosen[k] = min(scores[k], key=scores[k].__getitem__)
     coefs = np.empty((3, degree + 1))
     for k in range(3):
         fit = monotone_tone_curves(x, y, smoothness=float(chosen[k]), degree=degree,
                                    domain=domain, weights=w)
         coefs[k] = fit.coefficients[k]
     out = MonotonePolynomial(coefficients=coefs, domain=domain)
-    out.smoothness = chosen.tolist()
-    out.validation = [{str(k): v for k, v in sc.items()} for sc in scores]
+    # the cross-validated fit says what it chose (an attribute the plain fit has not: read
+    # with getattr by the pipeline's diagnostics)
+    out.smoothness = chosen.tolist()  # type: ignore[attr-defined]
+    validation = [{str(k): v for k, v in sc.items()} for sc in scores]
+    out.validation = validation  # type: ignore[attr-defined]
     return out
 
 
@@ -287,8 +291,10 @@ def _qp(degree: int) -> _ToneQP:
     return _QP_CACHE[degree]
 
 
-def monotone_tone_curves(x, y, *, smoothness: float = SMOOTHNESS, degree: int = DEGREE,
-                         domain=None, weights=None, folds=None) -> MonotonePolynomial:
+def monotone_tone_curves(x: npt.ArrayLike, y: npt.ArrayLike, *, smoothness: float = SMOOTHNESS,
+                         degree: int = DEGREE, domain: npt.ArrayLike | None = None,
+                         weights: npt.ArrayLike | None = None,
+                         folds: npt.ArrayLike | None = None) -> MonotonePolynomial:
     """Fit per-channel monotone smooth polynomials ``y_k ≈ f_k(x_k)`` ([Gong2018] Eq. 9).
 
     For each channel ``k`` solves the quadratic programme of [Gong2018] §3.3, Eq. 9::

@@ -25,6 +25,7 @@ ours, not the papers'; the radius was chosen on the tuning scenes of the cross-s
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
@@ -63,7 +64,8 @@ class TrainingColours:
         Distance beyond which a colour is outside (encoded units).
     """
 
-    def __init__(self, raw, rendered, raw_scale: float, radius: float = TRUST_RADIUS):
+    def __init__(self, raw: npt.ArrayLike, rendered: npt.ArrayLike, raw_scale: float,
+                 radius: float = TRUST_RADIUS) -> None:
         self.raw = np.ascontiguousarray(raw, dtype=np.float64)
         self.rendered = np.ascontiguousarray(rendered, dtype=np.float64)
         if (self.raw.ndim != 2 or self.raw.shape[1] != 3 or self.rendered.shape != self.raw.shape
@@ -81,7 +83,8 @@ class TrainingColours:
         self._tables: dict = {}
 
     @classmethod
-    def from_samples(cls, raw, rendered, *, max_points: int = MAX_POINTS,
+    def from_samples(cls, raw: npt.ArrayLike, rendered: npt.ArrayLike, *,
+                     max_points: int = MAX_POINTS,
                      radius: float = TRUST_RADIUS, seed: int = 0) -> "TrainingColours":
         """Keep at most ``max_points`` training samples: the convex-hull vertices of the raw
         and of the rendered samples, then a seeded random draw of the rest."""
@@ -100,7 +103,7 @@ class TrainingColours:
         return cls(raw[keep], rendered[keep], scale, radius)
 
     # ------------------------------------------------------------------ encoding
-    def encode(self, colours, kind: str) -> np.ndarray:
+    def encode(self, colours: npt.ArrayLike, kind: str) -> np.ndarray:
         """The encoded colours of ``kind`` (``"raw"``: ``(ρ / s)^(1/2.2)``; ``"rendered"``:
         as they are), float64, same shape."""
         x = np.asarray(colours, dtype=np.float64)
@@ -113,7 +116,7 @@ class TrainingColours:
     def _points(self, kind):
         return self.encode(self.raw if kind == "raw" else self.rendered, kind)
 
-    def distance(self, colours, kind: str = "raw") -> np.ndarray:
+    def distance(self, colours: npt.ArrayLike, kind: str = "raw") -> np.ndarray:
         """Exact distance of each ``(..., 3)`` colour to the nearest training colour."""
         from scipy.spatial import cKDTree
 
@@ -134,7 +137,8 @@ class TrainingColours:
             self._tables[kind] = (~np.isfinite(d)).reshape((TABLE_SIZE,) * 3), hi
         return self._tables[kind]
 
-    def outside(self, colours, kind: str = "raw", chunk: int = 1 << 20) -> np.ndarray:
+    def outside(self, colours: npt.ArrayLike, kind: str = "raw",
+                chunk: int = 1 << 20) -> np.ndarray:
         """True where a ``(..., 3)`` colour lies farther than the radius from every training
         colour (through the lookup table; see the module docstring).
 

@@ -10,9 +10,15 @@ from __future__ import annotations
 
 import io as _io
 
+from pathlib import Path
+from typing import cast
+
 import numpy as np
 
 from ..io.images import write_bytes_atomic
+from ..pipeline.model import PipelineModel
+from ..response.model import ResponseModel
+from ..typing import PathLike
 
 CHANNEL_COLOURS = ("tab:red", "tab:green", "tab:blue")
 VERDICT_COLOURS = {"ok": "tab:green", "doubtful": "tab:orange", "unusable": "tab:red"}
@@ -34,7 +40,8 @@ def verdict_lines(diagnostics: dict, width: int = 110, max_reasons: int = 4) -> 
     return lines
 
 
-def plot_response(model, path, *, truth=None, force: bool = False):
+def plot_response(model: ResponseModel, path: PathLike, *, truth: np.ndarray | None = None,
+                  force: bool = False) -> Path:
     """Write a PNG with the inverse curves and a BTF scatter with rejections by reason.
 
     Parameters
@@ -107,7 +114,7 @@ def plot_response(model, path, *, truth=None, force: bool = False):
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize=8)
     fig.tight_layout(rect=(0, 0, 1, 1 - top / (4.4 + top)))
-    colour = VERDICT_COLOURS.get(diagnostics.get("verdict"), "black")
+    colour = VERDICT_COLOURS.get(diagnostics.get("verdict", ""), "black")
     fig.text(0.01, 0.995, header[0], ha="left", va="top", fontsize=10, weight="bold",
              color=colour)
     if len(header) > 1:
@@ -125,7 +132,7 @@ def _short(name: str) -> str:
     return os.path.basename(name)
 
 
-def plot_pipeline(model, path, *, force: bool = False):
+def plot_pipeline(model: PipelineModel, path: PathLike, *, force: bool = False) -> Path:
     """Write a PNG of a RAW-path model's tone curves, forward and inverse, per channel.
 
     Left: the forward tone curves ``f`` (Gong et al., rank-based calibration, Eq. 9) from
@@ -168,9 +175,10 @@ def plot_pipeline(model, path, *, force: bool = False):
     return write_bytes_atomic(path, buf.getvalue(), force=force)
 
 
-def plot_model(model, path, *, force: bool = False):
+def plot_model(model: ResponseModel | PipelineModel, path: PathLike, *,
+               force: bool = False) -> Path:
     """The curves of a model of either kind: :func:`plot_response` (a response model, its
     verdict above) or :func:`plot_pipeline` (a RAW-path model)."""
     if hasattr(model, "to_raw"):
-        return plot_pipeline(model, path, force=force)
+        return plot_pipeline(cast(PipelineModel, model), path, force=force)
     return plot_response(model, path, force=force)

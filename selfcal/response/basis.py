@@ -534,7 +534,7 @@ def builtin_basis() -> ResponseBasis:
     """
     from importlib import resources
 
-    res = resources.files("selfcal").joinpath("data", "response_basis.npz")
+    res = resources.files("selfcal") / "data" / "response_basis.npz"
     try:
         with res.open("rb") as fh:
             return ResponseBasis._from_npz(fh, str(res))

@@ -160,7 +160,7 @@ def _emor_blocks(path, grid_key, mean_key, comp_prefix):
     for key in (grid_key, mean_key, f"{comp_prefix}(1)"):
         if key not in blocks:
             raise InputError(f"no '{key} =' block; is this an EMoR file?", path)
-    comps = []
+    comps: list[np.ndarray] = []
     while f"{comp_prefix}({len(comps) + 1})" in blocks:
         comps.append(blocks[f"{comp_prefix}({len(comps) + 1})"])
     k = blocks[grid_key].size
@@ -224,7 +224,10 @@ def read_dorf_curves(path) -> ResponseCurveSet:
     """
     lines = [(n, ln.strip()) for n, ln in enumerate(_read_text(path).splitlines(), 1)]
     lines = [(n, ln) for n, ln in lines if ln]
-    names, graphs, xs, ys = [], [], [], []
+    names: list[str] = []
+    graphs: list[str] = []
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
     pos = 0
 
     def numbers_after(pos, key, count=None):

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +31,10 @@ from ..stack.frames import (
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import SampleSet, collect_samples, frame_masks
+from ..typing import ExposureTimes, ImageInput, PathLike, Progress
 from .bands import band_for_fit
+from .basis import ResponseBasis
+from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
 from .exposure_times import (
@@ -121,10 +126,12 @@ class _Call:
     times_source: str | None = None
 
 
-def calibrate_response(images, exposure_times=None, *, refine_exposures="auto", basis=None,
-                       seed: int = 0, align=False, progress=None,
+def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTimes | None = None,
+                       *, refine_exposures: bool | str = "auto",
+                       basis: ResponseBasis | PathLike | None = None, seed: int = 0,
+                       align: bool | str = False, progress: Progress | None = None,
                        times_source: str | None = None,
-                       options: ResponseOptions | None = None, **legacy):
+                       options: ResponseOptions | None = None, **legacy: Any) -> ResponseModel:
     """Estimate each channel's camera response from an exposure stack.
 
     Implements [Lin2011] §5: log-domain PCA model (Eq. 7) fitted to the exposure equation

@@ -59,7 +59,7 @@ def code_error_profile(samples, valid, result, grid, inverse) -> dict | None:
     """
     g = np.log(np.maximum(np.asarray(inverse, float), 1e-12))
     K = np.asarray(result.log_exposures, float)
-    rows = [[], [], []]
+    rows: list[list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = [[], [], []]
     for a, b in result.pair_frames:
         ok = valid[a] & valid[b]
         if not ok.any():
@@ -107,7 +107,9 @@ def _solve_levels(ba, bb, r) -> np.ndarray:
     cell, r2 = cell[order], (r[order]) ** 2
     starts = np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])
     counts = np.diff(np.r_[starts, cell.size])
-    A, m, wt = [], [], []
+    a_rows: list[np.ndarray] = []
+    m_rows: list[float] = []
+    wt_rows: list[float] = []
     for s0, n in zip(starts, counts):
         if n < MIN_ROWS:
             continue
@@ -117,13 +119,13 @@ def _solve_levels(ba, bb, r) -> np.ndarray:
         row = np.zeros(LEVELS)
         row[cell[s0] // LEVELS] += 1.0
         row[cell[s0] % LEVELS] += 1.0
-        A.append(row)
-        m.append(est)
-        wt.append(np.sqrt(n) / est)
+        a_rows.append(row)
+        m_rows.append(est)
+        wt_rows.append(np.sqrt(n) / est)
     out = np.full(LEVELS, np.nan)
-    if not A:
+    if not a_rows:
         return out
-    A, m, wt = np.array(A), np.array(m), np.array(wt)
+    A, m, wt = np.array(a_rows), np.array(m_rows), np.array(wt_rows)
     s2, _ = nnls(A * wt[:, None], m * wt)
     reached = A.sum(axis=0) > 0
     out[reached] = np.sqrt(s2[reached])

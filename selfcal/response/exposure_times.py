@@ -38,7 +38,7 @@ def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
         times = list(exposure_times)
         if len(times) != n:
             raise InputError(f"{len(times)} exposure times given for {n} frames")
-        out = []
+        out: list[float | None] = []
         for t, src in zip(times, sources):
             if t is None:
                 out.append(None)

@@ -286,7 +286,7 @@ def histogram_correspondences(reduced, *, clip_margin: float = 2.0,
         subset = rng.uniform(size=reduced[0].blocks.shape[:2]) < PIXEL_FRACTION
         sat_ok = [ok & subset for ok in sat_ok]
     for a, b in _pair_order(reduced):
-        per_channel = []
+        per_channel: list[tuple | None] = []
         for c in range(3):
             ok = _channel_mask(clip, sat_ok, a, b, c)
             xa = reduced[a].blocks[..., c][ok]

@@ -10,9 +10,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from pathlib import Path
+
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError, ModelFileError
+from ..typing import PathLike
 from ..io.model_file import jsonable, save_model_dict
 
 MODEL_KIND = "response"
@@ -68,7 +72,7 @@ class ResponseModel:
     fit_data: dict | None = field(default=None, repr=False, compare=False)
 
     # ------------------------------------------------------------------ curves
-    def inverse_response(self, codes=None) -> np.ndarray:
+    def inverse_response(self, codes: npt.ArrayLike | None = None) -> np.ndarray:
         """f⁻¹ per channel at integer ``codes`` (default every code 0…max_code), (n, 3)."""
         if codes is None:
             codes = np.arange(self.max_code + 1)
@@ -76,7 +80,7 @@ class ResponseModel:
         return np.stack([np.interp(x, self.intensity, self.inverse[:, c]) for c in range(3)],
                         axis=-1)
 
-    def response(self, irradiance) -> np.ndarray:
+    def response(self, irradiance: npt.ArrayLike) -> np.ndarray:
         """The forward response f per channel: normalised irradiance in [0, 1] → [0, 1].
 
         ``irradiance`` of shape (n,) is evaluated for each channel, giving (n, 3).
@@ -85,7 +89,7 @@ class ResponseModel:
         return np.stack([np.interp(e, self.inverse[:, c], self.intensity) for c in range(3)],
                         axis=-1)
 
-    def inverse_band(self, level: float = 0.9):
+    def inverse_band(self, level: float = 0.9) -> tuple[np.ndarray, np.ndarray]:
         """The two-sided confidence band of f⁻¹ at ``level``: ``(lower, upper)``.
 
         Each is shaped like :attr:`inverse` (same grid, same normalisation: both are 1 at
@@ -107,7 +111,8 @@ class ResponseModel:
 
         return band_from_sigma(self.inverse, self.inverse_log_sigma, level)
 
-    def band_at_codes(self, codes=None, level: float = 0.9):
+    def band_at_codes(self, codes: npt.ArrayLike | None = None,
+                      level: float = 0.9) -> tuple[np.ndarray, ...]:
         """:meth:`inverse_band` at integer ``codes`` (default every code), each (n, 3)."""
         lower, upper = self.inverse_band(level)
         if codes is None:
@@ -120,7 +125,7 @@ class ResponseModel:
         """f⁻¹ at every code of the model's bit depth, float32, shape (max_code+1, 3)."""
         return self.inverse_response().astype(np.float32)
 
-    def linearize(self, image) -> np.ndarray:
+    def linearize(self, image: npt.ArrayLike) -> np.ndarray:
         """Apply the inverse response per channel: codes → linear values, f⁻¹(max) = 1.
 
         Parameters
@@ -175,7 +180,7 @@ class ResponseModel:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, *, path=None) -> "ResponseModel":
+    def from_dict(cls, d: dict, *, path: PathLike | None = None) -> "ResponseModel":
         from ..io.model_file import check_response_content
 
         check_response_content(d, path)   # every field, before any is used
@@ -209,7 +214,7 @@ class ResponseModel:
             raise bad(f"max_code must be 255 or 65535, not {max_code}")
         return model
 
-    def save(self, path, *, force: bool = False):
+    def save(self, path: PathLike, *, force: bool = False) -> Path:
         """Write the model as versioned JSON, atomically (refuses to overwrite unless force).
 
         Returns the path written.

@@ -323,7 +323,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
             coeffs = x[:3 * N].reshape(3, N)
 
     resid = normal.residual(np.concatenate([coeffs.ravel(), K]))
-    w = fit.robust / fit.variance * (1.0 if fit.row_weight is None else fit.row_weight)
+    w = fit.robust / fit.variance * fit.row_weight
     residual_rms = float(np.sqrt(np.average(resid ** 2, weights=w)))
     return SolveResult(coefficients=coeffs, log_exposures=K, exposure_fixed=exposures.fixed,
                        pair_frames=np.array([(a, bb) for a, bb, _ in rows.pairs]),
@@ -436,7 +436,7 @@ class _Fit:
     variance: np.ndarray            # noise variance of every row (log units)
     weights: np.ndarray             # the last solve's row weights
     monotone_constrained: bool
-    row_weight: np.ndarray | None = None    # given weight of every row (None: all 1)
+    row_weight: np.ndarray          # given weight of every row
 
 
 def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,

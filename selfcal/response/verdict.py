@@ -264,7 +264,7 @@ def _local_shifts(a: np.ndarray, b: np.ndarray, min_response: float):
     """
     h, w = a.shape
     dx, dy, r = _phase_shift(a, b)
-    quarters = [[None, None], [None, None]]
+    quarters: list[list[tuple[float, float] | None]] = [[None, None], [None, None]]
     if r < min_response:
         return None, quarters
     tolerance = max(2.0, 0.25 * math.hypot(dx, dy))
@@ -384,7 +384,8 @@ def time_order(values, valid, log_times, *, min_ratio: float = 1.5,
     """
     known = np.flatnonzero(np.isfinite(log_times))
     order = known[np.argsort(log_times[known], kind="stable")]
-    checked, bad, frames = 0, 0, set()
+    checked, bad = 0, 0
+    frames: set[int] = set()
     for i, a in enumerate(order):
         for b in order[i + 1: i + 1 + max_rank_gap]:
             if log_times[b] - log_times[a] < math.log(min_ratio):

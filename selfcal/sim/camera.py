@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 from .tone import ToneCurve
@@ -150,7 +151,7 @@ class CameraPipeline:
     """
 
     matrix: np.ndarray
-    curves: tuple
+    curves: tuple[ToneCurve, ...] | ToneCurve
     gamut: str = "smooth"
     knee: float = 0.8
     strength: float = 1.0
@@ -174,14 +175,21 @@ class CameraPipeline:
                                  f"{self.white_balance!r}")
             self.white_balance = g
 
-    def colour_correct(self, raw) -> np.ndarray:
+    @property
+    def _curves(self) -> tuple[ToneCurve, ...]:
+        """The three curves (``curves`` is made a tuple of three by ``__post_init__``)."""
+        curves = self.curves
+        assert isinstance(curves, tuple)
+        return curves
+
+    def colour_correct(self, raw: npt.ArrayLike) -> np.ndarray:
         """``M ρ``, or ``M min(g ρ, 1)`` with white-balance gains ``g``: the input of Γ."""
         raw = np.asarray(raw, dtype=np.float64)
         if self.white_balance is not None:
             raw = np.minimum(raw * self.white_balance, 1.0)
         return raw @ self.matrix.T
 
-    def apply_gamut(self, x) -> np.ndarray:
+    def apply_gamut(self, x: np.ndarray) -> np.ndarray:
         """Apply Γ to colour-corrected RGB ``x = M ρ`` (shape ``(..., 3)``)."""
         if self.gamut == "smooth":
             return gamut_compress(x, knee=self.knee, strength=self.strength)
@@ -207,11 +215,11 @@ class CameraPipeline:
             raise InputError(f"expected RGB data with a last axis of 3, got shape {raw.shape}")
         mapped = self.apply_gamut(self.colour_correct(raw))
         out = np.empty_like(mapped)
-        for ch, curve in enumerate(self.curves):
+        for ch, curve in enumerate(self._curves):
             out[..., ch] = curve.forward(mapped[..., ch])
         return out
 
-    def inverse_response(self, codes, max_code: int = 255) -> np.ndarray:
+    def inverse_response(self, codes: npt.ArrayLike, max_code: int = 255) -> np.ndarray:
         """The true per-channel inverse response ``f_c^-1(code / max_code)``.
 
         This is the ground truth for the JPEG-only calibrators ([Lin2011] §5):
@@ -223,14 +231,14 @@ class CameraPipeline:
             float64, shape ``(len(codes), 3)``.
         """
         y = np.clip(np.asarray(codes, dtype=np.float64).ravel() / float(max_code), 0.0, 1.0)
-        return np.stack([c.inverse(y) for c in self.curves], axis=1)
+        return np.stack([c.inverse(y) for c in self._curves], axis=1)
 
     def to_dict(self) -> dict:
         """JSON-serialisable description (see :meth:`from_dict`)."""
         d = {
             "model": "P = f(Gamma(M rho))",
             "matrix": self.matrix.tolist(),
-            "curves": [c.to_dict() for c in self.curves],
+            "curves": [c.to_dict() for c in self._curves],
             "gamut": self.gamut,
             "knee": self.knee,
             "strength": self.strength,
@@ -289,7 +297,9 @@ def _default_curves() -> tuple:
             ToneCurve.film(contrast=1.03, toe=0.11, shoulder=0.81, exposure=0.95))
 
 
-def default_pipeline(*, gamut: str = "smooth", curves=None, seed: int = 0) -> CameraPipeline:
+def default_pipeline(*, gamut: str = "smooth",
+                     curves: tuple[ToneCurve, ...] | ToneCurve | None = None,
+                     seed: int = 0) -> CameraPipeline:
     """A plausible camera pipeline ``P = f(Γ(M ρ))`` ([Gong2018], Eq. 1).
 
     Parameters

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .camera import default_pipeline
+from .camera import CameraPipeline, default_pipeline
 from .encoding import _jpeg_with_exif, _rational
 from .scenes import make_scene
 from .stacks import simulate_stack
@@ -35,7 +35,7 @@ class SimulatedBody:
     model: str
     serial: str
     lens: str
-    pipeline: object
+    pipeline: CameraPipeline
     prefix: str = "IMG_"
 
     def inverse_response(self, max_code: int = 255) -> np.ndarray:

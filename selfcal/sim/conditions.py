@@ -392,6 +392,7 @@ class Condition:
                              "from it)")
         d = self.draw(seed)
         pipe = self.pipeline(curve, seed)
+        assert pipe.white_balance is not None   # a condition's camera has one
         camera_from_output = np.linalg.inv(pipe.matrix) / pipe.white_balance[:, None]
         h, w = size
         scene = natural_scene(h, w, palette=self.scene, seed=d["scene_seed"],

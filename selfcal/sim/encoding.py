@@ -144,11 +144,12 @@ class FrameOutput:
         """The largest code value: 255 or 65535."""
         return 255 if self.bit_depth == 8 else 65535
 
-    def uses_jpeg(self, jpeg_quality) -> bool:
+    def uses_jpeg(self, jpeg_quality: int | None) -> bool:
         """Whether frames are JPEG-encoded at ``jpeg_quality`` (8-bit frames only)."""
         return jpeg_quality is not None and self.bit_depth == 8
 
-    def store(self, rendered: np.ndarray, jpeg_quality) -> tuple[np.ndarray, bytes | None]:
+    def store(self, rendered: np.ndarray,
+              jpeg_quality: int | None) -> tuple[np.ndarray, bytes | None]:
         """Sharpen, quantise and (see :meth:`uses_jpeg`) JPEG-encode one rendered frame.
 
         Returns
@@ -162,7 +163,7 @@ class FrameOutput:
             rendered = self.sharpening.apply(rendered)
         dtype = np.uint8 if self.bit_depth == 8 else np.uint16
         codes = np.round(rendered * self.max_code).astype(dtype)
-        if not self.uses_jpeg(jpeg_quality):
+        if not self.uses_jpeg(jpeg_quality) or jpeg_quality is None:   # (uses_jpeg says)
             return codes, None
         return _jpeg_round_trip(codes, jpeg_quality, self.chroma_subsampling)
 
@@ -188,7 +189,7 @@ def _tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
     """16/8-bit RGB TIFF with ExposureTime, FNumber, ISO in IFD0 (as TIFF/EP and DNG do)."""
     import tifffile
 
-    tags = []
+    tags: list[tuple[int, int, int, tuple[int, int] | int, bool]] = []
     if time is not None:
         tags.append((33434, 5, 1, _rational(time), False))          # ExposureTime
     if f_number is not None:

@@ -104,6 +104,7 @@ def _render(scene, pipe, t, scale, shift, seed, size, quality):
     crop = scene[2 + dy:2 + dy + h, 2 + dx:2 + dx + w]
     stack = simulate_stack(crop, pipe, [t], exposure_scale=scale, seed=seed,
                            jpeg_quality=quality)
+    assert stack._encoded is not None   # a JPEG card's frames are encoded
     return stack._encoded[0], float(stack.exposure_times[0])
 
 
@@ -187,7 +188,9 @@ def write_mixed_card(root, *, seed: int = 0, events_per_body: int = 6, bodies=No
             clock += float(rng.uniform(5.0, 1200.0))
     all_shots = sorted(((when, b, s, t, shift, mode) for b, shots in plans
                         for s, t, when, shift, mode in shots))
-    scenes, scales, truth = {}, {}, {}
+    scenes: dict[int, np.ndarray] = {}
+    scales: dict[int, float] = {}
+    truth: dict[tuple[int, int], list[tuple[Path, float, datetime]]] = {}
     for s in {x[2] for x in all_shots}:
         scenes[s] = mixed_scene(height, width, s)
         speeds = [x[3] for x in all_shots if x[2] == s]

@@ -12,11 +12,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError, OutputExistsError
+from ..typing import PathLike
 from .camera import CameraPipeline, default_pipeline
 from .encoding import (FrameOutput, UnsharpMask, _jpeg_round_trip, _jpeg_with_exif,
                        _png_with_exif, _tiff_with_exif_tags)
@@ -103,7 +107,7 @@ class SyntheticStack:
         """The largest code value: 255 or 65535."""
         return 255 if self.bit_depth == 8 else 65535
 
-    def inverse_response(self, codes=None) -> np.ndarray:
+    def inverse_response(self, codes: npt.ArrayLike | None = None) -> np.ndarray:
         """The true inverse response at ``codes`` (default: all codes ``0..max_code``).
 
         Returns
@@ -116,7 +120,8 @@ class SyntheticStack:
             codes = np.arange(self.max_code + 1)
         return self.pipeline.inverse_response(codes, self.max_code)
 
-    def write(self, folder, *, fmt: str = "jpg", jpeg_quality: int = 95, force: bool = False,
+    def write(self, folder: PathLike, *, fmt: str = "jpg", jpeg_quality: int = 95,
+              force: bool = False,
               prefix: str = "frame") -> list[Path]:
         """Write the frames as image files with their nominal exposure data.
 
@@ -165,7 +170,8 @@ class SyntheticStack:
         _refuse_existing(paths, force)
         for i, (path, image) in enumerate(zip(paths, self.images)):
             t = float(self.exposure_times[i])
-            meta = {"exposure_time": t, "f_number": self.f_number, "iso": self.iso}
+            meta: dict[str, Any] = {"exposure_time": t, "f_number": self.f_number,
+                                    "iso": self.iso}
             if ext == "jpg" and self._encoded is not None:
                 data = _jpeg_with_exif(self._encoded[i], exif_bytes(**meta))
                 write_bytes_atomic(path, data, force=force)
@@ -181,7 +187,7 @@ class SyntheticStack:
                                                               self.iso), force=force)
         return paths
 
-    def write_raws(self, folder, *, with_times: bool = True, force: bool = False,
+    def write_raws(self, folder: PathLike, *, with_times: bool = True, force: bool = False,
                    prefix: str = "raw") -> list[Path]:
         """Write the frames' linear raws as 16-bit TIFFs, as a raw converter does
         (``dcraw -4 -T``: no tone curve, black at 0, white = 65535).
@@ -253,7 +259,8 @@ def _default_exposure_scale(scene: np.ndarray, nominal: np.ndarray) -> float:
     return 0.18 / (median * math.sqrt(nominal[0] * nominal[-1]))
 
 
-def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, repeats: int = 1,
+def simulate_stack(scene: np.ndarray, pipeline: CameraPipeline, exposure_times: npt.ArrayLike, *,
+                   jitter: float = 0.03, repeats: int = 1,
                    sensor: SensorModel | None = None, jpeg_quality: int | None = 90,
                    output: FrameOutput | None = None, exposure_scale: float | None = None,
                    seed: int = 0) -> SyntheticStack:
@@ -339,13 +346,17 @@ def simulate_stack(scene, pipeline, exposure_times, *, jitter: float = 0.03, rep
     return SyntheticStack(images=images, exposure_times=nominal, true_exposures=true,
                           radiance=scene, raws=raws, pipeline=pipeline,
                           bit_depth=output.bit_depth, exposure_scale=exposure_scale,
-                          seed=seed, jpeg_quality=int(jpeg_quality) if use_jpeg else None,
+                          seed=seed,
+                          jpeg_quality=(int(jpeg_quality) if use_jpeg and jpeg_quality is not None
+                                        else None),
                           jitter=jitter, _encoded=encoded if use_jpeg else None,
                           chroma_subsampling=output.chroma_subsampling if use_jpeg else None,
                           sharpening=output.sharpening)
 
 
-def simulate_raw_jpeg_pair(scene=None, pipeline=None, *, exposure: float = 1.0, sensor=None,
+def simulate_raw_jpeg_pair(scene: np.ndarray | None = None,
+                           pipeline: CameraPipeline | None = None, *, exposure: float = 1.0,
+                           sensor: SensorModel | None = None,
                            jpeg_quality: int | None = 95, seed: int = 0,
                            raw_bits: int | None = 16) -> dict:
     """Simulate one RAW+JPEG pair, the input of the rank-based (RAW) calibration path.
@@ -397,7 +408,8 @@ def simulate_raw_jpeg_pair(scene=None, pipeline=None, *, exposure: float = 1.0, 
             "pipeline": pipeline, "radiance": scene, "exposure": float(exposure)}
 
 
-def handheld(images, *, fraction: float = 0.02, degrees: float = 0.5, seed: int = 0) -> list:
+def handheld(images: Sequence[np.ndarray], *, fraction: float = 0.02, degrees: float = 0.5,
+             seed: int = 0) -> list:
     """The frames of a stack as a handheld camera would have taken them (ours).
 
     Every frame but the middle one is turned by up to ``±degrees`` about its centre and

@@ -7,6 +7,7 @@ response of a simulated camera is exactly the inverse of what rendered its image
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 from ..response.curve_family import srgb_encode
@@ -50,8 +51,9 @@ class ToneCurve:
 
     _SAMPLES = 4096
 
-    def __init__(self, irradiance, brightness, name: str = "table", *, kind: str = "table",
-                 params: dict | None = None):
+    def __init__(self, irradiance: npt.ArrayLike, brightness: npt.ArrayLike,
+                 name: str = "table", *, kind: str = "table",
+                 params: dict | None = None) -> None:
         x = np.array(irradiance, dtype=np.float64).ravel()
         y = np.array(brightness, dtype=np.float64).ravel()
         if x.size != y.size or x.size < 2:
@@ -172,7 +174,8 @@ class ToneCurve:
                                   {"contrast": c, "toe": t, "shoulder": k, "exposure": e})
 
     @classmethod
-    def from_table(cls, irradiance, brightness, name: str = "table") -> "ToneCurve":
+    def from_table(cls, irradiance: npt.ArrayLike, brightness: npt.ArrayLike,
+                   name: str = "table") -> "ToneCurve":
         """A tone curve from a user table, e.g. one DoRF curve (``I`` grid, ``B`` values).
 
         The table is sorted by irradiance; repeated irradiance values must have equal
@@ -259,7 +262,7 @@ class ToneCurve:
 
     def to_dict(self) -> dict:
         """JSON-serialisable description: the parameters for analytic curves, else the table."""
-        d = {"name": self.name, "kind": self.kind}
+        d: dict[str, object] = {"name": self.name, "kind": self.kind}
         if self.kind == "table":
             d["irradiance"] = self._x.tolist()
             d["brightness"] = self._y.tolist()

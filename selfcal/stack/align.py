@@ -119,7 +119,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
 
     if method == "mtb":
         # integer translation by MTB at full resolution
-        ref_grey = None
+        ref_grey: np.ndarray | None = None
         for done, k in enumerate(order):
             img = frames.load(k)
             grey = _to_grey8(img)
@@ -127,6 +127,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
             if k == ref:
                 ref_grey = grey
             else:
+                assert ref_grey is not None     # the reference is first in order
                 transforms[k] = _translation(*_mtb_shift(ref_grey, grey))
             if progress is not None:
                 progress("align", done + 1, n, frames.sources[k])
@@ -142,7 +143,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
     scale = (size[0] / full_w, size[1] / full_h)
     reduce = _working_reduce(frames, working_size)
     lin = None
-    ref_data = None
+    ref_data: tuple[np.ndarray, float, float, np.ndarray] | None = None
     for done, k in enumerate(order):
         img = frames.load(k, reduce=reduce)
         if (img.shape[1], img.shape[0]) != size:
@@ -156,6 +157,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
         if k == ref:
             ref_data = (g, glo, ghi, grey)
         else:
+            assert ref_data is not None         # the reference is first in order
             t, tlo, thi, ref_grey = ref_data
             init = _translation(*_mtb_shift(ref_grey, grey))
             transforms[k] = _rescale_homography(init, 1.0 / scale[0], 1.0 / scale[1])
@@ -354,8 +356,8 @@ def _orb_homography(template, image) -> np.ndarray | None:
     matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d1, d2)
     if len(matches) < 8:
         return None
-    src = np.float32([k1[m.queryIdx].pt for m in matches])
-    dst = np.float32([k2[m.trainIdx].pt for m in matches])
+    src = np.array([k1[m.queryIdx].pt for m in matches], dtype=np.float32)
+    dst = np.array([k2[m.trainIdx].pt for m in matches], dtype=np.float32)
     h, inliers = cv2.findHomography(src, dst, cv2.RANSAC, 2.0)
     if h is None or inliers is None or int(inliers.sum()) < 8:
         return None

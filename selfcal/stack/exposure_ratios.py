@@ -198,7 +198,7 @@ def raw_exposure_ratios(raws, *, low: float = 0.02, high: float = 0.9,
 
     for i, j, _, _ in edges:
         parent[find(i)] = find(j)
-    roots = {}
+    roots: dict[int, int] = {}
     component = []
     for k in range(n):
         has_edge = any(k in (i, j) for i, j, _, _ in edges)

@@ -70,8 +70,9 @@ class StackFrames:
     def __len__(self):
         return len(self.items)
 
-    def _check(self):
-        shape = dtype = None
+    def _check(self) -> None:
+        shape: tuple[int, ...] | None = None
+        dtype = None
         for k, item in enumerate(self.items):
             src = self.sources[k]
             if self.raw_files[k]:
@@ -106,7 +107,8 @@ class StackFrames:
                     dtype, dfirst = dt, src
                 elif dt != dtype:
                     raise InputError(f"sample type {dt} differs from {dfirst} ({dtype})", src)
-        self.shape = shape
+        assert shape is not None        # the frames are not empty (__init__)
+        self.shape: tuple[int, ...] = shape
 
     def load(self, k, *, reduce: int = 1) -> np.ndarray:
         item = self.items[k]
@@ -172,8 +174,8 @@ class Lineariser:
             raise InputError("the model must have inverse_response(codes) (a ResponseModel) "
                              "or to_raw(rendered) (a pipeline model)")
         self.model = model
-        self.table = None       # (K, 3) f⁻¹ at every code, float64
-        self.slope = None       # (K, 3) d f⁻¹ / dz at every code
+        self.table: np.ndarray | None = None    # (K, 3) f⁻¹ at every code, float64
+        self.slope: np.ndarray | None = None    # (K, 3) d f⁻¹ / dz at every code
         if max_code is None:
             return
         codes = np.arange(max_code + 1)
@@ -339,7 +341,7 @@ def default_reference(exposures) -> int:
 def given_exposures(frames: StackFrames, exposure_times):
     """The caller's times (checked) or EXIF ``t · ISO/100 / N²``; None where unknown."""
     n = len(frames)
-    given = [None] * n
+    given: list[float | None] = [None] * n
     source = "given"
     if exposure_times is not None:
         times = list(exposure_times)
@@ -392,7 +394,7 @@ def model_frame_index(model, frames: StackFrames, fresh: bool):
             lookup[str(Path(s).resolve())] = i
         except OSError:
             pass
-    out = []
+    out: list[int | None] = []
     for p in frames.paths:
         if p is None:
             out.append(None)
@@ -414,7 +416,7 @@ def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, w
 
     # the model's estimates, in its own units
     idx = model_frame_index(model, frames, fresh) if model is not None else [None] * n
-    est = [None] * n
+    est: list[float | None] = [None] * n
     contradicted = set()
     refined = False
     if any(i is not None for i in idx):
@@ -460,7 +462,9 @@ def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, w
     out = np.array(given, dtype=object)
     changed = []
     for k in sorted(use_model):
-        new = est[k] * factor
+        estimate = est[k]
+        assert estimate is not None     # use_model holds only frames with an estimate
+        new = estimate * factor
         if given[k] is not None:
             dev = abs(math.log(new / given[k]))
             if dev > 1e-6:          # any change is said, not only above 1 %

@@ -13,6 +13,7 @@ References
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,11 @@ LINEAR_EXPONENT_TOLERANCE = 0.15
 LINEAR_MIN_EXPOSURE_RATIO = 1.5
 
 
-def _grey_thumbnails(path, side: int = 256):
+#: (values, selection) half-frame thumbnails of a frame's grey
+_Thumbnails = tuple[np.ndarray, np.ndarray]
+
+
+def _grey_thumbnails(path: str | os.PathLike[str], side: int = 256) -> _Thumbnails:
     """The frame's mean of the channels on [0, 1] as two half-frame thumbnails of about
     ``side`` pixels a side, (values, selection) of :func:`selfcal.stack.exposure_ratios.split_thumbnails`
     (NaN where a clipped value went in)."""
@@ -61,7 +66,7 @@ def _photometric_linear_raw(path) -> bool:
         return False
 
 
-def _ratio_profile(a, b):
+def _ratio_profile(a: _Thumbnails, b: _Thumbnails) -> tuple[float, float] | None:
     """log(b / a) over pixels well exposed in both, and the spread of its values over the
     quartiles of ``a`` relative to it; None with too few pixels.
 
@@ -126,13 +131,14 @@ def linear_evidence(frames, exposures) -> str | None:
         return None
     known = [(float(e), g) for e, g in zip(exposures, greys) if e is not None]
     timed = len({round(math.log(t), 2) for t, _ in known}) >= 2
+    pairs: list[tuple[_Thumbnails, _Thumbnails, float | None]]
     if timed:
         ordered = sorted(known, key=lambda x: x[0])
         pairs = [(a, b, math.log(tb / ta)) for (ta, a), (tb, b) in zip(ordered, ordered[1:])
                  if tb >= ta * LINEAR_MIN_EXPOSURE_RATIO]
     else:
-        ordered = sorted(greys, key=lambda g: float(np.median(np.nan_to_num(g[1], nan=1.0))))
-        pairs = [(a, b, None) for a, b in zip(ordered, ordered[1:])]
+        by_level = sorted(greys, key=lambda g: float(np.median(np.nan_to_num(g[1], nan=1.0))))
+        pairs = [(a, b, None) for a, b in zip(by_level, by_level[1:])]
     profiles = [(prof, log_t) for a, b, log_t in pairs
                 if (prof := _ratio_profile(a, b)) is not None]
     if not profiles or max(spread for (_, spread), _ in profiles) > LINEAR_RATIO_SPREAD:
@@ -142,7 +148,8 @@ def linear_evidence(frames, exposures) -> str | None:
             f"{100 * spread:.0f}%)")
     if not timed:
         return same + " and no exposure times are known to check them against"
-    power = float(np.median([level / log_t for (level, _), log_t in profiles]))
+    power = float(np.median([level / log_t for (level, _), log_t in profiles
+                             if log_t is not None]))     # all of them: the frames are timed
     if abs(power - 1.0) > LINEAR_EXPONENT_TOLERANCE:
         return None
     return same + f" and follow the exposure times (to the power {power:.2f})"

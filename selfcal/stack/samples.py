@@ -54,7 +54,7 @@ def content_digest(image: np.ndarray) -> str:
     """
     h = hashlib.sha1(usedforsecurity=False)
     h.update(f"{image.shape}{image.dtype}".encode())
-    h.update(memoryview(np.ascontiguousarray(image)).cast("B"))
+    h.update(np.ascontiguousarray(image).data.cast("B"))
     return h.hexdigest()[:32]
 
 
@@ -165,6 +165,8 @@ def reduce_frame(image, *, block: int, source: str = "array",
 class FrameSamples:
     """What every set of samples across a stack's frames has: ``values`` of shape
     ``(frames, samples, 3)``, and their counts."""
+
+    values: np.ndarray
 
     @property
     def n_frames(self) -> int:
@@ -280,13 +282,14 @@ def choose_locations(reduced: list[ReducedFrame], *, n_bins: int = 48, per_bin: 
     # clipped (clipped areas look flat but tell nothing); a running maximum, so no
     # frames-by-blocks float copy is made
     valid = []
-    worst = None
+    worst: np.ndarray | None = None
     for r in reduced:
         ok = ((r.block_max < max_code - clip_margin * max_code / 255)
               & (r.block_min > clip_margin * max_code / 255)).ravel()
         masked = np.where(ok, _local_contrast(r.blocks).ravel(), -np.inf)
         worst = masked if worst is None else np.maximum(worst, masked, out=worst)
         valid.append(ok)
+    assert worst is not None        # reduced is not empty (max_code above)
     worst[~np.isfinite(worst)] = np.inf
     # a tie-breaking jitter keeps equal-contrast blocks (synthetic flat patches) spread out
     order_key = worst + rng.uniform(0, 1e-6, worst.shape)
@@ -401,8 +404,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         digest = content_digest(arr)      # every decoded pixel, before the crop below
         if full_shape is None:
             full_shape = arr.shape[:2]
-            if block is None:
-                block = working_block_size(full_shape)
+        if block is None:       # an array frame first: the path frames set it above
+            block = working_block_size(full_shape)
         if reduced and tuple(full_shape) != reduced[0].shape:
             raise InputError(
                 f"frame size {full_shape[1]}x{full_shape[0]} differs from the first frame's "
@@ -425,6 +428,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
                                      max_samples=max_samples, clip_margin=clip_margin,
                                      seed=seed)
     max_code = reduced[0].max_code
+    thumbnail = reduced[0].thumbnail
+    assert block is not None and thumbnail is not None      # reduce_frame makes one
     values = np.stack([r.blocks.reshape(-1, 3)[idx] for r in reduced]) / max_code
     bmax = np.stack([r.block_max.ravel()[idx] for r in reduced]) / max_code
     bmin = np.stack([r.block_min.ravel()[idx] for r in reduced]) / max_code
@@ -436,7 +441,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
                      sources=list(sources), block=block, frame_shape=reduced[0].shape,
                      digests=[r.digest for r in reduced],
                      thumbnails=[r.thumbnail for r in reduced],
-                     thumbnail_pixel=float(reduced[0].shape[1] / reduced[0].thumbnail.shape[1]),
+                     thumbnail_pixel=float(reduced[0].shape[1] / thumbnail.shape[1]),
                      reduced=reduced if keep_reduced else None,
                      clip_distance=distance)
 

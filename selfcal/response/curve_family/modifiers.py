@@ -17,7 +17,7 @@ MIN_WHITE_SLOPE = 0.08
 """Smallest relative slope ``d log f / d log E`` a member has at white (:func:`with_white_clip`)."""
 
 
-def bernstein_monotone(control: Sequence[float]) -> ResponseCurve:
+def bernstein_monotone(control: Sequence[float] | np.ndarray) -> ResponseCurve:
     """Monotone Bernstein polynomial ``sum_k b_k C(n,k) E^k (1-E)^(n-k)``.
 
     Parameters
@@ -42,7 +42,8 @@ def bernstein_monotone(control: Sequence[float]) -> ResponseCurve:
     return ResponseCurve(f"bernstein({n})", "bernstein", normalised(raw))
 
 
-def mixture(curves: Sequence[ResponseCurve], weights: Sequence[float]) -> ResponseCurve:
+def mixture(curves: Sequence[ResponseCurve],
+            weights: Sequence[float] | np.ndarray) -> ResponseCurve:
     """Convex mixture ``sum_i w_i f_i`` of normalised curves (weights are renormalised)."""
     w = np.asarray(weights, dtype=np.float64)
     if w.shape != (len(curves),) or np.any(w < 0) or w.sum() <= 0:
@@ -192,7 +193,8 @@ def _warp(amplitudes):
     return w
 
 
-def with_warp(curve: ResponseCurve, amplitudes: Sequence[float], on: str = "output") -> ResponseCurve:
+def with_warp(curve: ResponseCurve, amplitudes: Sequence[float] | np.ndarray,
+              on: str = "output") -> ResponseCurve:
     """Smooth monotone perturbation ``w(y) = y + sum_k a_k sin(k pi y) / (k pi)``.
 
     ``w(0) = 0``, ``w(1) = 1`` and ``w' >= 1 - sum |a_k|``, so the warp is monotone when
