@@ -222,7 +222,9 @@ def cube_table(model: ResponseModel | PipelineModel, direction: str | None = Non
     return np.asarray(rows, dtype=np.float64), direction, size
 
 
-def _title(text: str) -> str:
+def cube_title(text: str) -> str:
+    """``text`` as one line fit for a ``.cube`` file's ``TITLE "..."`` or comment: white
+    space folded, double quotes made single, at most 200 characters."""
     return " ".join(str(text).replace('"', "'").split())[:200]
 
 
@@ -288,7 +290,7 @@ def write_cube(model: ResponseModel | PipelineModel, path: PathLike, *,
     head = [f"# selfcal {direction}: {what}",
             "# Adobe Cube LUT Specification 1.0" + ("" if dims == 1 else
                                                     "; red varies fastest"),
-            f'TITLE "{_title(title or f"selfcal {direction}")}"',
+            f'TITLE "{cube_title(title or f"selfcal {direction}")}"',
             f"LUT_{dims}D_SIZE {size}",
             "DOMAIN_MIN 0.0 0.0 0.0",
             "DOMAIN_MAX 1.0 1.0 1.0"]

@@ -61,6 +61,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import atomic_output, check_output_path
+from .cube import cube_title
 from ..pipeline.model import SHAPER_GAMMA
 
 __all__ = ["ShaperLUT", "SHAPER_DIRECTIONS", "DEFAULT_SHAPER_SIZE", "shaper_curve",
@@ -268,10 +269,6 @@ def apply_shaper_lut(lut: ShaperLUT, x) -> np.ndarray:
     return out.reshape(shape)
 
 
-def _title(text: str) -> str:
-    return " ".join(str(text).replace('"', "'").split())[:200]
-
-
 #: What each direction's input and output are, for the files' comments.
 MEANING = {"to-raw": "rendered code/255 -> linear camera raw in [0, 1]",
            "render": "linear camera raw in [0, 1] (black 0, white 1) -> rendered code/255",
@@ -301,7 +298,7 @@ def write_shaper_cube(lut: ShaperLUT, path, *, title: str | None = None,
             f"# {lut.kind}",
             "# DaVinci Resolve .cube with a shaper: the 1D table, then the 3D table "
             "(red varies fastest)",
-            f"# {_title(title or f'selfcal {lut.direction}')}",
+            f"# {cube_title(title or f'selfcal {lut.direction}')}",
             f"LUT_1D_SIZE {lut.shaper.shape[0]}",
             "LUT_1D_INPUT_RANGE 0.0 1.0",
             f"LUT_3D_SIZE {lut.size}",

@@ -36,7 +36,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..typing import PathLike
-from ..io.images import OutputWriteError, import_cv2, atomic_output, write_image
+from ..io.images import OutputWriteError, atomic_output, exif_rational, import_cv2, write_image
 from ..response.curve_family import srgb_encode
 
 __all__ = [
@@ -528,13 +528,6 @@ def write_preview(path: PathLike, radiance: np.ndarray, *, force: bool = False,
 # linear images
 # --------------------------------------------------------------------------------------
 
-def _rational(x: float, max_den: int = 1_000_000):
-    from fractions import Fraction
-
-    fr = Fraction(float(x)).limit_denominator(max_den)
-    return fr.numerator, fr.denominator
-
-
 def write_linear(path: PathLike, linear: np.ndarray, *, float32: bool = False,
                  force: bool = False, inputs: Iterable[PathLike] = (),
                  exposure_time: float | None = None, f_number: float | None = None,
@@ -569,11 +562,12 @@ def write_linear(path: PathLike, linear: np.ndarray, *, float32: bool = False,
         rows = 512
         for y in range(0, arr.shape[0], rows):
             data[y:y + rows] = np.clip(arr[y:y + rows] * 65535.0 + 0.5, 0, 65535)
-    tags = []
+    # tifffile's extratags: (code, TIFF type, count, value, write once)
+    tags: list[tuple[int, int, int, tuple[int, int] | int, bool]] = []
     if exposure_time is not None:
-        tags.append((33434, 5, 1, _rational(exposure_time), False))
+        tags.append((33434, 5, 1, exif_rational(exposure_time), False))
     if f_number is not None:
-        tags.append((33437, 5, 1, _rational(f_number, 100), False))
+        tags.append((33437, 5, 1, exif_rational(f_number, 100), False))
     if iso is not None:
         tags.append((34855, 3, 1, int(round(iso)), False))
     _write_tiff(path, data, force=force, inputs=inputs, extratags=tags)

@@ -271,18 +271,27 @@ def read_exposure_info(path: PathLike) -> ExposureInfo:
     )
 
 
+def exif_rational(x: float, max_den: int = 1_000_000) -> tuple[int, int]:
+    """``x`` as an EXIF/TIFF RATIONAL ``(numerator, denominator)``, as cameras write it.
+
+    ``max_den`` bounds the denominator: 1,000,000 suits exposure times (1/8000 s is exact),
+    100 an f-number (f/5.6 is 28/5).
+
+    >>> exif_rational(1 / 250), exif_rational(5.6, 100)
+    ((1, 250), (28, 5))
+    """
+    fr = Fraction(float(x)).limit_denominator(max_den)
+    return fr.numerator, fr.denominator
+
+
 def exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth"):
     import piexif
 
-    def rat(x, max_den=1_000_000):
-        fr = Fraction(float(x)).limit_denominator(max_den)
-        return (fr.numerator, fr.denominator)
-
-    exif_ifd = {}
+    exif_ifd: dict[int, tuple[int, int] | int] = {}
     if exposure_time is not None:
-        exif_ifd[piexif.ExifIFD.ExposureTime] = rat(exposure_time)
+        exif_ifd[piexif.ExifIFD.ExposureTime] = exif_rational(exposure_time)
     if f_number is not None:
-        exif_ifd[piexif.ExifIFD.FNumber] = rat(f_number, 100)
+        exif_ifd[piexif.ExifIFD.FNumber] = exif_rational(f_number, 100)
     if iso is not None:
         exif_ifd[piexif.ExifIFD.ISOSpeedRatings] = int(round(iso))
     zeroth = {piexif.ImageIFD.Make: make.encode(), piexif.ImageIFD.Model: model.encode()}

@@ -277,6 +277,7 @@ def read_dorf_mat(path) -> ResponseCurveSet:
     Parameters
     ----------
     path : str or os.PathLike
+        Either ``.mat`` file (MATLAB 5 format, read with :func:`scipy.io.loadmat`).
 
     Returns
     -------

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from .camera import CameraPipeline, default_pipeline
-from .encoding import _jpeg_with_exif, _rational
+from ..io.images import exif_rational
+from .encoding import _jpeg_with_exif
 from .scenes import make_scene
 from .stacks import simulate_stack
 from .tone import ToneCurve
@@ -74,8 +75,8 @@ def camera_exif(body: SimulatedBody, *, when: datetime, exposure_time: float,
               piexif.ImageIFD.Model: body.model.encode(),
               piexif.ImageIFD.DateTime: stamp}
     bias_r = Fraction(bias).limit_denominator(3)
-    exif = {piexif.ExifIFD.ExposureTime: _rational(exposure_time),
-            piexif.ExifIFD.FNumber: _rational(f_number, 100),
+    exif = {piexif.ExifIFD.ExposureTime: exif_rational(exposure_time),
+            piexif.ExifIFD.FNumber: exif_rational(f_number, 100),
             piexif.ExifIFD.ISOSpeedRatings: int(round(iso)),
             piexif.ExifIFD.DateTimeOriginal: stamp,
             piexif.ExifIFD.SubSecTimeOriginal: f"{when.microsecond // 10000:02d}".encode(),

@@ -14,12 +14,11 @@ import io as _io
 import struct
 import zlib
 from dataclasses import dataclass
-from fractions import Fraction
 
 import numpy as np
 
 from ..errors import InputError
-from ..io.images import import_cv2
+from ..io.images import exif_rational, import_cv2
 from .camera import _LUMA
 
 __all__ = ["CHROMA_SUBSAMPLINGS", "UnsharpMask", "FrameOutput"]
@@ -168,12 +167,6 @@ class FrameOutput:
         return _jpeg_round_trip(codes, jpeg_quality, self.chroma_subsampling)
 
 
-def _rational(x: float, max_den: int = 1_000_000) -> tuple[int, int]:
-    """``x`` as an EXIF/TIFF RATIONAL ``(numerator, denominator)``, as cameras write it."""
-    fr = Fraction(float(x)).limit_denominator(max_den)
-    return fr.numerator, fr.denominator
-
-
 def _png_with_exif(png: bytes, exif: bytes) -> bytes:
     """Insert an ``eXIf`` chunk (TIFF-structured EXIF) right after the PNG's IHDR chunk."""
     if exif.startswith(b"Exif\x00\x00"):
@@ -191,9 +184,9 @@ def _tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
 
     tags: list[tuple[int, int, int, tuple[int, int] | int, bool]] = []
     if time is not None:
-        tags.append((33434, 5, 1, _rational(time), False))          # ExposureTime
+        tags.append((33434, 5, 1, exif_rational(time), False))          # ExposureTime
     if f_number is not None:
-        tags.append((33437, 5, 1, _rational(f_number, 100), False))  # FNumber
+        tags.append((33437, 5, 1, exif_rational(f_number, 100), False))  # FNumber
     if iso is not None:
         tags.append((34855, 3, 1, int(round(iso)), False))         # ISOSpeedRatings
     out = _io.BytesIO()

@@ -199,6 +199,7 @@ class SyntheticStack:
         Returns
         -------
         list of pathlib.Path
+            The raw TIFFs, in frame order.
 
         Raises
         ------
