@@ -87,10 +87,10 @@ def test_linear_tiff_reads_as_raw():
 
 
 def test_exposure_tags_of_tiff_structured_raws(tmp_path):
-    from selfcal.sim.encoding import _tiff_with_exif_tags
+    from selfcal.sim.encoding import tiff_with_exif_tags
 
     path = tmp_path / "linear.tiff"
-    write_bytes_atomic(path, _tiff_with_exif_tags(np.zeros((8, 8, 3), np.uint16),
+    write_bytes_atomic(path, tiff_with_exif_tags(np.zeros((8, 8, 3), np.uint16),
                                                   1 / 60, 5.6, 200))
     info = read_raw_exposure_info(path)
     assert info.exposure_time == pytest.approx(1 / 60) and info.f_number == 5.6

@@ -74,14 +74,14 @@ def knee_stack():
 
 
 def test_white_thresholds_locate_the_top_code(knee_stack):
-    from selfcal.response.solver import _white_thresholds
+    from selfcal.response.solver import white_thresholds
     from selfcal.stack.samples import collect_samples, frame_masks
 
     samples = collect_samples(knee_stack.images)
     masks = frame_masks(samples)
     valid = ~(masks["clipped"] | masks["saturated"])
     order = np.argsort(knee_stack.exposure_times)
-    rows = _white_thresholds(samples.values, valid, order, 3, 255, 2 / 255)
+    rows = white_thresholds(samples.values, valid, order, 3, 255, 2 / 255)
     assert len(rows) >= 20
     truth = knee_stack.inverse_response()
     codes = np.arange(256)
@@ -144,7 +144,7 @@ def test_normal_equations_by_blocks_match_the_sparse_system():
     """The block assembly of AᵀWA, AᵀWb equals the general sparse product."""
     import scipy.sparse as sp
 
-    from selfcal.response.solver import _NormalEquations
+    from selfcal.response.solver import NormalEquations
 
     rng = np.random.default_rng(4)
     F, N, m, nt = 5, 4, 300, 7
@@ -163,7 +163,7 @@ def test_normal_equations_by_blocks_match_the_sparse_system():
               for c in range(3)]
     A = np.vstack(blocks + [A_thr.toarray()])
     b = np.concatenate(rhs + [b_thr])
-    normal = _NormalEquations(dH, rhs, pa, pb, F, N, A_thr, b_thr)
+    normal = NormalEquations(dH, rhs, pa, pb, F, N, A_thr, b_thr)
     Q, q = normal(w)
     np.testing.assert_allclose(Q, A.T @ (w[:, None] * A), rtol=1e-10, atol=1e-9)
     np.testing.assert_allclose(q, A.T @ (w * b), rtol=1e-10, atol=1e-9)

@@ -13,8 +13,8 @@ import pytest
 from selfcal.response.basis import builtin_basis
 from selfcal.response.equations import (
     ThresholdRows,
-    _interpolation_matrix,
-    _NormalEquations,
+    interpolation_matrix,
+    NormalEquations,
     build_pair_rows,
     frame_pairs,
     rejection_counts,
@@ -117,7 +117,7 @@ def test_frame_pairs_walk_rank_gaps_in_exposure_order():
 def test_pair_rows_of_a_noiseless_stack_hold_at_the_true_curve(noiseless, true_coeffs):
     values, valid, order, K, rows = noiseless
     assert len(rows.pairs) == 3 + 2 and rows.m == 5 * values.shape[1]
-    normal = _NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, K.size, N)
+    normal = NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, K.size, N)
     truth = np.concatenate([true_coeffs.ravel(), K])
     assert np.max(np.abs(normal.residual(truth))) < 1e-9
     # the mean curve (c = 0) or exposures off by 10 % do not satisfy them
@@ -161,8 +161,8 @@ def test_threshold_rows_exert_no_pull_when_the_crossing_lies_in_the_gap(basis, g
     dH = [rng.normal(size=(m, N)) for _ in range(3)]
     rhs = [rng.normal(size=m) for _ in range(3)]
     pa, pb = np.zeros(m, int), np.ones(m, int)
-    plain = _NormalEquations(dH, rhs, pa, pb, 2, N)
-    censored = _NormalEquations(dH, rhs, pa, pb, 2, N, *rows.rows())
+    plain = NormalEquations(dH, rhs, pa, pb, 2, N)
+    censored = NormalEquations(dH, rhs, pa, pb, 2, N, *rows.rows())
     w = np.ones(3 * m + 1)
     w[3 * m:] *= rows.active
     for a, b in zip(plain(w[:3 * m]), censored(w)):
@@ -192,7 +192,7 @@ def random_system():
     rhs = [rng.normal(size=m) for _ in range(3)]
     w = rng.uniform(0.5, 2.0, 3 * m)
     A, b = _dense_rows(dH, rhs, pa, pb, F)
-    return _NormalEquations(dH, rhs, pa, pb, F, N), w, A, b
+    return NormalEquations(dH, rhs, pa, pb, F, N), w, A, b
 
 
 def _lstsq_with_rows(A, b, w, fixed, held, extra_A=None, extra_b=None):
@@ -288,8 +288,8 @@ def test_noise_variance_reads_the_slope_of_g_at_both_codes():
     # g = s·x² per channel: slope 2·s·x
     s = np.array([1.0, 2.0, 3.0])
     dg_grid = 2 * s[:, None] * grid[None, :]
-    interp_a = [_interpolation_matrix(grid, Ia[:, c]) for c in range(3)]
-    interp_b = [_interpolation_matrix(grid, Ib[:, c]) for c in range(3)]
+    interp_a = [interpolation_matrix(grid, Ia[:, c]) for c in range(3)]
+    interp_b = [interpolation_matrix(grid, Ib[:, c]) for c in range(3)]
     var = _noise_variance(dg_grid, interp_a, interp_b, 40, None, grid)
     expected = (CODE_NOISE ** 2 * ((2 * s * Ia) ** 2 + (2 * s * Ib) ** 2)).T.ravel()
     expected = np.maximum(expected, 0.05 * np.median(expected))
@@ -323,7 +323,7 @@ def test_alternation_is_used_where_the_times_do_not_fix_the_scale():
 def test_exposure_step_recovers_the_exposures_with_the_true_curves_held(noiseless,
                                                                        true_coeffs):
     values, valid, order, K, rows = noiseless
-    normal = _NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, K.size, N)
+    normal = NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, K.size, N)
     x = np.concatenate([true_coeffs.ravel(), np.zeros(K.size)])
     fixed = np.array([True, False, False, False])
     start = K + np.array([0.0, 0.3, -0.2, 0.5])

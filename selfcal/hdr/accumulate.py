@@ -25,9 +25,9 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import import_cv2
-from ..stack.align import _negligible, warp_to_reference
+from ..stack.align import negligible_motion, warp_to_reference
 from ..stack.frames import Lineariser, StackFrames, apply_lut, clip_limits, max_code_of
-from .deghost import _ghost_mask, _neighbour_residual, _small_log_luma
+from .deghost import ghost_mask, neighbour_residual, small_log_luma
 from .weights import NoiseModel, _FrameTables, packed_lookup
 
 if TYPE_CHECKING:
@@ -319,8 +319,8 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
     widened by ``weighing.ringing_radius`` pixels (``cv2.dilate``; JPEG ringing) -- those and every pixel a
     shorter frame saw clipped white get zero weight (ours: clipping follows exposure, as
     in the calibration's ``selfcal.stack.samples.frame_masks``); its deghosting mask against the
-    reference (:func:`.deghost._ghost_mask`); the misalignment test against the previous
-    frame (:func:`.deghost._neighbour_residual`); then its strips -- in parallel threads on the
+    reference (:func:`.deghost.ghost_mask`); the misalignment test against the previous
+    frame (:func:`.deghost.neighbour_residual`); then its strips -- in parallel threads on the
     table path (OpenCV and numpy release the GIL); a model's own ``to_raw`` is called from
     this thread only.
     """
@@ -363,7 +363,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
                 sums.sigma.prepare(tab)
             cover = None
             if (transforms is not None and k != ref
-                    and not _negligible(transforms[k], frames.shape)):
+                    and not negligible_motion(transforms[k], frames.shape)):
                 # clipped anywhere (before warping) -> _CLIPPED; outside the frame -> 255
                 bad = np.where(tab.valid(img) > 0, 0, _CLIPPED).astype(np.uint8)
                 img = warp_to_reference(img, transforms[k])
@@ -381,12 +381,12 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
                                        borderValue=0)
             off = None
             if deghost and k != ref:
-                off, stats = _ghost_mask(img, cover, sums.kept[ref][0], tab, sums.tables[ref],
+                off, stats = ghost_mask(img, cover, sums.kept[ref][0], tab, sums.tables[ref],
                                          sums.strips, w.deghost_threshold, w.deghost_tolerance)
                 sums.ghost_stats[k] = stats
-            small = _small_log_luma(img, cover, own_white, tab)
+            small = small_log_luma(img, cover, own_white, tab)
             if prev is not None and not (deghost and (k == ref or prev[0] == ref)):
-                sums.residuals.append(_neighbour_residual(prev, (k, small), frames.sources))
+                sums.residuals.append(neighbour_residual(prev, (k, small), frames.sources))
             prev = (k, small)
 
             def accumulate(s, img=img, cover=cover, off=off, own_white=own_white, tab=tab):

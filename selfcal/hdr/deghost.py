@@ -51,7 +51,7 @@ def _disagree(x, v, xr, vr, k: float, tol: float, gain: float = 1.0) -> np.ndarr
     JPEG chroma subsampling disturb the channels of saturated colours but not their
     luminance much -- with ``Var[Y] = Σ_c w_c² Var[X_c] + (tol · Y)²``:
     ``(g·Y − Y_ref)² > k² (g²·Var[Y] + Var[Y_ref])``, ``g`` the correction of the frame's
-    typical ratio to the reference (see :func:`_ghost_mask`).
+    typical ratio to the reference (see :func:`ghost_mask`).
     """
     y, yr = _luma(x) * np.float32(gain), _luma(xr)
     g2 = np.float32(gain * gain)
@@ -91,7 +91,7 @@ def _ratio_statistics(img, cover, ref_img, tab, ref_tab, strips, step: int = 4):
     return med, 1.4826 * float(np.median(np.abs(r - med))), int(r.size)
 
 
-def _ghost_mask(img, cover, ref_img, tab, ref_tab, strips, k: float, tol: float):
+def ghost_mask(img, cover, ref_img, tab, ref_tab, strips, k: float, tol: float):
     """uint8 mask (255) of the pixels where a frame disagrees with the reference frame.
 
     First the frame's typical ratio to the reference ``g`` and the spread ``s`` of
@@ -123,10 +123,10 @@ def _ghost_mask(img, cover, ref_img, tab, ref_tab, strips, k: float, tol: float)
     return cv2.medianBlur(off, 5), {"log_ratio": med, "spread": spread, "samples": count}
 
 
-def _poor_agreement(ghost_stats: dict, sources, ref: int) -> str | None:
+def poor_agreement(ghost_stats: dict, sources, ref: int) -> str | None:
     """A warning when frames disagree with the reference even where nothing moves.
 
-    ``ghost_stats`` maps a frame to the statistics of :func:`_ghost_mask`; a robust spread
+    ``ghost_stats`` maps a frame to the statistics of :func:`ghost_mask`; a robust spread
     of ``log(Y/Y_ref)`` above 25 % (on at least 100 samples) says the response model or the
     exposures fit poorly -- the floor of the test then rose with it.
     """
@@ -154,7 +154,7 @@ _RESIDUAL_SHIFT = 1
 MISALIGNMENT_GAIN = 0.05
 
 
-def _small_log_luma(img, cover, own_white, tab):
+def small_log_luma(img, cover, own_white, tab):
     """log luminance of f⁻¹(I)/e at each of :data:`_RESIDUAL_SIDES`, NaN where unmeasured.
 
     Downscaled by integer factors (``cv2.INTER_AREA``'s fast path; the first from the
@@ -187,7 +187,7 @@ def _small_log_luma(img, cover, own_white, tab):
     return out
 
 
-def _neighbour_residual(a, b, sources) -> dict:
+def neighbour_residual(a, b, sources) -> dict:
     """:func:`_shift_residual` at each size; the one whose best shift gains most."""
     (ka, ya), (kb, yb) = a, b
     tests = [_shift_residual(sa, sb) for sa, sb in zip(ya, yb)]
@@ -230,7 +230,7 @@ def _shift_residual(ya, yb) -> dict:
             "shift": at, "gain": gain, "scale": ya.shape}
 
 
-def _misalignment_warning(residuals, exposure_source: str) -> str | None:
+def misalignment_warning(residuals, exposure_source: str) -> str | None:
     """The ``--align`` warning when some neighbour pair registers better shifted."""
     bad = [r for r in residuals if r["gain"] > MISALIGNMENT_GAIN]
     if not bad:

@@ -100,7 +100,7 @@ from ..stack.frames import (
 from ..stack.samples import collect_samples
 from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
-from .deghost import _misalignment_warning, _poor_agreement
+from .deghost import misalignment_warning, poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
 from . import measured_exposures
 from .measured_exposures import measure_response_exposures, measured_warning
@@ -460,12 +460,12 @@ def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bo
     Returns the mask of unmeasured pixels.
     """
     diagnostics.update(sums.frame_diagnostics(frames.sources, deghost=deghosted))
-    poor = (_poor_agreement(sums.ghost_stats, frames.sources, sums.ref) if deghosted
+    poor = (poor_agreement(sums.ghost_stats, frames.sources, sums.ref) if deghosted
             else None)
     if poor:
         warnings.append(poor)
     diagnostics["neighbour_residuals"] = sums.residuals
-    moved = _misalignment_warning(sums.residuals, exposure_source) if unaligned else None
+    moved = misalignment_warning(sums.residuals, exposure_source) if unaligned else None
     if moved:
         warnings.append(moved)
     unmeasured = sums.divide_and_fill()

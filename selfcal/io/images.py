@@ -220,7 +220,7 @@ def effective_exposure_times(infos: Sequence[ExposureInfo]) -> list[float | None
     return out
 
 
-def _rational(value) -> float | None:
+def rational_value(value) -> float | None:
     try:
         if isinstance(value, tuple):  # (num, den) as some writers give
             num, den = value
@@ -255,15 +255,15 @@ def read_exposure_info(path: PathLike) -> ExposureInfo:
         value = sub.get(code)
         return exif.get(code) if value is None else value
 
-    time = _rational(tag(_TAG_EXPOSURE_TIME))
+    time = rational_value(tag(_TAG_EXPOSURE_TIME))
     if time is None or time <= 0:
-        apex = _rational(tag(_TAG_SHUTTER_APEX))
+        apex = rational_value(tag(_TAG_SHUTTER_APEX))
         time = float(2.0 ** (-apex)) if apex is not None else None
-    fnum = _rational(tag(_TAG_FNUMBER))
+    fnum = rational_value(tag(_TAG_FNUMBER))
     iso = tag(_TAG_ISO)
     if isinstance(iso, tuple):
         iso = iso[0] if iso else None
-    iso = _rational(iso)
+    iso = rational_value(iso)
     return ExposureInfo(
         exposure_time=time if time and time > 0 else None,
         f_number=fnum if fnum and fnum > 0 else None,

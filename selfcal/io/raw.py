@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..typing import PathLike
-from .images import ExposureInfo, _rational
+from .images import ExposureInfo, rational_value
 
 __all__ = ["RAW_SUFFIXES", "RawImage", "read_raw_linear", "read_raw_exposure_info",
            "is_raw_path", "is_linear_tiff"]
@@ -183,9 +183,9 @@ def read_raw_exposure_info(path) -> ExposureInfo:
             return None
         if isinstance(value, (list, tuple)) and len(value) == 2 and not isinstance(
                 value[0], (list, tuple)):
-            r = _rational(tuple(value))
+            r = rational_value(tuple(value))
         else:
-            r = _rational(_first(value))
+            r = rational_value(_first(value))
         return r if r is not None and r > 0 else None
 
     time = rational("ExposureTime")
@@ -193,13 +193,13 @@ def read_raw_exposure_info(path) -> ExposureInfo:
     # an ExposureTime stored as 0 means "unknown" (then a 0 APEX value means the same)
     if time is None and "ExposureTime" not in tags and apex_tag is not None:
         apex_tag = tuple(apex_tag) if isinstance(apex_tag, (list, tuple)) else apex_tag
-        apex = _rational(apex_tag)
+        apex = rational_value(apex_tag)
         numerator = apex_tag[0] if isinstance(apex_tag, tuple) else apex
         if apex is not None and numerator != 0 and -30 < apex < 30:
             time = float(2.0 ** (-apex))
     fnum = rational("FNumber")
     iso = tags.get("ISOSpeedRatings")
-    iso = _rational(_first(iso)) if iso is not None else None
+    iso = rational_value(_first(iso)) if iso is not None else None
     return ExposureInfo(exposure_time=time, f_number=fnum,
                         iso=iso if iso is not None and iso > 0 else None)
 

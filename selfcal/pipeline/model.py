@@ -141,7 +141,7 @@ def _legacy_stages(positional: tuple, keywords: dict,
         raise TypeError(f"PipelineModel() is missing a stage: {exc}") from None
 
 
-def _as_rgb_float(x, what: str) -> np.ndarray:
+def as_rgb_float(x, what: str) -> np.ndarray:
     """Validate ``(..., 3)`` input; uint8/uint16 -> [0, 1]; float kept; NaN rejected."""
     arr = np.asarray(x)
     if arr.ndim < 1 or arr.shape[-1] != 3:
@@ -304,7 +304,7 @@ class PipelineModel:
             float32 in ``[0, 1]``, same shape (multiply by 255 for 8-bit codes); with
             ``return_mask``, the pair ``(rendered, outside)``.
         """
-        x = _as_rgb_float(raw, "raw")
+        x = as_rgb_float(raw, "raw")
         shape = x.shape
         flat = x.reshape(-1, 3)
         out = np.empty(flat.shape, dtype=np.float32)
@@ -407,7 +407,7 @@ class PipelineModel:
             np.clip(out, 0.0, 1.0, out=out)
             self._correct_clipped(out, arr, variant)
             return out
-        p = _as_rgb_float(arr, "rendered")
+        p = as_rgb_float(arr, "rendered")
         shape = p.shape
         flat = p.reshape(-1, 3)
         out = np.empty(flat.shape, dtype=np.float32)

@@ -37,7 +37,7 @@ from scipy.spatial.distance import cdist
 
 from ..errors import InputError
 from ..typing import PathLike
-from .model import BAKE_SIZE, BackwardStages, ForwardStages, PipelineModel, _as_rgb_float
+from .model import BAKE_SIZE, BackwardStages, ForwardStages, PipelineModel, as_rgb_float
 from .nus_render import (NUS_RENDER_GAMMA, NUS_RENDER_REFINE, NUS_RENDER_SIZE, RAW_CODES,
                          LazyRenderTable)
 
@@ -414,7 +414,7 @@ class NUSPipelineModel(PipelineModel):
     def render_exact(self, raw) -> np.ndarray:
         """``f(clip(h(T ρ), 0, 1))`` evaluated directly (the reference,
         :meth:`NUSCameraModel.render`; about 20 µs per pixel); float64, same shape."""
-        return self.camera.render(_as_rgb_float(raw, "raw"))
+        return self.camera.render(as_rgb_float(raw, "raw"))
 
     def render(self, raw, *, return_mask: bool = False):
         """Forward: raw -> rendered, ``f(clip(h(T ρ), 0, 1))`` through the render table.
@@ -439,7 +439,7 @@ class NUSPipelineModel(PipelineModel):
         """
         x = np.asarray(raw)
         if x.dtype != np.uint16 or x.ndim < 1 or x.shape[-1] != 3:
-            x = _as_rgb_float(x, "raw")          # uint16 is used as the 16-bit code
+            x = as_rgb_float(x, "raw")          # uint16 is used as the 16-bit code
         table = self._forward_table()
         tone = self._tone_table
         assert tone is not None     # made with the table

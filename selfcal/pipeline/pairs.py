@@ -28,7 +28,7 @@ from ..errors import InputError, options_from_keywords
 from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image, read_image_size
 from ..io.raw import read_raw_linear
 from ..stack.exposure_ratios import check_linear_raw, split_thumbnails
-from .registration import (Registration, _as_float_rendered, _inside_mask, _warp,
+from .registration import (Registration, as_float_rendered, inside_mask, warp_image,
                            register_raw_jpeg)
 
 __all__ = ["PairSamples", "PairData", "BlockRejection", "pair_samples", "sample_raw_jpeg_pair",
@@ -127,10 +127,10 @@ def _raw_on_rendered_grid(raw, reg: Registration, shape):
     # rendered x -> raw x = s x + t -> resized raw x' = (s x + t + .5) / f - .5
     m = np.array([[s / fx, 0.0, (reg.shift[0] + 0.5) / fx - 0.5],
                   [0.0, s / fy, (reg.shift[1] + 0.5) / fy - 0.5]])
-    out = _warp(src, m, shape)
+    out = warp_image(src, m, shape)
     if out.ndim == 2 and src.ndim == 3:
         out = out[:, :, None]
-    inside = _inside_mask(m, src.shape[:2], shape)
+    inside = inside_mask(m, src.shape[:2], shape)
     return out, inside
 
 
@@ -223,7 +223,7 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     rendered_low, rendered_high = rejection.rendered_low, rejection.rendered_high
     cv2 = import_cv2()
     raw = check_linear_raw(raw_rgb)
-    ren_f = _as_float_rendered(rendered)
+    ren_f = as_float_rendered(rendered)
     h, w = ren_f.shape[:2]
     if registration is None:
         if raw.shape[:2] != (h, w):

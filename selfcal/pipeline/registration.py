@@ -76,7 +76,7 @@ class Registration:
         return self.scale * np.asarray(xy, dtype=np.float64) + np.asarray(self.shift)
 
 
-def _as_float_rendered(rendered) -> np.ndarray:
+def as_float_rendered(rendered) -> np.ndarray:
     """Rendered image → float32 in [0, 1] (uint8 / 255, uint16 / 65535, float as is)."""
     img = np.asarray(rendered)
     if img.ndim != 3 or img.shape[2] < 3:
@@ -107,7 +107,7 @@ def _grey_raw(raw: np.ndarray) -> np.ndarray:
 
 
 def _grey_rendered(rendered: np.ndarray) -> np.ndarray:
-    return _as_float_rendered(rendered).mean(axis=2)
+    return as_float_rendered(rendered).mean(axis=2)
 
 
 @dataclass
@@ -154,7 +154,7 @@ def _from_level(m, lev: _Level):
     return s, t
 
 
-def _warp(img, m, shape, border_value=None):
+def warp_image(img, m, shape, border_value=None):
     cv2 = import_cv2()
     flags = cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP
     if border_value is None:
@@ -164,7 +164,7 @@ def _warp(img, m, shape, border_value=None):
                           borderMode=cv2.BORDER_CONSTANT, borderValue=border_value)
 
 
-def _inside_mask(m, raw_shape, shape, margin=0.0):
+def inside_mask(m, raw_shape, shape, margin=0.0):
     """Level pixels of the rendered grid whose raw position lies inside the raw."""
     h, w = shape
     xs = m[0, 0] * np.arange(w) + m[0, 2]
@@ -188,7 +188,7 @@ def _coarse_search(lev: _Level, s_lo, s_hi, n_max=48):
     for s in np.exp(np.linspace(math.log(s_lo), math.log(s_hi), n)):
         t = (raw_c[0] - s * jpg_c[0], raw_c[1] - s * jpg_c[1])
         m = _to_level(s, t, lev)
-        rw = _warp(lev.raw, m, (h, w))
+        rw = warp_image(lev.raw, m, (h, w))
         (dx, dy), resp = cv2.phaseCorrelate(jh.astype(np.float32),
                                             (rw - rw.mean()).astype(np.float32), window)
         if best is None or resp > best[0]:
@@ -291,10 +291,10 @@ def _tone_match(lev: _Level, s, t):
     """A monotone table mapping raw grey to rendered grey by quantile matching."""
     m = _to_level(s, t, lev)
     h, w = lev.jpg.shape
-    inside = _inside_mask(m, lev.raw.shape, (h, w), margin=1.0)
+    inside = inside_mask(m, lev.raw.shape, (h, w), margin=1.0)
     if inside.sum() < 256:
         return None
-    rw = _warp(lev.raw, m, (h, w))[inside]
+    rw = warp_image(lev.raw, m, (h, w))[inside]
     q = np.linspace(0.0, 1.0, 129)
     rq = np.quantile(rw, q)
     jq = np.quantile(lev.jpg[inside], q)
@@ -309,14 +309,14 @@ def _match_quality(lev: _Level, s, t):
     cv2 = import_cv2()
     h, w = lev.jpg.shape
     m = _to_level(s, t, lev)
-    inside = _inside_mask(m, lev.raw.shape, (h, w))
+    inside = inside_mask(m, lev.raw.shape, (h, w))
     overlap = float(inside.mean())
-    rw = _warp(lev.raw, m, (h, w))
+    rw = warp_image(lev.raw, m, (h, w))
 
     def band(x):
         return cv2.GaussianBlur(x, (0, 0), 1.0) - cv2.GaussianBlur(x, (0, 0), 4.0)
 
-    core = _inside_mask(m, lev.raw.shape, (h, w), margin=8.0 * max(1.0, m[0, 0]))
+    core = inside_mask(m, lev.raw.shape, (h, w), margin=8.0 * max(1.0, m[0, 0]))
     core[:8], core[-8:], core[:, :8], core[:, -8:] = False, False, False, False
     if core.sum() < 256:
         return 0.0, overlap

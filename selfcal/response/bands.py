@@ -46,7 +46,7 @@ from scipy.stats import norm
 
 from ..errors import InputError
 from .solver import SolverOptions
-from .equations import _NormalEquations, build_pair_rows
+from .equations import NormalEquations, build_pair_rows
 from .priors import ExposurePrior, PriorTerms, pca_variance_precision, white_continuation_terms
 
 #: Band estimate used at calibration (chosen on the tuning split, see the module docstring).
@@ -137,7 +137,7 @@ def curve_band(samples, masks, basis, coefficients, log_exposures, known, *,
     K = np.asarray(log_exposures, dtype=float)
     order = np.lexsort((values.mean(axis=(1, 2)), K))
     rows = build_pair_rows(values, valid, order, K, basis, N, _SOLVER.max_rank_gap)
-    normal = _NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
+    normal = NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
     x = np.concatenate([np.asarray(coefficients, float).ravel(), K])
     w = _row_weights(normal, rows, basis, coefficients, x)
     priors = PriorTerms(

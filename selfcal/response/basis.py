@@ -71,7 +71,7 @@ import numpy as np
 
 from ..errors import InputError, ModelFileError
 from . import basis_files as _files
-from .basis_files import _check_intensity, _emor_blocks
+from .basis_files import check_intensity, emor_blocks
 
 __all__ = [
     "ResponseBasis",
@@ -223,7 +223,7 @@ class ResponseBasis:
             ``H[m, j] = h_{j+1}(intensity[m])``.
         """
         n = self._n(n)
-        x = _check_intensity(intensity)
+        x = check_intensity(intensity)
         idx, t = _interp_weights(self.intensity, x)
         g0 = self.mean[idx] * (1.0 - t) + self.mean[idx + 1] * t
         c = self.components[:n]
@@ -319,7 +319,7 @@ class ResponseBasis:
         ndarray, shape (n,)
         """
         n = self._n(n)
-        x = _check_intensity(intensity)
+        x = check_intensity(intensity)
         t = np.asarray(inverse_response, dtype=np.float64).reshape(-1)
         if t.shape != x.shape:
             raise InputError(f"{t.size} inverse-response values for {x.size} intensities")
@@ -602,7 +602,7 @@ def read_invemor(path) -> ResponseBasis:
     InputError
         Naming the file, when it is missing, unreadable, or lacks a block.
     """
-    grid, mean, comps = _emor_blocks(path, "B", "g0", "hinv")
+    grid, mean, comps = emor_blocks(path, "B", "g0", "hinv")
     if grid[0] < -1e-9 or grid[-1] > 1 + 1e-9:
         raise InputError("block 'B' must lie in [0, 1]", path)
     return ResponseBasis(np.clip(grid, 0.0, 1.0), mean, comps, "linear",

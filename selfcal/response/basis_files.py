@@ -7,7 +7,7 @@ forward basis ``emor.txt``), and the two plain types they give: :class:`ForwardB
 :class:`ResponseCurveSet`.  The inverse EMoR file (``invemor.txt``) becomes a
 :class:`~selfcal.response.basis.ResponseBasis`, so its reader,
 :func:`~selfcal.response.basis.read_invemor`, lives with that class (and uses
-:func:`_emor_blocks` from here).  Every name here is also importable from
+:func:`emor_blocks` from here).  Every name here is also importable from
 :mod:`selfcal.response.basis`.
 """
 
@@ -25,7 +25,7 @@ __all__ = ["ForwardBasis", "ResponseCurveSet", "read_emor", "read_dorf_curves",
            "read_dorf_mat"]
 
 
-def _check_intensity(intensity, what="intensity") -> np.ndarray:
+def check_intensity(intensity, what="intensity") -> np.ndarray:
     """Normalised intensities (or irradiances) as a flat float array, checked in [0, 1]."""
     x = np.asarray(intensity, dtype=np.float64).reshape(-1)
     if not np.all(np.isfinite(x)):
@@ -67,7 +67,7 @@ class ForwardBasis:
         v = self.mean + c @ self.components[: c.size]
         if irradiance is None:
             return v
-        return np.interp(_check_intensity(irradiance, "irradiance"), self.irradiance, v)
+        return np.interp(check_intensity(irradiance, "irradiance"), self.irradiance, v)
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,7 +103,7 @@ class ResponseCurveSet:
         Forward curves are inverted by monotone interpolation (a plateau maps to its
         left end); ``f^-1(0) = 0``, ``f^-1(1) = 1``.
         """
-        i = np.linspace(0.0, 1.0, 1024) if intensity is None else _check_intensity(intensity)
+        i = np.linspace(0.0, 1.0, 1024) if intensity is None else check_intensity(intensity)
         out = np.empty((len(self), i.size))
         for j in range(len(self)):
             x, y = self.x[j], self.y[j]
@@ -155,7 +155,7 @@ def _read_named_blocks(path) -> dict[str, np.ndarray]:
     return {k: np.asarray(v, dtype=np.float64) for k, v in blocks.items()}
 
 
-def _emor_blocks(path, grid_key, mean_key, comp_prefix):
+def emor_blocks(path, grid_key, mean_key, comp_prefix):
     blocks = _read_named_blocks(path)
     for key in (grid_key, mean_key, f"{comp_prefix}(1)"):
         if key not in blocks:
@@ -196,7 +196,7 @@ def read_emor(path) -> ForwardBasis:
     InputError
         Naming the file, when it is missing, unreadable, or lacks a block.
     """
-    grid, mean, comps = _emor_blocks(path, "E", "f0", "h")
+    grid, mean, comps = emor_blocks(path, "E", "f0", "h")
     return ForwardBasis(grid, mean, comps, "EMoR (Grossberg & Nayar)")
 
 

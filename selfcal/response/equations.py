@@ -8,9 +8,9 @@ of samples (I, I′) of one scene point in two frames gives one linear row of Eq
 
 per channel, with K the log exposure of each frame.  This module builds those rows
 (:func:`build_pair_rows`, the paper's) and selfcal's own *censored* rows that locate where
-each channel starts to clip at the top code (:func:`_white_thresholds`,
+each channel starts to clip at the top code (:func:`white_thresholds`,
 :class:`ThresholdRows`), and assembles the weighted normal equations of both
-(:class:`_NormalEquations`).  The unknowns are ordered ``[c_R, c_G, c_B, K]``: 3·N
+(:class:`NormalEquations`).  The unknowns are ordered ``[c_R, c_G, c_B, K]``: 3·N
 coefficients, then one log exposure per frame.
 """
 
@@ -37,7 +37,7 @@ def frame_pairs(order: np.ndarray, max_rank_gap: int):
             yield order[r], order[r + gap]
 
 
-def _interpolation_matrix(grid: np.ndarray, x: np.ndarray):
+def interpolation_matrix(grid: np.ndarray, x: np.ndarray):
     """Sparse ``W`` with ``W @ table == np.interp(x, grid, table)`` for any table on grid.
 
     The noise weights re-read the slope of g at the same sample codes in every IRLS
@@ -163,7 +163,7 @@ def rejection_counts(clipped, saturated, order, max_rank_gap: int, stuck: int) -
     return rejections
 
 
-def _white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
+def white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
                       min_each=5):
     """Where each channel starts to clip at the top code, as Eq.-8 rows (censored data).
 
@@ -224,7 +224,7 @@ def _white_thresholds(values, valid, order, max_rank_gap, max_code, margin,
 class ThresholdRows:
     """The censored white-threshold rows ``g(θ) − g(τ) + K_b − K_a = 0`` (selfcal's).
 
-    One row per (channel, frame pair) found by :func:`_white_thresholds`.  They are
+    One row per (channel, frame pair) found by :func:`white_thresholds`.  They are
     *censored*: the samples locate the crossing only between ``gap_lo`` and ``gap_hi``, so
     before every IRLS iteration :meth:`censor` moves θ to where the current curve crosses,
     clipped into the gap, and marks a row ``active`` only when that crossing lies outside
@@ -301,7 +301,7 @@ class ThresholdRows:
         return var
 
 
-class _NormalEquations:
+class NormalEquations:
     """Weighted normal equations of the Eq. 8 system, assembled from its structure.
 
     Pair rows of channel c read ``dH_c[i] · c_c − K[pb_i] + K[pa_i] = rhs_c[i]``: a dense

@@ -24,7 +24,7 @@ selfcal's choices (measured in ``bench/bench_response_matrix.py``, see BENCHMARK
   left to the histograms instead (clipping is monotone too): points where either frame's
   quantile lies within ``clip_margin`` of 0 or the top code are no pair rows, and those
   where the brighter frame reads the top code become censored threshold data
-  (:func:`selfcal.response.equations._white_thresholds` then finds where the channel
+  (:func:`selfcal.response.equations.white_thresholds` then finds where the channel
   clips to a fraction of a code).
 * Points: at every code of the darker frame mapped forward and every code of the
   brighter frame mapped back (the two directions sample the curve where each frame

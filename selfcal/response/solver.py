@@ -71,9 +71,9 @@ from ..stack.frames import DEFAULT_CLIP_MARGIN
 from ..stack.samples import SampleSet, frame_masks
 from .equations import (
     ThresholdRows,
-    _interpolation_matrix,
-    _NormalEquations,
-    _white_thresholds,
+    interpolation_matrix,
+    NormalEquations,
+    white_thresholds,
     build_pair_rows,
     rejection_counts,
 )
@@ -291,13 +291,13 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     rows = build_pair_rows(values, valid, order, exposures.initial, basis, N,
                            options.max_rank_gap, sample_weights)
     rejections = rejection_counts(clipped, saturated, order, options.max_rank_gap, rows.stuck)
-    thresholds = (_white_thresholds(values, valid, order, options.max_rank_gap,
+    thresholds = (white_thresholds(values, valid, order, options.max_rank_gap,
                                     samples.max_code, options.clip_margin / 255.0)
                   if options.white_threshold else [])
     threshold_rows = (ThresholdRows(thresholds, F, samples.max_code, basis, N)
                       if thresholds else None)
     # the threshold rows (if any) are set at the start of every IRLS iteration
-    normal = _NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
+    normal = NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
 
     priors = PriorTerms(
         coefficient_precision=precision, coefficient_mean=centre, ridge=options.ridge,
@@ -462,8 +462,8 @@ def _robust_fit(normal, thresholds, rows, basis, settings, exposures, huber_k,
     if rows.weight is not None:
         row_weight[:3 * m] = rows.weight
     monotone_constrained = False
-    interp_a = [_interpolation_matrix(grid, rows.Ia[:, c]) for c in range(3)]
-    interp_b = [_interpolation_matrix(grid, rows.Ib[:, c]) for c in range(3)]
+    interp_a = [interpolation_matrix(grid, rows.Ia[:, c]) for c in range(3)]
+    interp_b = [interpolation_matrix(grid, rows.Ib[:, c]) for c in range(3)]
     for it in range(max_iterations):
         g_grid = g0_grid[None, :] + coeffs @ H_grid.T          # (3, K)
         dg_grid = np.gradient(g_grid, grid, axis=1)
@@ -564,7 +564,7 @@ def _weighted_solve(normal_eq, settings: SolveSettings, fixed, held, refine: boo
     """Minimise Σ w r² + priors, with the exposures in ``fixed`` held at ``held``.
 
     ``normal_eq`` is ``(AᵀWA, AᵀWb)`` of the Eq. 8 system (see
-    :class:`.equations._NormalEquations`); the priors of ``settings`` are added (the
+    :class:`.equations.NormalEquations`); the priors of ``settings`` are added (the
     exposure prior only when ``refine``), and the monotone QP replaces the plain solution
     when that is not monotone.
 

@@ -21,7 +21,7 @@ __all__ = ["gamut_clip", "gamut_compress", "CameraPipeline", "random_color_matri
            "default_pipeline"]
 
 # Rec. 709 luma weights: the achromatic coordinate of the gamut mapping (output is sRGB-like).
-_LUMA = np.array([0.2126, 0.7152, 0.0722])
+LUMA = np.array([0.2126, 0.7152, 0.0722])
 _GAMUTS = ("smooth", "clip", "none")
 
 
@@ -90,7 +90,7 @@ def gamut_compress(rgb: np.ndarray, *, knee: float = 0.8, strength: float = 1.0)
     if x.shape[-1:] != (3,):
         raise InputError(f"expected RGB data with a last axis of 3, got shape {x.shape}")
     # L = w·x written around G so that a grey gives exactly L = v and c = 0 (no rounding)
-    lum = x[..., 1] + _LUMA[0] * (x[..., 0] - x[..., 1]) + _LUMA[2] * (x[..., 2] - x[..., 1])
+    lum = x[..., 1] + LUMA[0] * (x[..., 0] - x[..., 1]) + LUMA[2] * (x[..., 2] - x[..., 1])
     c = x - lum[..., None]
     lc = np.clip(lum, 0.0, 1.0)[..., None]
     with np.errstate(divide="ignore", invalid="ignore"):

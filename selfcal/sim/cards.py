@@ -19,7 +19,7 @@ import numpy as np
 
 from .camera import CameraPipeline, default_pipeline
 from ..io.images import exif_rational
-from .encoding import _jpeg_with_exif
+from .encoding import jpeg_with_exif
 from .scenes import make_scene
 from .stacks import simulate_stack
 from .tone import ToneCurve
@@ -131,7 +131,7 @@ def _write_session(root, body: SimulatedBody, counter: int, stack, when: datetim
         path = folder / f"{body.prefix}{n:04d}.JPG"
         exif = camera_exif(body, when=when, exposure_time=float(t),
                            bias=round(float(np.log2(t / mid)) * 3) / 3)
-        path.write_bytes(_jpeg_with_exif(stack._encoded[i], exif))
+        path.write_bytes(jpeg_with_exif(stack._encoded[i], exif))
         frames.append(path)
         when += timedelta(seconds=float(t) + 0.3)
     return frames

@@ -43,9 +43,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .camera import _LUMA, CameraPipeline, random_color_matrix
+from .camera import LUMA, CameraPipeline, random_color_matrix
 from .encoding import FrameOutput, UnsharpMask
-from .scenes import _unit_noise
+from .scenes import unit_noise
 from .stacks import DEMO_EXPOSURE_TIMES, SyntheticStack, simulate_stack
 from .tone import ToneCurve
 
@@ -79,7 +79,7 @@ def _srgb_to_linear(v: np.ndarray) -> np.ndarray:
 
 def _palette(colour: np.ndarray, k: float) -> np.ndarray:
     """``Y + k (c - Y)`` at constant Rec. 709 luminance ``Y``, floored at ``-0.04 Y``."""
-    y = (colour @ _LUMA)[..., None]
+    y = (colour @ LUMA)[..., None]
     return np.maximum(y + k * (colour - y), _FLOOR * y)
 
 
@@ -87,7 +87,7 @@ def _sky(yy, xx, aspect, rng, k):
     """Sky colour and log2 light: a zenith-to-horizon gradient, clouds, the sun's glow."""
     t = np.clip(yy / 0.3, 0.0, 1.0)[..., None]
     colour = (1 - t) * np.array([0.20, 0.38, 0.95]) + t * np.array([0.70, 0.80, 0.95])
-    cloud = 1.0 / (1.0 + np.exp(-4.0 * (_unit_noise(rng, yy.shape, max(yy.shape) / 12)
+    cloud = 1.0 / (1.0 + np.exp(-4.0 * (unit_noise(rng, yy.shape, max(yy.shape) / 12)
                                        - 0.6)))
     colour = _palette(colour, k) * (1 - cloud[..., None]) + cloud[..., None] * 0.9
     sx, sy = rng.uniform(0.7, 0.9), rng.uniform(0.05, 0.12)
@@ -100,12 +100,12 @@ def _sky(yy, xx, aspect, rng, k):
 def _foliage(shape, rng, k):
     """Leaves: three greens mixed by smooth noise, leaf-scale texture and shade blobs;
     flowers (small discs, 1.5-4.5 px, of six colours) on about 12 % of it."""
-    mix = np.stack([_unit_noise(rng, shape, 4.0) for _ in range(3)], axis=-1)
+    mix = np.stack([unit_noise(rng, shape, 4.0) for _ in range(3)], axis=-1)
     weights = np.exp(2.0 * mix)
     weights /= weights.sum(axis=-1, keepdims=True)
     colour = _palette(weights @ _LEAVES, k)
-    shade = 1.0 / (1.0 + np.exp(-3.0 * (_unit_noise(rng, shape, max(shape) / 6) - 0.3)))
-    light = (0.4 + 1.1 * _unit_noise(rng, shape, 2.5) + 0.4 * _unit_noise(rng, shape, 0.8)
+    shade = 1.0 / (1.0 + np.exp(-3.0 * (unit_noise(rng, shape, max(shape) / 6) - 0.3)))
+    light = (0.4 + 1.1 * unit_noise(rng, shape, 2.5) + 0.4 * unit_noise(rng, shape, 0.8)
              - 4.0 * shade)
     h, w = shape
     flowers = _palette(_FLOWERS, k)
@@ -133,7 +133,7 @@ def _chart(shape, rng, k):
         r, c = divmod(i, 6)
         colour[ys[r] + gap:ys[r + 1] - gap, xs[c] + gap:xs[c + 1] - gap] = patches[i]
     xx = np.linspace(0.0, 1.0, w)[None, :]
-    light = (-0.2 - rng.uniform(1.0, 2.0) * xx + 0.04 * _unit_noise(rng, (h, w), 0.7)
+    light = (-0.2 - rng.uniform(1.0, 2.0) * xx + 0.04 * unit_noise(rng, (h, w), 0.7)
              + np.zeros((h, 1)))
     return colour, light
 
@@ -143,7 +143,7 @@ def _skin_spheres(shape, rng, k):
     h, w = shape
     colour = np.broadcast_to(_palette(np.array([0.10, 0.18, 0.20]), k), (h, w, 3)).copy()
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    light = -2.0 - 1.5 * yy / h + 0.3 * _unit_noise(rng, (h, w), 1.5)
+    light = -2.0 - 1.5 * yy / h + 0.3 * unit_noise(rng, (h, w), 1.5)
     specular = np.zeros((h, w))
     ldir = np.array([-0.5, -0.6, 0.62])
     ldir /= np.linalg.norm(ldir)
@@ -158,7 +158,7 @@ def _skin_spheres(shape, rng, k):
         nz = np.sqrt(np.clip(1.0 - dx * dx - dy * dy, 0.0, 1.0))
         lambert = np.clip(dx * ldir[0] + dy * ldir[1] + nz * ldir[2], 0.0, 1.0) + 0.03
         colour[inside] = _palette(skin, k)
-        light[inside] = np.log2(lambert[inside]) + 0.05 * _unit_noise(rng, (h, w), 0.6)[inside]
+        light[inside] = np.log2(lambert[inside]) + 0.05 * unit_noise(rng, (h, w), 0.6)[inside]
         spec = np.clip(dx * half[0] + dy * half[1] + nz * half[2], 0.0, 1.0) ** 40
         specular[inside] = 0.6 * spec[inside]
     return colour, light, specular
@@ -173,8 +173,8 @@ def _ground(shape, rng, k, stops):
     for b, i in enumerate(order):
         colour[bands[b]:bands[b + 1]] = _palette(_STRIPES[i], k)
     xx = np.linspace(0.0, 1.0, w)[None, :]
-    light = (0.3 - (stops + 0.3) * xx + 0.25 * _unit_noise(rng, (h, w), 1.5)
-             + 0.1 * _unit_noise(rng, (h, w), 0.6))
+    light = (0.3 - (stops + 0.3) * xx + 0.25 * unit_noise(rng, (h, w), 1.5)
+             + 0.1 * unit_noise(rng, (h, w), 0.6))
     return colour, light
 
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import exif_rational, import_cv2
-from .camera import _LUMA
+from .camera import LUMA
 
 __all__ = ["CHROMA_SUBSAMPLINGS", "UnsharpMask", "FrameOutput"]
 
@@ -36,7 +36,7 @@ def _decode_jpeg(data: bytes) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
-def _jpeg_round_trip(codes: np.ndarray, quality: int,
+def jpeg_round_trip(codes: np.ndarray, quality: int,
                      chroma_subsampling: str = "4:2:0") -> tuple[np.ndarray, bytes]:
     """JPEG-encode ``codes`` with OpenCV (libjpeg) and decode them again.
 
@@ -95,7 +95,7 @@ class UnsharpMask:
         p = np.asarray(rendered, dtype=np.float64)
         if p.ndim != 3 or p.shape[2] != 3:
             raise InputError(f"sharpening needs an HxWx3 image, got shape {p.shape}")
-        y = p @ _LUMA
+        y = p @ LUMA
         detail = self.amount * (y - gaussian_filter(y, self.sigma, mode="reflect"))
         return np.clip(p + detail[..., None], 0.0, 1.0)
 
@@ -164,10 +164,10 @@ class FrameOutput:
         codes = np.round(rendered * self.max_code).astype(dtype)
         if not self.uses_jpeg(jpeg_quality) or jpeg_quality is None:   # (uses_jpeg says)
             return codes, None
-        return _jpeg_round_trip(codes, jpeg_quality, self.chroma_subsampling)
+        return jpeg_round_trip(codes, jpeg_quality, self.chroma_subsampling)
 
 
-def _png_with_exif(png: bytes, exif: bytes) -> bytes:
+def png_with_exif(png: bytes, exif: bytes) -> bytes:
     """Insert an ``eXIf`` chunk (TIFF-structured EXIF) right after the PNG's IHDR chunk."""
     if exif.startswith(b"Exif\x00\x00"):
         exif = exif[6:]
@@ -178,7 +178,7 @@ def _png_with_exif(png: bytes, exif: bytes) -> bytes:
     return png[:at] + chunk + png[at:]
 
 
-def _tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
+def tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
     """16/8-bit RGB TIFF with ExposureTime, FNumber, ISO in IFD0 (as TIFF/EP and DNG do)."""
     import tifffile
 
@@ -194,7 +194,7 @@ def _tiff_with_exif_tags(image: np.ndarray, time, f_number, iso) -> bytes:
     return out.getvalue()
 
 
-def _jpeg_with_exif(jpeg: bytes, exif: bytes) -> bytes:
+def jpeg_with_exif(jpeg: bytes, exif: bytes) -> bytes:
     """The JPEG file ``jpeg`` with the EXIF block ``exif`` inserted (its pixels untouched)."""
     import piexif
 

@@ -38,7 +38,7 @@ from ..errors import InputError
 from .camera import CameraPipeline
 from .conditions import channel_curves
 from .encoding import FrameOutput
-from .scenes import _unit_noise
+from .scenes import unit_noise
 from .stacks import DEMO_EXPOSURE_TIMES, SyntheticStack, simulate_stack
 from .tone import ToneCurve
 
@@ -86,7 +86,7 @@ def voronoi_scene(height: int, width: int, *, saturated: bool, seed: int,
     label = label.reshape(h, w)
     dy, dx = yy - centres[label, 0], xx - centres[label, 1]
     shade = slope[label] * (dy * np.sin(angle[label]) + dx * np.cos(angle[label]))
-    texture = 0.12 * _unit_noise(rng, (h, w), max(0.6, 0.015 * h))
+    texture = 0.12 * unit_noise(rng, (h, w), max(0.6, 0.015 * h))
     light = np.exp2(level[label] + shade + texture - 0.75)
     return (light[..., None] * colour[label]).astype(np.float32)
 

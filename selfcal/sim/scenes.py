@@ -19,7 +19,7 @@ def _opponent(hue: np.ndarray) -> np.ndarray:
     return np.cos(hue[..., None] - np.arange(3) * (2 * np.pi / 3))
 
 
-def _unit_noise(rng, shape, sigma) -> np.ndarray:
+def unit_noise(rng, shape, sigma) -> np.ndarray:
     from scipy.ndimage import gaussian_filter
 
     n = gaussian_filter(rng.standard_normal(shape), sigma=sigma, mode="reflect")
@@ -59,11 +59,11 @@ def _texture(shape, rng, dr: float, sat: float) -> tuple:
     th, tw = shape
     yy, xx = np.mgrid[0:th, 0:tw]
     checker = np.sign(np.sin(2 * np.pi * (xx + 0.5) / 8) * np.sin(2 * np.pi * (yy + 0.5) / 8))
-    tex = (-0.45 * dr + 1.6 * _unit_noise(rng, (th, tw), max(th, tw) / 10)
-           + 0.4 * _unit_noise(rng, (th, tw), 1.0) + 0.35 * checker)
+    tex = (-0.45 * dr + 1.6 * unit_noise(rng, (th, tw), max(th, tw) / 10)
+           + 0.4 * unit_noise(rng, (th, tw), 1.0) + 0.35 * checker)
     log_l = np.clip(tex, -dr, 0.0)
-    hue = np.pi * _unit_noise(rng, (th, tw), max(th, tw) / 6)
-    chroma = sat * 0.7 / (1 + np.exp(-1.5 * _unit_noise(rng, (th, tw), 4.0)))
+    hue = np.pi * unit_noise(rng, (th, tw), max(th, tw) / 6)
+    chroma = sat * 0.7 / (1 + np.exp(-1.5 * unit_noise(rng, (th, tw), 4.0)))
     return log_l, hue, chroma
 
 

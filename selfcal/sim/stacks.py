@@ -22,8 +22,8 @@ import numpy.typing as npt
 from ..errors import InputError, OutputExistsError
 from ..typing import PathLike
 from .camera import CameraPipeline, default_pipeline
-from .encoding import (FrameOutput, UnsharpMask, _jpeg_round_trip, _jpeg_with_exif,
-                       _png_with_exif, _tiff_with_exif_tags)
+from .encoding import (FrameOutput, UnsharpMask, jpeg_round_trip, jpeg_with_exif,
+                       png_with_exif, tiff_with_exif_tags)
 from .scenes import make_scene
 from .sensor import SensorModel
 
@@ -173,17 +173,17 @@ class SyntheticStack:
             meta: dict[str, Any] = {"exposure_time": t, "f_number": self.f_number,
                                     "iso": self.iso}
             if ext == "jpg" and self._encoded is not None:
-                data = _jpeg_with_exif(self._encoded[i], exif_bytes(**meta))
+                data = jpeg_with_exif(self._encoded[i], exif_bytes(**meta))
                 write_bytes_atomic(path, data, force=force)
             elif ext == "jpg":
                 write_image(path, image, force=force, jpeg_quality=jpeg_quality, **meta)
             elif ext == "png":
                 from ..io.images import encode_image
 
-                data = _png_with_exif(encode_image(image, ".png"), exif_bytes(**meta))
+                data = png_with_exif(encode_image(image, ".png"), exif_bytes(**meta))
                 write_bytes_atomic(path, data, force=force)
             else:
-                write_bytes_atomic(path, _tiff_with_exif_tags(image, t, self.f_number,
+                write_bytes_atomic(path, tiff_with_exif_tags(image, t, self.f_number,
                                                               self.iso), force=force)
         return paths
 
@@ -215,7 +215,7 @@ class SyntheticStack:
             codes = np.round(np.clip(raw, 0.0, 1.0) * 65535).astype(np.uint16)
             meta = ((float(self.exposure_times[i]), self.f_number, self.iso) if with_times
                     else (None, None, None))
-            write_bytes_atomic(path, _tiff_with_exif_tags(codes, *meta), force=force)
+            write_bytes_atomic(path, tiff_with_exif_tags(codes, *meta), force=force)
         return paths
 
 
@@ -402,7 +402,7 @@ def simulate_raw_jpeg_pair(scene: np.ndarray | None = None,
         raw = (np.round(raw.astype(np.float64) * levels) / levels).astype(np.float32)
     codes = np.round(pipeline.render(raw) * 255).astype(np.uint8)
     if jpeg_quality is not None:
-        rendered, data = _jpeg_round_trip(codes, jpeg_quality)
+        rendered, data = jpeg_round_trip(codes, jpeg_quality)
     else:
         rendered, data = codes, None
     return {"raw": raw, "rendered": rendered, "codes": codes, "encoded": data,

@@ -396,7 +396,7 @@ def _rescale_homography(h: np.ndarray, sx: float, sy: float | None = None) -> np
     return out / out[2, 2]
 
 
-def _negligible(h: np.ndarray, shape, limit: float = 0.25) -> bool:
+def negligible_motion(h: np.ndarray, shape, limit: float = 0.25) -> bool:
     """No corner moves by more than ``limit`` pixels: resampling would blur more than help."""
     hh, ww = shape
     corners = np.array([[0, 0, 1], [ww - 1, 0, 1], [0, hh - 1, 1], [ww - 1, hh - 1, 1]], float)
@@ -443,7 +443,7 @@ def aligned_working_frames(frames: StackFrames, transforms, max_side: int = 2048
         if (img.shape[1], img.shape[0]) != size:
             img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
         t = _rescale_homography(transforms[k], sx, sy)
-        if not _negligible(t, img.shape[:2]):
+        if not negligible_motion(t, img.shape[:2]):
             img = warp_to_reference(img, t)
         out.append(img)
     return out
