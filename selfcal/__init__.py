@@ -9,7 +9,22 @@ Two calibration paths, after the two papers this package implements:
   tone curves, lattice-regression gamut LUT) with the RBF inverse colour mapping of Lin et
   al. (§6, Eq. 9-11).
 
-The camera simulator with ground truth lives in :mod:`selfcal.sim`.
+Its packages, from the ground floor up (a module imports only from its own floor and the
+floors below):
+
+* :mod:`selfcal.errors` -- the exceptions and the warning the library raises;
+* :mod:`selfcal.version` -- the version, read from the installed package's metadata;
+* :mod:`selfcal.typing` -- the type aliases of the public signatures;
+* :mod:`selfcal.io` -- image files and EXIF, linear raws, model files; atomic writes;
+* :mod:`selfcal.stack` -- a bracket before any model: frames, alignment, correspondences;
+* :mod:`selfcal.response` -- the JPEG-only path: the response from an exposure stack;
+* :mod:`selfcal.pipeline` -- the RAW path: a camera pipeline from RAW+JPEG pairs;
+* :mod:`selfcal.hdr` -- HDR radiance maps, their σ, and the files they are written to;
+* :mod:`selfcal.export` -- calibrations as LUTs and OpenColorIO configs;
+* :mod:`selfcal.choose` -- which path the inputs allow; loading a model file;
+* :mod:`selfcal.report` -- plots and the text a person reads about a model;
+* :mod:`selfcal.batch` -- photo libraries: sessions, one curve per camera, Dask;
+* :mod:`selfcal.sim` -- the camera simulator with ground truth (tests, benchmarks, demo).
 """
 
 from __future__ import annotations

@@ -7,7 +7,15 @@ fits one response curve per camera body from samples pooled across its sessions
 HDR radiance map with a preview (:mod:`.run`), and writes a manifest and a plot per
 camera (:mod:`.camera_plot`); the work runs on Dask distributed
 (:mod:`.cluster`; ``pip install "selfcal[batch]"``).  Importing this package does not
-import Dask.
+import Dask.  Its modules:
+
+* :mod:`selfcal.batch.discover` -- the bracketed sessions of a photo library: EXIF, bodies;
+* :mod:`selfcal.batch.grouping` -- sessions by what the frames show;
+* :mod:`selfcal.batch.pooled` -- one response curve per camera body, from pooled samples;
+* :mod:`selfcal.batch.run` -- the plan, the three kinds of task, the manifest, reruns;
+* :mod:`selfcal.batch.cluster` -- the task graph on Dask distributed (or in process);
+* :mod:`selfcal.batch.faults` -- interruption, lost workers, leftovers of killed writers;
+* :mod:`selfcal.batch.camera_plot` -- per camera body, its sessions' curves over the pooled one.
 
 Examples
 --------

@@ -5,7 +5,9 @@ class for a model file.
 * :mod:`selfcal.choose.paths` -- :func:`calibrate`: the JPEG-only path, the RAW path or
   both, and why (:class:`CalibrationResult`); :func:`calibrate_pipeline`;
 * :mod:`selfcal.choose.loading` -- :func:`load_model`: a model file or NUS model folder as
-  the model object it holds.
+  the model object it holds;
+* :mod:`selfcal.choose.exposure_plan` -- a session's exposures for the response path:
+  given, from EXIF, or from the raws.
 """
 
 from __future__ import annotations

@@ -5,7 +5,22 @@ Eq. 9), lattice-regression gamut LUT (§3.4), backward model (§3.5); with the R
 colour mapping of [Lin2011] (§6, Eq. 9-11); clipped pixels get ``E[raw | code]`` learned
 from clipped training samples (:mod:`selfcal.pipeline.clipped`).
 :mod:`selfcal.pipeline.nus` reads the NUS in-camera model files ([Kim2012]) as a real
-camera pipeline.  Citation keys are those of ``docs/references.md``.
+camera pipeline.  Citation keys are those of ``docs/references.md``.  Its modules:
+
+* :mod:`selfcal.pipeline.fit` -- :func:`fit_pipeline`, from raw and rendered samples;
+* :mod:`selfcal.pipeline.model` -- :class:`PipelineModel`, forward and backward;
+* :mod:`selfcal.pipeline.matrix` -- the rank-based colour matrix ([Gong2018] §3.2);
+* :mod:`selfcal.pipeline.tone` -- monotone 7th-order tone curves by QP ([Gong2018] §3.3);
+* :mod:`selfcal.pipeline.lattice` -- the lattice-regression LUT and g ([Gong2018] §3.4);
+* :mod:`selfcal.pipeline.rbf` -- the RBF inverse colour mapping h⁻¹ ([Lin2011] §6);
+* :mod:`selfcal.pipeline.clipped` -- backward estimates for clipped rendered pixels;
+* :mod:`selfcal.pipeline.dense` -- dense 3-D tables baked for whole images;
+* :mod:`selfcal.pipeline.trust` -- how far from its training colours a model is used;
+* :mod:`selfcal.pipeline.pairs` -- RAW+JPEG pairs, registered and sampled;
+* :mod:`selfcal.pipeline.registration` -- where a camera's JPEG lies on its raw;
+* :mod:`selfcal.pipeline.nus` -- the NUS in-camera model files ([Kim2012]);
+* :mod:`selfcal.pipeline.nus_render` -- an NUS model's render table;
+* :mod:`selfcal.pipeline.baselines` -- baseline pipeline models for comparisons.
 
 Examples
 --------

@@ -1,5 +1,7 @@
-"""What a person reads about a model: plots (:mod:`selfcal.report.plots`, re-exported here)
-and the text of ``selfcal show`` (:mod:`selfcal.report.describe`)."""
+"""What a person reads about a model.
+
+* :mod:`selfcal.report.plots` -- the response, band and transfer plots (re-exported here);
+* :mod:`selfcal.report.describe` -- the text of ``selfcal show``."""
 
 from __future__ import annotations
 

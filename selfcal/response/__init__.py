@@ -2,7 +2,25 @@
 
 :func:`selfcal.calibrate_response` (:mod:`.calibrate`) takes its finer settings as a
 :class:`ResponseOptions`; the solve of Eq. 8 alone (:mod:`.solver`) as a
-:class:`SolverOptions`.
+:class:`SolverOptions`.  Its modules:
+
+* :mod:`selfcal.response.calibrate` -- :func:`calibrate_response`, frames to a model;
+* :mod:`selfcal.response.model` -- :class:`ResponseModel` and its model file;
+* :mod:`selfcal.response.basis` -- the log-domain PCA basis of Eq. 7 (built in, or a file);
+* :mod:`selfcal.response.basis_files` -- Grossberg & Nayar's EMoR and DoRF files;
+* :mod:`selfcal.response.curve_family` -- the response-curve family the built-in basis is
+  computed from;
+* :mod:`selfcal.response.equations` -- the rows of Eq. 8 and the censored threshold rows;
+* :mod:`selfcal.response.priors` -- the priors added to Eq. 8's normal equations;
+* :mod:`selfcal.response.solver` -- the joint solve for coefficients and log exposures;
+* :mod:`selfcal.response.frame_choice` -- which frames the solve can use;
+* :mod:`selfcal.response.exposure_times` -- given, refined or unknown exposure times;
+* :mod:`selfcal.response.histogram_samples` -- correspondences by histogram matching;
+* :mod:`selfcal.response.white_end` -- how far JPEG damage next to clipping reaches;
+* :mod:`selfcal.response.code_error` -- the curve's error per code, on its own samples;
+* :mod:`selfcal.response.bands` -- the confidence band of f⁻¹;
+* :mod:`selfcal.response.delta` -- δ of Eq. 12;
+* :mod:`selfcal.response.verdict` -- whether the fit can be trusted, from its evidence.
 """
 
 from .calibrate import ResponseOptions

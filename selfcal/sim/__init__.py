@@ -16,7 +16,10 @@ three per-channel tone curves.  The modules follow a frame through the camera:
 * :mod:`selfcal.sim.stacks` -- bracketed stacks and RAW+JPEG pairs with their truth
   (:func:`simulate_stack`, :func:`demo_stack`);
 * :mod:`selfcal.sim.conditions` -- the named benchmark conditions (the condition matrix);
+* :mod:`selfcal.sim.exact` -- benchmark cells where the per-channel response model is exact;
 * :mod:`selfcal.sim.cards` -- simulated memory cards of many sessions (``selfcal batch``);
+* :mod:`selfcal.sim.mixed_cards` -- cards as photographers fill them: bursts, manual
+  brackets, scenes mixed;
 * :mod:`selfcal.sim.scoring` -- scores against the simulator's truth.
 
 The names below are re-exported here.  Nothing in the rest of the library imports this

@@ -98,7 +98,15 @@ inform a choice: the bound 0.08 was picked so that those two 5th percentiles are
 DoRF database's (about 0.94 and 0.80); no individual DoRF curve was looked at.
 
 All randomness comes from a seeded :class:`numpy.random.Generator`, so the same seed gives
-the same curves.
+the same curves.  Its modules:
+
+* :mod:`selfcal.response.curve_family.curve` -- the curve object, a normalised forward ``f``;
+* :mod:`selfcal.response.curve_family.encodings` -- display encodings and camera log curves;
+* :mod:`selfcal.response.curve_family.film_tone` -- film, filmic tone mappers, camera curves;
+* :mod:`selfcal.response.curve_family.modifiers` -- monotone polynomials, mixtures, the
+  modifiers and the white clip;
+* :mod:`selfcal.response.curve_family.sampling` -- drawing members at random, sampling and
+  inverting them.
 """
 
 from __future__ import annotations
