@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from selfcal.errors import InputError, ModelFileError, OutputExistsError
+from selfcal.response import ResponseOptions
 from selfcal.response import curve_family as cf
 from selfcal.response.basis import (
     ResponseBasis,
@@ -557,7 +558,8 @@ def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatc
             stack = sim.simulate_stack(sim.make_scene(96, 144, seed=j), pipe, times,
                                          jitter=0.0, jpeg_quality=95, seed=j)
             truth = stack.inverse_response()
-            model = selfcal.calibrate_response(stack.images, times, basis=str(path))
+            model = selfcal.calibrate_response(stack.images, times,
+                                               options=ResponseOptions(basis=str(path)))
             out.append(rmse(model.inverse_response()[1:255], truth[1:255]))
         return np.array(out)
 

@@ -35,9 +35,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import Any
 
-from ..errors import OutputExistsError, SelfcalError, options_from_keywords
+from ..errors import OutputExistsError, SelfcalError
 from ..typing import PathLike, Progress
 from .discover import DEFAULT_MAX_GAP, discover
 from .faults import Journal, interrupted_rows, sweep_partial
@@ -275,8 +274,7 @@ class ClusterOptions:
 
 def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | None = None,
               cluster: ClusterOptions | None = None, options: BatchOptions | None = None,
-              redo: bool = False, progress: Progress | None = None,
-              **old_keywords: Any) -> BatchResult:
+              redo: bool = False, progress: Progress | None = None) -> BatchResult:
     """Calibrate and merge every bracketed session under ``roots``, one curve per camera.
 
     Parameters
@@ -298,11 +296,6 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
         Run every session again, finished or not.
     progress : callable, optional
         ``progress("sessions", done, total, session)`` after each session.
-    **old_keywords
-        ``workers=``, ``memory_limit=``, ``processes=``, ``client=`` (now
-        :class:`ClusterOptions` fields) and ``linearize=``, ``pool=``, ``force=``,
-        ``seed=``, ``max_gap=`` (now :class:`.run.BatchOptions` fields), still accepted
-        with a ``DeprecationWarning``.
 
     Returns
     -------
@@ -318,13 +311,8 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
     OutputExistsError, OutputWriteError
         The batch folder cannot be used.
     """
-    cluster_names = set(ClusterOptions.__dataclass_fields__)
-    cluster = options_from_keywords(
-        ClusterOptions, cluster, {k: v for k, v in old_keywords.items() if k in cluster_names},
-        "run_batch", argument="cluster")
-    options = options_from_keywords(
-        BatchOptions, options,
-        {k: v for k, v in old_keywords.items() if k not in cluster_names}, "run_batch")
+    cluster = ClusterOptions() if cluster is None else cluster
+    options = BatchOptions() if options is None else options
     out_dir = Path(out_dir).resolve()
     _check_out_dir(out_dir, options.force)
     library = discover(roots, exclude=[out_dir], max_gap=options.max_gap,

@@ -78,6 +78,9 @@ class FrameWeighing:
         Test every frame against the reference, per pixel.
     deghost_threshold, deghost_tolerance : float
         ``k`` and the relative error floor of the deghosting test.
+    code_error : bool
+        Add the curve's measured error per code to the variance of the weights and of σ
+        (``MergeOptions.code_error``).
     """
 
     weighting: object
@@ -89,6 +92,7 @@ class FrameWeighing:
     deghost: bool
     deghost_threshold: float = 3.0
     deghost_tolerance: float = 0.1
+    code_error: bool = True
 
 
 
@@ -351,7 +355,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
                                  frames.sources[k])
             tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
                                deghost or k == ref, float(np.max(exposures[sums.order])),
-                               floor=floor)
+                               floor=floor, use_code_error=w.code_error)
             # codes below this in every channel are not near white (see add_strip)
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
