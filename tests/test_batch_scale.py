@@ -25,7 +25,6 @@ def test_work_in_flight_is_bounded_and_the_pooled_fits_still_happen(
         small, tmp_path, monkeypatch, in_flight, pool_sessions):
     """One session under way beyond the pool candidates: no camera waits forever."""
     submitted, done = [], []
-    monkeypatch.setattr(cluster, "MAX_IN_FLIGHT", in_flight)
     real = cluster.SerialExecutor.submit
 
     def spy(self, fn, *args, key="", priority=0):
@@ -35,6 +34,7 @@ def test_work_in_flight_is_bounded_and_the_pooled_fits_still_happen(
 
     monkeypatch.setattr(cluster.SerialExecutor, "submit", spy)
     result = run_batch([small.root], tmp_path / "out", scheduler="serial",
+                       cluster=ClusterOptions(max_in_flight=in_flight),
                        options=BatchOptions(pool_sessions=pool_sessions),
                        progress=lambda *a: done.append(a))
     assert result.count("ok") == 6

@@ -763,10 +763,10 @@ def test_frame_too_far_from_the_bracket_is_merged_unchecked(monkeypatch):
     assert np.median(err) < 0.06, np.median(err)
 
     # the unchecked frame's weights from its kept codes (the default) and from a float32
-    # sum (more than _UNCHECKED_CODES such frames) flag the same pixels
+    # sum (more than MergeSums.unchecked_codes_limit such frames) flag the same pixels
     from selfcal.hdr import accumulate
 
-    monkeypatch.setattr(accumulate, "_UNCHECKED_CODES", 0)
+    monkeypatch.setattr(accumulate.MergeSums, "unchecked_codes_limit", 0)
     summed = merge_hdr(list(st.images) + far.images, list(st.exposure_times) + [512.0])
     np.testing.assert_array_equal(result.unchecked, summed.unchecked)
     np.testing.assert_array_equal(result.radiance, summed.radiance)

@@ -107,6 +107,10 @@ class MergeSums:
     fill; ``residuals`` the misalignment test of each pair of neighbours.
     """
 
+    #: Unchecked frames whose codes are kept (the table path) when there are at most this
+    #: many; beyond, a float32 sum.  Memory only: both give the same weights.
+    unchecked_codes_limit: int = _UNCHECKED_CODES
+
     def __init__(self, shape, exposures, ref: int, used, unchecked=()):
         hh, ww = shape
         n = len(exposures)
@@ -146,7 +150,7 @@ class MergeSums:
 
     def keep_unchecked(self, tab: _FrameTables, shape, dtype, max_code) -> None:
         """Where an unchecked frame's weights will be kept (call before its strips)."""
-        if tab.lut and len(self.unchecked) <= _UNCHECKED_CODES:
+        if tab.lut and len(self.unchecked) <= self.unchecked_codes_limit:
             # the maximum code (zero weight) where a strip leaves it
             tab.unchecked_codes = np.full(shape, max_code, dtype=dtype)
             self.unchecked_codes.append((tab, tab.unchecked_codes))

@@ -64,13 +64,14 @@ _EXCLUDED = np.float32(4.0)
 _CLIP_LEVEL = 2.0
 
 
-def _prepass_reduce(frames) -> int:
-    """The DCT scale for the files' pre-pass (1 for arrays)."""
+def _prepass_reduce(frames, min_side: int = PREPASS_MIN_SIDE) -> int:
+    """The DCT scale for the files' pre-pass (1 for arrays): the largest of
+    :data:`PREPASS_REDUCE` and its halves that keeps the long side >= ``min_side``."""
     if frames.paths[0] is None:
         return 1
     side = max(frames.shape)
     r = PREPASS_REDUCE
-    while r > 1 and side / r < PREPASS_MIN_SIDE:
+    while r > 1 and side / r < min_side:
         r //= 2
     return r
 

@@ -316,7 +316,8 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
                           exposures=full_exposures, exposure_times=list(times),
                           sources=sources, max_code=samples.max_code,
                           diagnostics=diagnostics, inverse_log_sigma=log_sigma,
-                          frames_ignored=tuple(ignored))
+                          frames_ignored=tuple(sorted(ignored,
+                                                      key=lambda f: sources.index(f.source))))
     model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
     return model
 

@@ -34,7 +34,7 @@ selfcal's own (one line each on why):
   (it carries PCA variances), not only with < 2 known times.  A basis without variances
   (``invemor.txt``) gets them estimated from the curve family projected on it
   (:func:`.priors.estimated_coefficient_variance`, ours); the ridge acts only when the
-  prior is off (``prior_weight = 0``, or ``priors.ESTIMATED_PRIOR_SCALE = 0``).
+  prior is off (``prior_weight = 0``, or ``estimated_prior_scale = 0``).
 - White-continuation prior (:mod:`.priors`): beyond the brightest valid sample f⁻¹(1) = 1
   is extrapolation, and the observed curve's straight continuation should meet it.
 - Censored white-threshold rows (:class:`.equations.ThresholdRows`): where each channel
@@ -190,14 +190,14 @@ class SolverOptions:
     ridge : float
         Weight of the ridge on the coefficients, relative to the mean data weight; used
         only when the PCA-variance prior is off (``prior_weight = 0``, or a basis without
-        variances with ``priors.ESTIMATED_PRIOR_SCALE = 0``).
+        variances with ``estimated_prior_scale = 0``).
     white_continuation_sigma : float
         Std (log units) of the white-continuation prior: the observed curve continues
         straight from the brightest valid sample to g(1) = 0.
     prior_weight : float
         Scale of the PCA-variance prior c_n ~ N(0, λ_n / prior_weight) from the basis' PCA
         variances λ_n (estimated for a basis without them, and then weighted by
-        ``priors.ESTIMATED_PRIOR_SCALE``), on in every solve whatever the number of known
+        ``estimated_prior_scale``), on in every solve whatever the number of known
         times.  The data term counts every pair equation as independent, but one sample
         location enters up to 3·(F−1) correlated equations (channels, pairs) and JPEG
         errors are spatially correlated, so the prior is weighted up by about that factor;
@@ -209,6 +209,11 @@ class SolverOptions:
         Add the censored white-threshold rows (:class:`.equations.ThresholdRows`: where
         each channel starts to clip at the top code), which tie the scale of f⁻¹ to the
         data.
+    estimated_prior_scale : float
+        Multiplier of ``prior_weight`` for a basis whose PCA variances are estimated
+        (:func:`.priors.estimated_coefficient_variance`, ours); 0 switches that prior off
+        (the ridge acts instead).  Default :data:`.priors.ESTIMATED_PRIOR_SCALE`, chosen
+        on the tuning split, see docs/decisions.md.
     centre_ambiguity : bool
         With fewer than two different known times, centre the PCA-variance prior at
         :func:`.priors.ambiguity_centre` (standard encodings) instead of the basis mean,
@@ -228,6 +233,7 @@ class SolverOptions:
     prior_weight: float = 100.0
     monotone: bool = True
     white_threshold: bool = True
+    estimated_prior_scale: float = _priors.ESTIMATED_PRIOR_SCALE
     centre_ambiguity: bool = True
 
 
@@ -278,7 +284,8 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     log_times = np.asarray(log_times, dtype=float)
     warnings, ambiguity_prior = _ambiguity_warnings(np.isfinite(log_times), log_times,
                                                     centred=options.centre_ambiguity)
-    precision = pca_variance_precision(basis, N, options.prior_weight)
+    precision = pca_variance_precision(basis, N, options.prior_weight,
+                                       options.estimated_prior_scale)
     centre = (ambiguity_centre(basis, N) if ambiguity_prior and precision is not None
               and options.centre_ambiguity else None)
     exposures = _exposure_setup(log_times, refine_exposures, values, valid, basis,
