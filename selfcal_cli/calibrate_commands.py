@@ -83,10 +83,10 @@ def cmd_calibrate(args) -> int:
     result = selfcal.calibrate(
         images, exposure_times=args.times, progress=progress_bar("calibrate"),
         exposure_source="unknown" if args.unknown_exposures else "auto",
-        refine_exposures=args.refine_exposures, basis=basis,
-        response_options={"options": selfcal.ResponseOptions(
-            n_components=args.components, saturation_threshold=args.saturation_threshold)},
-        **({"align": args.align} if args.align else {}))
+        refine_exposures=args.refine_exposures, align=args.align or False,
+        response_options=selfcal.ResponseOptions(
+            n_components=args.components, saturation_threshold=args.saturation_threshold,
+            basis=basis))
     for line in result.summary_lines():
         say(line)
     if result.response is not None:

@@ -16,20 +16,21 @@ def fit_calls(monkeypatch):
     """Record what calibrate / calibrate_pipeline give the real fit_pipeline, which runs.
 
     A list of ``(raw_samples, rendered_samples, options)``, one per fit; ``options`` holds
-    the keyword arguments and, spread in, the fields of the ``PipelineOptions`` given that
-    differ from their defaults (the knobs a caller set).
+    the keyword arguments (``groups`` only when it is given) and, spread in, the fields of
+    the ``PipelineOptions`` given that differ from their defaults (the knobs a caller set).
     """
     import selfcal.choose.paths
 
     calls = []
     fit = selfcal.choose.paths.fit_pipeline
 
-    @functools.wraps(fit)   # calibrate routes its options by this signature: keep it
+    @functools.wraps(fit)
     def recording_fit(raw_samples, rendered_samples, options=None, **keywords):
         knobs = {} if options is None else {
             f.name: getattr(options, f.name) for f in dataclasses.fields(options)
             if getattr(options, f.name) != f.default}
-        calls.append((raw_samples, rendered_samples, {**knobs, **keywords}))
+        given = {k: v for k, v in keywords.items() if not (k == "groups" and v is None)}
+        calls.append((raw_samples, rendered_samples, {**knobs, **given}))
         return fit(raw_samples, rendered_samples, options, **keywords)
 
     monkeypatch.setattr(selfcal.choose.paths, "fit_pipeline", recording_fit)

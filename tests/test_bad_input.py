@@ -63,9 +63,10 @@ def assets(tmp_path_factory) -> Path:
     frames = [root / f"f{k}.jpg" for k in range(3)]
     selfcal.calibrate_response(frames).save(root / "resp.json")
     selfcal.calibrate_pipeline(
-        FIXTURES / "pair" / "pair.tiff", FIXTURES / "pair" / "pair.jpg", n_sets=2,
-        backward="lut", bake_size=17, inverse_smoothness=1e-4,
-        lut_smoothness=3e-3).save(root / "pipe.json")
+        FIXTURES / "pair" / "pair.tiff", FIXTURES / "pair" / "pair.jpg",
+        options=selfcal.PipelineOptions(n_sets=2, backward="lut", bake_size=17,
+                                        inverse_smoothness=1e-4,
+                                        lut_smoothness=3e-3)).save(root / "pipe.json")
     shutil.copy(FIXTURES / "pair" / "pair.tiff", root / "raw.tiff")
     (root / "lin").mkdir()
     for k, (raw, t) in enumerate(zip(stack.raws, TIMES)):

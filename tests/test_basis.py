@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from selfcal.errors import InputError, ModelFileError, OutputExistsError
+from selfcal.response import ResponseOptions
 from selfcal.response import curve_family as cf
 from selfcal.response.basis import (
     ResponseBasis,
@@ -547,7 +548,7 @@ def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatc
     times = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
     tol = 0.005
 
-    def errors():
+    def errors(scale=3.0):
         out = []
         for j in (2, 10):                 # two whose 5-component projection is monotone
             target = mean + ((others[j] - mean) @ comps[:5].T) @ comps[:5]
@@ -557,12 +558,15 @@ def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatc
             stack = sim.simulate_stack(sim.make_scene(96, 144, seed=j), pipe, times,
                                          jitter=0.0, jpeg_quality=95, seed=j)
             truth = stack.inverse_response()
-            model = selfcal.calibrate_response(stack.images, times, basis=str(path))
+            model = selfcal.calibrate_response(stack.images, times,
+                                               options=ResponseOptions(
+                                                   basis=str(path),
+                                                   estimated_prior_scale=scale))
             out.append(rmse(model.inverse_response()[1:255], truth[1:255]))
         return np.array(out)
 
     on = errors()
     assert on.max() < tol, on
-    monkeypatch.setattr(priors, "ESTIMATED_PRIOR_SCALE", 0.0)
-    off = errors()
+    assert priors.ESTIMATED_PRIOR_SCALE == 3.0      # the default, as errors() passes it
+    off = errors(scale=0.0)
     assert off.max() > tol, off

@@ -236,9 +236,13 @@ def test_an_unreachable_scheduler_writes_nothing(tmp_path, capsys, monkeypatch):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     out = tmp_path / "out"
-    from selfcal.batch import cluster
+    import functools
 
-    monkeypatch.setattr(cluster, "CONNECT_TIMEOUT", "2s")
+    import selfcal.batch
+
+    # the CLI's ClusterOptions, with a short connect_timeout (the default waits 20 s)
+    monkeypatch.setattr(selfcal.batch, "ClusterOptions", functools.partial(
+        selfcal.batch.ClusterOptions, connect_timeout="2s"))
     code = main(["batch", str(lib.root), "-o", str(out), "--scheduler",
                  f"tcp://127.0.0.1:{port}"])
     err = capsys.readouterr().err

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from selfcal.batch import cluster, run_batch
+from selfcal.batch import ClusterOptions, cluster, run_batch
 from selfcal.batch.faults import JOURNAL, Journal, sweep_partial
 from selfcal.batch.run import BatchOptions
 from selfcal.sim.cards import Shots, write_library
@@ -25,7 +25,6 @@ def test_work_in_flight_is_bounded_and_the_pooled_fits_still_happen(
         small, tmp_path, monkeypatch, in_flight, pool_sessions):
     """One session under way beyond the pool candidates: no camera waits forever."""
     submitted, done = [], []
-    monkeypatch.setattr(cluster, "MAX_IN_FLIGHT", in_flight)
     real = cluster.SerialExecutor.submit
 
     def spy(self, fn, *args, key="", priority=0):
@@ -35,6 +34,7 @@ def test_work_in_flight_is_bounded_and_the_pooled_fits_still_happen(
 
     monkeypatch.setattr(cluster.SerialExecutor, "submit", spy)
     result = run_batch([small.root], tmp_path / "out", scheduler="serial",
+                       cluster=ClusterOptions(max_in_flight=in_flight),
                        options=BatchOptions(pool_sessions=pool_sessions),
                        progress=lambda *a: done.append(a))
     assert result.count("ok") == 6
@@ -80,20 +80,13 @@ def test_the_sweep_removes_only_temporaries_and_folders_they_alone_held(tmp_path
         "radiance.exr", "user-file"]
 
 
-def test_old_keywords_of_run_batch_warn_and_still_work(tmp_path):
-    """``workers=`` (now ClusterOptions) and ``max_gap=`` (now BatchOptions) still work,
-    each with a DeprecationWarning naming the options class; a card without a bracket is
-    nothing to do either way."""
+def test_run_batch_takes_its_settings_as_options_objects(tmp_path):
+    """The cluster's settings are ClusterOptions, the sessions' BatchOptions: the 0.x
+    keywords are gone (a TypeError); a card without a bracket is nothing to do."""
     card = tmp_path / "card"
     card.mkdir()
-    with pytest.warns(DeprecationWarning) as caught:
-        result = run_batch([card], tmp_path / "out", scheduler="serial", workers=2,
-                           max_gap=30.0)
-    messages = {str(w.message) for w in caught}
-    assert "run_batch(workers=...) is deprecated: pass cluster=ClusterOptions(workers=...)" \
-        in messages
-    assert "run_batch(max_gap=...) is deprecated: pass options=BatchOptions(max_gap=...)" \
-        in messages
+    result = run_batch([card], tmp_path / "out", scheduler="serial",
+                       cluster=ClusterOptions(workers=2), options=BatchOptions(max_gap=30.0))
     assert result.rows == [] and not (tmp_path / "out").exists()
-    with pytest.raises(TypeError, match="wokers"):
-        run_batch([card], tmp_path / "out", scheduler="serial", wokers=2)
+    with pytest.raises(TypeError, match="workers"):
+        run_batch([card], tmp_path / "out", scheduler="serial", workers=2)

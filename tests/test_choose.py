@@ -19,7 +19,7 @@ from selfcal import sim
 from selfcal.choose import PairOptions, calibrate, calibrate_pipeline, group_inputs
 from selfcal.errors import CalibrationError, InputError, SelfcalWarning
 from selfcal.io import read_image, write_bytes_atomic, write_image
-from selfcal.pipeline import PipelineModel
+from selfcal.pipeline import PipelineModel, PipelineOptions
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -29,8 +29,9 @@ CANON = SHARED / "raw" / "colorchart_canon550d.dng"
 #: Options the real fit_pipeline takes that make it fast (about 1 s on 600-1,000 samples
 #: instead of about 5-25 s): two matrix sets, the lattice backward variant (no RBF), fixed
 #: regulariser weights (no leave-one-out search), a 17³ baked table.
-FAST_FIT = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4,
-                lut_smoothness=3e-3)
+FAST_KNOBS = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4,
+                  lut_smoothness=3e-3)
+FAST_FIT = PipelineOptions(**FAST_KNOBS)
 
 
 def assert_model_fits_its_samples(model, raw, rendered):
@@ -134,7 +135,7 @@ def test_pair_only_takes_the_pipeline_path(fit_calls):
         "no response path: 1 JPEG (pair.jpg) only",
         f"pipeline path: 1 RAW+JPEG pair(s) (pair.jpg); {result.n_pipeline_samples} samples"]
     (raw, ren, options), = fit_calls
-    assert options == {"seed": 3, "progress": None, **FAST_FIT}
+    assert options == {"seed": 3, "progress": None, **FAST_KNOBS}
     assert raw.shape == ren.shape and raw.shape[1] == 3 and len(raw) >= 200
     assert len(raw) == result.n_pipeline_samples == result.pipeline.diagnostics[
         "samples"]["used"]
@@ -285,20 +286,20 @@ def test_too_few_pair_samples_skip_the_pipeline_path_after_the_response(tmp_path
     # with the pairs alone it is an error, saying the same
     with pytest.raises(CalibrationError, match="only 150 usable raw/JPEG samples"):
         calibrate([FIXTURES / "pair" / "pair.tiff", FIXTURES / "pair" / "pair.jpg"],
-                  max_pair_samples=150)
+                  pairs=PairOptions(max_pair_samples=150))
     assert not fit_calls
 
 
-def test_options_are_routed_by_name(fit_calls):
+def test_each_path_gets_its_options_object(fit_calls):
     paths = [FIXTURES / "pair" / "pair.tiff", FIXTURES / "pair" / "pair.jpg"]
-    result = calibrate(paths, **FAST_FIT)            # fit_pipeline's, not calibrate_response's
-    assert fit_calls[-1][2] == {"seed": 0, "progress": None, **FAST_FIT}
+    result = calibrate(paths, pipeline_options=FAST_FIT)
+    assert fit_calls[-1][2] == {"seed": 0, "progress": None, **FAST_KNOBS}
     d = result.pipeline.diagnostics
     assert d["matrix_search"]["n_sets"] == 2 and d["backward"] == "lut"
     assert d["forward_lut_smoothness"] == 3e-3 and d["inverse_tone_smoothness"] == 1e-4
-    # an option neither path takes is refused before anything is read
-    with pytest.raises(TypeError, match=r"unknown option\(s\) lattice_size"):
-        calibrate(paths, lattice_size=5)
+    # a knob by name is no option of calibrate (the 0.x routing by name is gone)
+    with pytest.raises(TypeError, match="n_sets"):
+        calibrate(paths, n_sets=2)
     assert len(fit_calls) == 1
     with pytest.raises(InputError, match="must be auto, raw, exif or unknown"):
         calibrate(paths, exposure_source="guess")
@@ -335,9 +336,9 @@ def test_real_dng_with_a_cropped_jpeg_takes_the_pipeline_path(tmp_path, fit_call
 
 def test_calibrate_pipeline_with_arrays_and_paths(fit_calls):
     pair = sim.simulate_raw_jpeg_pair(sim.make_scene(160, 240, seed=4), seed=4)
-    pm = selfcal.calibrate_pipeline(pair["raw"], pair["rendered"], seed=2, **FAST_FIT)
+    pm = selfcal.calibrate_pipeline(pair["raw"], pair["rendered"], seed=2, options=FAST_FIT)
     raw, ren, options = fit_calls[-1]
-    assert options == {"seed": 2, "progress": None, **FAST_FIT}
+    assert options == {"seed": 2, "progress": None, **FAST_KNOBS}
     assert pm.diagnostics["seed"] == 2 and pm.diagnostics["backward"] == "lut"
     # the samples correspond: the simulator's own pipeline renders them (JPEG noise only)
     err = np.abs(pair["pipeline"].render(raw.astype(np.float32)[None])[0] - ren) * 255
@@ -345,16 +346,16 @@ def test_calibrate_pipeline_with_arrays_and_paths(fit_calls):
     assert_model_fits_its_samples(pm, raw, ren)
     # the same with the fixture files, and arrays of different sizes get registered
     pm = selfcal.calibrate_pipeline([FIXTURES / "pair" / "pair.tiff"],
-                                    [FIXTURES / "pair" / "pair.jpg"], **FAST_FIT)
+                                    [FIXTURES / "pair" / "pair.jpg"], options=FAST_FIT)
     assert_model_fits_its_samples(pm, *fit_calls[-1][:2])
     import cv2
 
     smaller = cv2.resize(pair["rendered"], (180, 120), interpolation=cv2.INTER_AREA)
-    pm = selfcal.calibrate_pipeline([pair["raw"]], [smaller], **FAST_FIT)
+    pm = selfcal.calibrate_pipeline([pair["raw"]], [smaller], options=FAST_FIT)
     raw, ren, _ = fit_calls[-1]
     err = np.abs(pair["pipeline"].render(raw.astype(np.float32)[None])[0] - ren) * 255
     assert np.median(err) < 1.5
     with pytest.raises(InputError, match="2 raws but 1 rendered"):
         calibrate_pipeline([pair["raw"], pair["raw"]], [pair["rendered"]])
-    with pytest.raises(TypeError, match="knots"):     # not an option of the real fit
+    with pytest.raises(TypeError, match="knots"):     # no keyword of calibrate_pipeline
         calibrate_pipeline(pair["raw"], pair["rendered"], knots=7)

@@ -10,7 +10,7 @@ import numpy as np
 
 import selfcal
 from selfcal import sim
-from selfcal.hdr.weights import DEFAULT_NOISE, _FrameTables
+from selfcal.hdr.weights import DEFAULT_NOISE, FrameTables
 from selfcal.response.code_error import LEVELS, _solve_levels, code_error_at
 from selfcal.stack.frames import Lineariser
 
@@ -68,7 +68,7 @@ class _Model:
 
 def _weights(profile):
     lin = Lineariser(_Model(profile), False, 255)
-    tab = _FrameTables(lin, 1.0, "noise", DEFAULT_NOISE, 2.0, 253.0, False)
+    tab = FrameTables(lin, 1.0, "noise", DEFAULT_NOISE, 2.0, 253.0, False)
     return tab.w_table[:, 1].astype(float), tab
 
 

@@ -167,13 +167,9 @@ def test_clipped_channel_gives_zero_weight():
     assert not np.allclose(mixed, only_short)
     assert result.frame_count[0, 0] == 2
     assert not result.unmeasured.any()
-    # the old keyword still works, with a DeprecationWarning naming the option field
-    with pytest.warns(DeprecationWarning, match=r"merge_hdr\(lossy=\.\.\.\) is deprecated: "
-                      r"pass options=MergeOptions\(lossy=\.\.\.\)"):
-        old = merge_hdr([short, long], [1.0, 4.0], model, lossy=False)
-    np.testing.assert_array_equal(old.radiance, result.radiance)
-    with pytest.raises(TypeError, match="losy"):
-        merge_hdr([short, long], [1.0, 4.0], model, losy=False)
+    # the 0.x keyword form is gone: the setting is MergeOptions.lossy
+    with pytest.raises(TypeError, match="lossy"):
+        merge_hdr([short, long], [1.0, 4.0], model, lossy=False)
 
 
 def test_unmeasured_region_flagged_and_filled():
@@ -236,7 +232,7 @@ def test_contradicted_exif_time_uses_model_estimate(tmp_path):
 
 
 def test_refined_exposures_are_used_with_a_warning(stack):
-    result = merge_hdr(stack.images, np.array(stack.exposure_times) * [1, 1.05, 1, 1], options=MergeOptions(calibrate_options={"refine_exposures": True}))
+    result = merge_hdr(stack.images, np.array(stack.exposure_times) * [1, 1.05, 1, 1], options=MergeOptions(refine_exposures=True))
     assert any("refined" in w for w in result.warnings), result.warnings
 
 
@@ -767,10 +763,10 @@ def test_frame_too_far_from_the_bracket_is_merged_unchecked(monkeypatch):
     assert np.median(err) < 0.06, np.median(err)
 
     # the unchecked frame's weights from its kept codes (the default) and from a float32
-    # sum (more than _UNCHECKED_CODES such frames) flag the same pixels
+    # sum (more than MergeSums.unchecked_codes_limit such frames) flag the same pixels
     from selfcal.hdr import accumulate
 
-    monkeypatch.setattr(accumulate, "_UNCHECKED_CODES", 0)
+    monkeypatch.setattr(accumulate.MergeSums, "unchecked_codes_limit", 0)
     summed = merge_hdr(list(st.images) + far.images, list(st.exposure_times) + [512.0])
     np.testing.assert_array_equal(result.unchecked, summed.unchecked)
     np.testing.assert_array_equal(result.radiance, summed.radiance)

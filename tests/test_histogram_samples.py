@@ -47,10 +47,10 @@ def test_points_follow_the_true_curve():
     assert abs(np.median(res)) < 0.02 and np.median(np.abs(res)) < 0.04
 
 
-def test_calibration_on_histograms_is_close_to_the_truth(monkeypatch):
+def test_calibration_on_histograms_is_close_to_the_truth():
     stack = _stack()
-    monkeypatch.setattr(cal, "CORRESPONDENCES", "histogram")
-    model = cal.calibrate_response(stack.images, list(stack.exposure_times))
+    model = cal.calibrate_response(stack.images, list(stack.exposure_times),
+                                   options=cal.ResponseOptions(correspondences="histogram"))
     lut, truth = model.inverse_response(), stack.inverse_response()
     assert np.all(np.diff(lut, axis=0) >= 0)
     for c in range(3):

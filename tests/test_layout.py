@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
@@ -223,3 +224,56 @@ def test_no_module_over_the_limit():
                for name, path in _modules().items()}
     assert len(lengths) > 50  # the walk saw the tree
     assert {name: n for name, n in lengths.items() if n > MAX_MODULE_LINES} == {}
+
+
+def _private_imports(source: str, module: str, path: Path) -> list[str]:
+    """``from M import _name`` in ``module`` where ``M`` is another module: a private name
+    used outside the module that defines it (module aliases such as ``import x as _x`` and
+    dunders are fine)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if not isinstance(node, ast.ImportFrom) or node.module == "__future__":
+            continue
+        target = _resolve(module, path, node)[0]
+        if target == module:
+            continue
+        found += [f"{module} imports {target}.{alias.name}" for alias in node.names
+                  if alias.name.startswith("_") and not alias.name.startswith("__")]
+    return found
+
+
+def test_private_import_check_finds_a_planted_one():
+    path = REPO / "selfcal" / "hdr" / "merge.py"
+    planted = "from .deghost import _ghost_mask, ghost_free\nfrom . import weights as _w\n"
+    assert _private_imports(planted, "selfcal.hdr.merge", path) == [
+        "selfcal.hdr.merge imports selfcal.hdr.deghost._ghost_mask"]
+
+
+def test_no_private_name_is_imported_from_another_module():
+    found = [line for name, path in _modules().items()
+             for line in _private_imports(path.read_text(encoding="utf-8"), name, path)]
+    assert found == []
+
+
+def _unlisted_modules(package_dir: Path, package: str) -> list[str]:
+    """Modules and sub-packages of a package that its docstring does not name on a line of
+    their own (``* :mod:`package.name` -- ...``)."""
+    doc = ast.get_docstring(ast.parse((package_dir / "__init__.py").read_text("utf-8"))) or ""
+    listed = set(re.findall(r"^\* :mod:`([\w.]+)`", doc, re.M))
+    members = sorted([p.stem for p in package_dir.glob("*.py") if not p.stem.startswith("_")]
+                     + [p.name for p in package_dir.iterdir() if (p / "__init__.py").is_file()])
+    return [f"{package}.{m}" for m in members if f"{package}.{m}" not in listed]
+
+
+def test_unlisted_module_check_finds_a_planted_one(tmp_path):
+    (tmp_path / "__init__.py").write_text('"""A package.\n\n* :mod:`pkg.kept` -- here.\n"""\n')
+    (tmp_path / "kept.py").write_text("")
+    (tmp_path / "forgotten.py").write_text("")
+    assert _unlisted_modules(tmp_path, "pkg") == ["pkg.forgotten"]
+
+
+def test_every_package_docstring_lists_its_modules():
+    unlisted = [name for init in sorted((REPO / "selfcal").rglob("__init__.py"))
+                for name in _unlisted_modules(
+                    init.parent, ".".join(init.parent.relative_to(REPO).parts))]
+    assert unlisted == []

@@ -67,19 +67,20 @@ def test_measured_exposures_recover_the_truth_from_arrays(stack):
     np.testing.assert_allclose(plain.exposures, times)
 
 
-def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path, monkeypatch):
-    from selfcal.hdr import measured_exposures
+def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path):
+    from selfcal.hdr.measured_exposures import measure_response_exposures
 
-    monkeypatch.setattr(measured_exposures, "PREPASS_MIN_SIDE", 512)
     true = np.asarray(stack.true_exposures, float)
-    times = list(true * OFF)
+    times = np.array(true * OFF)
     paths = stack.write(tmp_path, fmt="jpg")
-    assert _prepass_reduce(StackFrames(paths, False)) == 2   # 1024 px -> 512
-    meas = selfcal.merge_hdr(paths, times, true_model(stack),
-                             options=MergeOptions(measure_exposures=True))
+    frames = StackFrames(paths, False)
+    assert _prepass_reduce(frames, min_side=512) == 2   # 1024 px -> 512
+    assert _prepass_reduce(frames) == 1                 # below PREPASS_MIN_SIDE: full size
+    out, summary = measure_response_exposures(frames, true_model(stack), times,
+                                              range(len(paths)), clip_margin=2.0, reduce=2)
     # block means of codes, linearised: biased on texture, still well within the times'
-    assert np.abs(_relative(meas.exposures, true) - 1).max() < 0.03
-    assert meas.diagnostics["measured_exposures"]["reduce"] == 2
+    assert np.abs(_relative(out, true) - 1).max() < 0.03
+    assert summary["reduce"] == 2
 
 
 def test_times_that_are_right_are_barely_moved(stack):

@@ -316,39 +316,27 @@ def test_bad_input_is_refused_with_clear_messages(pair):
         fit_pipeline(raw, jpg, n_set=3)                 # a misspelt knob is no option
 
 
-def test_old_keyword_arguments_still_work_and_say_what_replaces_them(pair, model):
+def test_the_options_objects_are_the_one_way_to_set_the_knobs(pair, model):
+    """The 0.x keyword forms are gone: a knob passed by name, PipelineModel's flat
+    arguments and lattice_regression_lut's keywords are a TypeError."""
     raw, jpg = pair["raw"], pair["jpg"] / 255.0
-    new = fit_pipeline(raw, jpg, PipelineOptions(n_sets=2, backward="lut"), n_train=300)
-    with pytest.warns(DeprecationWarning) as caught:
-        old = fit_pipeline(raw, jpg, n_train=300, n_sets=2, backward="lut")
-    assert {str(w.message) for w in caught} == {
-        "fit_pipeline(n_sets=...) is deprecated: pass options=PipelineOptions(n_sets=...)",
-        "fit_pipeline(backward=...) is deprecated: pass options=PipelineOptions(backward=...)"}
-    assert np.array_equal(old.matrix, new.matrix)
-    assert np.array_equal(old.to_raw(pair["jpg"][::97]), new.to_raw(pair["jpg"][::97]))
-    # PipelineModel's old arguments, positional and by keyword
-    with pytest.warns(DeprecationWarning) as caught:
-        flat = PipelineModel(model.matrix, model.tone_curves, model.forward_lut,
-                             model.inverse_tone_curves, model.backward_lut, rbf=model.rbf,
-                             backward=model.backward, diagnostics=model.diagnostics,
-                             clipped_corrections=model.clipped_corrections,
-                             training_colours=model.training_colours)
-    assert len(caught) == 7 and ("PipelineModel(forward_lut=...) is deprecated: pass "
-                                 "forward_stages=ForwardStages(lut=...)"
-                                 in {str(w.message) for w in caught})
+    with pytest.raises(TypeError, match="n_sets"):
+        fit_pipeline(raw, jpg, n_train=300, n_sets=2)
+    with pytest.raises(TypeError):
+        PipelineModel(model.matrix, model.tone_curves, model.forward_lut,
+                      model.inverse_tone_curves, model.backward_lut)
+    with pytest.raises(TypeError, match="forward_stages"):
+        PipelineModel(None, None)
     grouped = PipelineModel(
         ForwardStages(model.matrix, model.tone_curves, model.forward_lut),
         BackwardStages(model.inverse_tone_curves, model.backward_lut, model.rbf,
                        model.clipped_corrections),
         backward=model.backward, diagnostics=model.diagnostics,
         training_colours=model.training_colours)
-    assert flat.to_dict() == grouped.to_dict() == model.to_dict()
-    # lattice_regression_lut's
+    assert grouped.to_dict() == model.to_dict()
     x = np.random.default_rng(0).uniform(0, 1, (300, 3))
-    with pytest.warns(DeprecationWarning, match=r"options=LatticeOptions\(affine=\.\.\.\)"):
-        a = lattice_regression_lut(x, x ** 1.1, smoothness=1.0, affine=False)
-    b = lattice_regression_lut(x, x ** 1.1, LatticeOptions(affine=False), smoothness=1.0)
-    assert np.array_equal(a.nodes, b.nodes)
+    with pytest.raises(TypeError, match="affine"):
+        lattice_regression_lut(x, x ** 1.1, smoothness=1.0, affine=False)
 
 
 def test_model_methods_refuse_bad_arrays(model):

@@ -12,11 +12,11 @@ import selfcal.choose.paths
 from selfcal import sim
 from selfcal.io import write_image
 from selfcal.pipeline.pairs import collect_pair_samples
-from selfcal.pipeline import lattice_regression_lut
+from selfcal.pipeline import PipelineOptions, lattice_regression_lut
 
 #: fast options (two matrix sets, the lattice backward variant, a small baked table); the
 #: forward LUT weight stays "auto", so it is chosen by held-out error over the groups.
-FAST = dict(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4)
+FAST = PipelineOptions(n_sets=2, backward="lut", bake_size=17, inverse_smoothness=1e-4)
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +43,7 @@ def _scene_fold_lut(model, raw, rendered, groups):
 def test_two_pairs_are_two_groups_and_the_weights_come_from_scene_folds(two_pairs, fit_calls):
     raws = [p["raw"] for p in two_pairs]
     jpgs = [p["rendered"] for p in two_pairs]
-    model = selfcal.calibrate_pipeline(raws, jpgs, seed=0, **FAST)
+    model = selfcal.calibrate_pipeline(raws, jpgs, seed=0, options=FAST)
     raw, ren, options = fit_calls[-1]
     # one label per sample, one group per pair, in the order of the pairs
     expected, _ = collect_pair_samples(raws, jpgs, seed=0, max_samples=20_000)
@@ -69,7 +69,7 @@ def test_two_pairs_are_two_groups_and_the_weights_come_from_scene_folds(two_pair
 
 def test_one_pair_keeps_leave_one_sample_out(two_pairs, fit_calls):
     p = two_pairs[0]
-    model = selfcal.calibrate_pipeline(p["raw"], p["rendered"], seed=0, **FAST)
+    model = selfcal.calibrate_pipeline(p["raw"], p["rendered"], seed=0, options=FAST)
     assert "groups" not in fit_calls[-1][2]
     assert model.diagnostics["groups"] is None
     assert "leave-one-out" in model.diagnostics["validation"]
@@ -78,7 +78,7 @@ def test_one_pair_keeps_leave_one_sample_out(two_pairs, fit_calls):
 def test_groups_cannot_be_passed_by_the_caller(two_pairs):
     p = two_pairs[0]
     with pytest.raises(TypeError, match="groups"):
-        selfcal.calibrate_pipeline(p["raw"], p["rendered"], groups=np.zeros(10), **FAST)
+        selfcal.calibrate_pipeline(p["raw"], p["rendered"], groups=np.zeros(10), options=FAST)
 
 
 def test_calibrate_on_two_pair_files_fits_by_scene(tmp_path, two_pairs, fit_calls):

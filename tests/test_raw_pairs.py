@@ -284,9 +284,8 @@ def test_blocks_clipped_throughout_are_kept_on_request(sim_pair):
     default = pair_samples(raw, ren, None, block=8, seed=0)
     kept = pair_samples(raw, ren, None, block=8, seed=0,
                         rejection=BlockRejection(keep_clipped=True))
-    with pytest.warns(DeprecationWarning, match=r"rejection=BlockRejection\(keep_clipped="):
-        old = pair_samples(raw, ren, None, block=8, seed=0, keep_clipped=True)
-    assert np.array_equal(old.raw, kept.raw) and np.array_equal(old.positions, kept.positions)
+    with pytest.raises(TypeError, match="keep_clipped"):     # the 0.x keyword is gone
+        pair_samples(raw, ren, None, block=8, seed=0, keep_clipped=True)
     inside = lambda ps, y0, x0: np.any(                               # noqa: E731
         (ps.positions[:, 0] > x0) & (ps.positions[:, 0] < x0 + 40)
         & (ps.positions[:, 1] > y0) & (ps.positions[:, 1] < y0 + 40))

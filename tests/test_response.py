@@ -244,34 +244,27 @@ def test_rejections_are_counted_by_reason():
                                        options=ResponseOptions(saturation_threshold=0.3))
     rejected = model.diagnostics["samples"]["rejected"]
     assert rejected["clipped"] > 0 and rejected["saturated"] > 0
-    # the old keyword argument still works, with a DeprecationWarning naming the field
-    with pytest.warns(DeprecationWarning, match=r"options=ResponseOptions\(saturation_thr"):
-        strict = selfcal.calibrate_response(stack.images, TIMES, saturation_threshold=0.15)
+    strict = selfcal.calibrate_response(stack.images, TIMES,
+                                        options=ResponseOptions(saturation_threshold=0.15))
     assert strict.diagnostics["samples"]["rejected"]["saturated"] > rejected["saturated"]
     assert strict.diagnostics["saturation_threshold"] == 0.15
 
 
-def test_options_and_old_keywords(srgb_stack, srgb_model):
+def test_options_object_and_no_keyword_forms(srgb_stack, srgb_model):
     frames = srgb_stack.images[:3]
-    with warnings.catch_warnings():
-        warnings.simplefilter("error", DeprecationWarning)
-        new = selfcal.calibrate_response(frames, TIMES[:3], options=ResponseOptions(
-            n_components=4, clip_margin=3.0, max_samples=1500))
-    with pytest.warns(DeprecationWarning) as caught:
-        old = selfcal.calibrate_response(frames, TIMES[:3], n_components=4, clip_margin=3.0,
-                                         max_samples=1500)
-    messages = {str(w.message) for w in caught if w.category is DeprecationWarning}
-    assert {f"calibrate_response({k}=...) is deprecated: pass options=ResponseOptions({k}=...)"
-            for k in ("n_components", "clip_margin", "max_samples")} <= messages
-    np.testing.assert_array_equal(old.inverse, new.inverse)
+    new = selfcal.calibrate_response(frames, TIMES[:3], options=ResponseOptions(
+        n_components=4, clip_margin=3.0, max_samples=1500))
     assert new.diagnostics["n_components"] == 4 and new.diagnostics["clip_margin"] == 3.0
-    with pytest.raises(TypeError, match="n_componets"):
-        selfcal.calibrate_response(frames, TIMES[:3], n_componets=4)
+    # the 0.x keyword forms are gone: the fields are set on the options
+    with pytest.raises(TypeError, match="n_components"):
+        selfcal.calibrate_response(frames, TIMES[:3], n_components=4)
+    with pytest.raises(selfcal.InputError, match="correspondences"):
+        ResponseOptions(correspondences="pixels")
     # the defaults are the options' defaults (the shared model was calibrated without any)
     assert srgb_model.diagnostics["n_components"] == ResponseOptions().n_components
 
 
-def test_solver_options_and_old_keywords():
+def test_solver_options_and_no_keyword_forms():
     from selfcal.response import SolverOptions
     from selfcal.response.basis import builtin_basis
     from selfcal.response.solver import solve_exposure_equations
@@ -280,10 +273,10 @@ def test_solver_options_and_old_keywords():
     log_times = np.log(TIMES[:3])
     new = solve_exposure_equations(samples, builtin_basis(), log_times,
                                    options=SolverOptions(max_rank_gap=1, huber_k=2.0))
-    with pytest.warns(DeprecationWarning, match=r"pass options=SolverOptions\(huber_k=\.\.\.\)"):
-        old = solve_exposure_equations(samples, builtin_basis(), log_times, max_rank_gap=1,
-                                       huber_k=2.0)
-    np.testing.assert_array_equal(old.coefficients, new.coefficients)
+    default = solve_exposure_equations(samples, builtin_basis(), log_times)
+    assert not np.array_equal(default.coefficients, new.coefficients)
+    with pytest.raises(TypeError, match="huber_k"):
+        solve_exposure_equations(samples, builtin_basis(), log_times, huber_k=2.0)
 
 
 def test_contradicting_time_is_reported(srgb_stack):

@@ -134,7 +134,7 @@ def test_sigma_sums_against_an_independent_float64_sum(model):
 
     from selfcal.hdr.accumulate import frame_limits
     from selfcal.hdr.sigma import SigmaSums
-    from selfcal.hdr.weights import DEFAULT_NOISE, _FrameTables, noise_variance
+    from selfcal.hdr.weights import DEFAULT_NOISE, FrameTables, noise_variance
     from selfcal.stack.frames import Lineariser
 
     rng = np.random.default_rng(4)
@@ -150,7 +150,7 @@ def test_sigma_sums_against_an_independent_float64_sum(model):
     band = np.stack([np.interp(x_axis, model.intensity, model.inverse_log_sigma[:, c])
                      for c in range(3)], axis=-1)
     for e in times:
-        tab = _FrameTables(lin, e, "noise", DEFAULT_NOISE, lo, hi, False, max(times), floor)
+        tab = FrameTables(lin, e, "noise", DEFAULT_NOISE, lo, hi, False, max(times), floor)
         sums.prepare(tab)
         codes = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
         codes[:3] = 255                                  # never measured: σ = inf

@@ -100,17 +100,16 @@ def test_block_means_sit_at_their_locations(small_jpegs, block):
     assert np.percentile(err, 95) < 4.0, np.percentile(err, 95)
 
 
-def test_near_clip_radius_marks_the_neighbours_of_a_clipped_block(monkeypatch):
-    """samples.NEAR_CLIP_BLOCKS: off, only the clipped block is; at 1, its 8 neighbours."""
+def test_near_clip_radius_marks_the_neighbours_of_a_clipped_block():
+    """near_clip_blocks (ResponseOptions.near_clip_blocks): off, only the clipped block is;
+    at 1, its 8 neighbours."""
     import numpy as np
 
     from selfcal.stack import samples
 
     image = np.full((40, 40, 3), 120, np.uint8)
     image[16:24, 16:24] = 255                      # one clipped 8x8 block
-    monkeypatch.setattr(samples, "NEAR_CLIP_BLOCKS", 0)
     alone = samples.reduce_frame(image, block=8).block_max >= 254
-    monkeypatch.setattr(samples, "NEAR_CLIP_BLOCKS", 1)
-    near = samples.reduce_frame(image, block=8).block_max >= 254
+    near = samples.reduce_frame(image, block=8, near_clip_blocks=1).block_max >= 254
     assert alone.sum() == 1 and alone[2, 2]
     assert near.sum() == 9 and near[1:4, 1:4].all()

@@ -287,15 +287,16 @@ def exif_stack_with_one_wrong_time(stack, folder, wrong=3, factor=1.6):
     return dataclasses.replace(stack, exposure_times=times).write(folder)
 
 
-def test_contradicted_exif_times_are_refined_by_default(stack, tmp_path, monkeypatch):
-    # refining against holding, alone: the measured ringing reach (calibrate.MEASURE_RINGING)
-    # acts on held exposures only, and on this stack it also hides most of the wrong time
-    from selfcal.response import calibrate as cal
+def test_contradicted_exif_times_are_refined_by_default(stack, tmp_path):
+    # refining against holding, alone: the measured ringing reach
+    # (ResponseOptions.measure_ringing) acts on held exposures only, and on this stack it
+    # also hides most of the wrong time
+    from selfcal.response import ResponseOptions
 
-    monkeypatch.setattr(cal, "MEASURE_RINGING", False)
+    without_reach = ResponseOptions(measure_ringing=False)
     paths = exif_stack_with_one_wrong_time(stack, tmp_path / "s")
     with pytest.warns(SelfcalWarning, match=r"frame_03.*contradict the EXIF.*refined"):
-        model = selfcal.calibrate_response(paths)
+        model = selfcal.calibrate_response(paths, options=without_reach)
     d = model.diagnostics
     assert d["exposure_source"] == "exif" and d["refine_exposures"] is True
     assert d["verdict"] == "ok", d["verdict_reasons"]
@@ -303,7 +304,7 @@ def test_contradicted_exif_times_are_refined_by_default(stack, tmp_path, monkeyp
     assert model.exposures[3] / stack.true_exposures[3] == pytest.approx(1, abs=0.08)
     others = [0, 1, 2, 4, 5]
     assert np.allclose(model.exposures[others] / np.array(TIMES)[others], 1, atol=0.06)
-    held = calibrate_quietly(paths, refine_exposures=False)
+    held = calibrate_quietly(paths, refine_exposures=False, options=without_reach)
     assert held.diagnostics["refine_exposures"] is False
     assert held.diagnostics["verdict"] == "doubtful"
     assert rmse_vs_truth(model, stack) < rmse_vs_truth(held, stack)

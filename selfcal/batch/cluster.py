@@ -35,9 +35,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import ModuleType
-from typing import Any
 
-from ..errors import OutputExistsError, SelfcalError, options_from_keywords
+from ..errors import OutputExistsError, SelfcalError
 from ..typing import PathLike, Progress
 from .discover import DEFAULT_MAX_GAP, discover
 from .faults import Journal, interrupted_rows, sweep_partial
@@ -48,14 +47,15 @@ from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_
 DASK_MISSING = ('selfcal batch runs on Dask distributed, which is not installed: '
                 'pip install "selfcal[batch]"')
 
-#: How long to try reaching a scheduler given by its address.
+#: How long to try reaching a scheduler given by its address (``ClusterOptions``' default).
 CONNECT_TIMEOUT = "20s"
 #: The Dask setting unset for the local cluster's workers (see DaskExecutor).
 NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 
 #: Sessions under way at most (prepared or being prepared, not finished): bounds the
 #: tasks the scheduler and the driver hold (10⁴ submitted at once starved a loaded
-#: scheduler's connection to the driver in ``bench/bench_batch_scale.py``).
+#: scheduler's connection to the driver in ``bench/bench_batch_scale.py``); the default
+#: of ``ClusterOptions.max_in_flight``.
 MAX_IN_FLIGHT = 1000
 
 # task priorities (higher first)
@@ -141,7 +141,7 @@ class DaskExecutor:
     new :class:`distributed.LocalCluster` of ``workers`` single-threaded processes."""
 
     def __init__(self, *, scheduler=None, workers=None, memory_limit="auto",
-                 processes=True, client=None):
+                 processes=True, client=None, connect_timeout=CONNECT_TIMEOUT):
         distributed = require_dask()
         self._distributed = distributed
         self._own = []
@@ -149,7 +149,7 @@ class DaskExecutor:
             self.client = client
         elif scheduler:
             try:
-                self.client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT)
+                self.client = distributed.Client(scheduler, timeout=connect_timeout)
             except (OSError, TimeoutError) as exc:
                 raise ClusterError(f"cannot reach the Dask scheduler at {scheduler} "
                                    f"({exc})") from None
@@ -265,18 +265,23 @@ class ClusterOptions:
         LocalCluster workers as processes (True) or threads of this process.
     client : distributed.Client, optional
         Use this client (and its cluster) instead of starting one.
+    connect_timeout : str
+        How long to try reaching a scheduler given by its address (Dask's ``timeout``).
+    max_in_flight : int
+        Sessions under way at most beyond the pool candidates (:data:`MAX_IN_FLIGHT`).
     """
 
     workers: int | None = None
     memory_limit: object = "auto"
     processes: bool = True
     client: object = None
+    connect_timeout: str = CONNECT_TIMEOUT
+    max_in_flight: int = MAX_IN_FLIGHT
 
 
 def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | None = None,
               cluster: ClusterOptions | None = None, options: BatchOptions | None = None,
-              redo: bool = False, progress: Progress | None = None,
-              **old_keywords: Any) -> BatchResult:
+              redo: bool = False, progress: Progress | None = None) -> BatchResult:
     """Calibrate and merge every bracketed session under ``roots``, one curve per camera.
 
     Parameters
@@ -298,11 +303,6 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
         Run every session again, finished or not.
     progress : callable, optional
         ``progress("sessions", done, total, session)`` after each session.
-    **old_keywords
-        ``workers=``, ``memory_limit=``, ``processes=``, ``client=`` (now
-        :class:`ClusterOptions` fields) and ``linearize=``, ``pool=``, ``force=``,
-        ``seed=``, ``max_gap=`` (now :class:`.run.BatchOptions` fields), still accepted
-        with a ``DeprecationWarning``.
 
     Returns
     -------
@@ -318,13 +318,8 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
     OutputExistsError, OutputWriteError
         The batch folder cannot be used.
     """
-    cluster_names = set(ClusterOptions.__dataclass_fields__)
-    cluster = options_from_keywords(
-        ClusterOptions, cluster, {k: v for k, v in old_keywords.items() if k in cluster_names},
-        "run_batch", argument="cluster")
-    options = options_from_keywords(
-        BatchOptions, options,
-        {k: v for k, v in old_keywords.items() if k not in cluster_names}, "run_batch")
+    cluster = ClusterOptions() if cluster is None else cluster
+    options = BatchOptions() if options is None else options
     out_dir = Path(out_dir).resolve()
     _check_out_dir(out_dir, options.force)
     library = discover(roots, exclude=[out_dir], max_gap=options.max_gap,
@@ -341,9 +336,10 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
     rows = _Journaled(rows, journal)
     spec = {"scheduler": scheduler, "workers": cluster.workers,
             "memory_limit": cluster.memory_limit, "processes": cluster.processes,
-            "client": cluster.client}
+            "client": cluster.client, "connect_timeout": cluster.connect_timeout}
     try:
-        _execute(result, spec, todo, cameras, fits, options, rows, len(plans), progress)
+        _execute(result, spec, todo, cameras, fits, options, rows, len(plans), progress,
+                 max_in_flight=cluster.max_in_flight)
     except KeyboardInterrupt:        # Ctrl-C, or SIGTERM as the CLI turns it
         rows += interrupted_rows(todo, rows)
         _conclude(result, list(rows), cameras, fits, plans, library)
@@ -368,7 +364,8 @@ class _Journaled(list):
         self.journal.add(row)
 
 
-def _execute(result, cluster, todo, cameras, fits, options, rows, total, progress):
+def _execute(result, cluster, todo, cameras, fits, options, rows, total, progress, *,
+             max_in_flight: int = MAX_IN_FLIGHT):
     """Start the executor (when there is work), drive the tasks, close it."""
     if not todo:
         return
@@ -376,7 +373,8 @@ def _execute(result, cluster, todo, cameras, fits, options, rows, total, progres
     executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(**cluster))
     try:
         result.executor = executor.name
-        _drive(executor, todo, cameras, fits, options, rows, total, progress)
+        _drive(executor, todo, cameras, fits, options, rows, total, progress,
+               max_in_flight=max_in_flight)
         if client is None and scheduler is None:
             result.worker_memory = executor.worker_memory()
     finally:
@@ -414,11 +412,12 @@ def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
     return fits, rows, todo
 
 
-def _drive(executor, todo, cameras, fits, options, rows, total, progress):
+def _drive(executor, todo, cameras, fits, options, rows, total, progress, *,
+           max_in_flight: int = MAX_IN_FLIGHT):
     """Submit the tasks of the sessions to do and collect their rows as they finish.
 
     The pool candidates' ``prepare`` are submitted first, all of them (a camera's fit
-    waits for its last candidate); beyond them, at most :data:`MAX_IN_FLIGHT` sessions
+    waits for its last candidate); beyond them, at most ``max_in_flight`` sessions
     are under way at a time (``prepare`` submitted, ``finish`` not done); each finished
     session lets the next one in, so the scheduler and this process hold a bounded
     number of tasks however large the library.  A camera's fit is submitted when the
@@ -442,7 +441,7 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress):
         return fut
 
     n_candidates = sum(p.camera in waiting and p.pool_candidate for p in queue)
-    first = min(len(queue), n_candidates + MAX_IN_FLIGHT)   # every candidate at once:
+    first = min(len(queue), n_candidates + max_in_flight)   # every candidate at once:
     completed = executor.as_completed([prepare() for _ in range(first)])  # fits can't stall
 
     def finish(p, camera):

@@ -40,7 +40,6 @@ import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -356,8 +355,8 @@ class PooledCalibration:
     stuck_codes: dict | None
 
 
-def pooled_calibration(sessions: Sequence[SessionSamples], *, rounds: int = 2,
-                       **options: Any) -> PooledCalibration:
+def pooled_calibration(sessions: Sequence[SessionSamples], *,
+                       rounds: int = 2) -> PooledCalibration:
     """Fit a shared curve, flag the sessions that disagree, fit again without them.
 
     Each round fits :func:`fit_shared_response` to the sessions still pooled and measures
@@ -371,8 +370,6 @@ def pooled_calibration(sessions: Sequence[SessionSamples], *, rounds: int = 2,
         With ``own_intensity`` and ``own_inverse`` set.
     rounds : int
         Rounds of flagging; the pool left after the last is fitted once more.
-    **options
-        For :func:`fit_shared_response`.
     """
     sessions = list(sessions)
     pooled = list(sessions)
@@ -382,7 +379,7 @@ def pooled_calibration(sessions: Sequence[SessionSamples], *, rounds: int = 2,
     for _ in range(max(1, int(rounds))):
         if len(pooled) < 2:
             break
-        fit = fit_shared_response(pooled, **options)
+        fit = fit_shared_response(pooled)
         agreement = {s.session: session_agreement(s, fit) for s in sessions}
         out = [s for s in pooled if disagrees(**agreement[s.session])]
         if not out:
@@ -392,7 +389,7 @@ def pooled_calibration(sessions: Sequence[SessionSamples], *, rounds: int = 2,
         fit = None
     if fit is None and len(pooled) >= 2:
         # the pool after the last round's flags: fitted once more, no more flags
-        fit = fit_shared_response(pooled, **options)
+        fit = fit_shared_response(pooled)
         agreement = {s.session: session_agreement(s, fit) for s in sessions}
     if fit is None:
         agreement = {s.session: {"shared": float("nan"), "own": _own_residual(s)}

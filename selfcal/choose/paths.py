@@ -19,7 +19,6 @@ exactly what is missing.
 
 from __future__ import annotations
 
-import inspect
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError, options_from_keywords
+from ..errors import CalibrationError, InputError
 from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info,
                          read_image, read_image_size)
 from ..io.raw import read_raw_exposure_info
@@ -160,33 +159,6 @@ def _brightness_changes(paths) -> bool:
     return False
 
 
-def _split_options(options: dict, response_options, pipeline_options):
-    """Route ``calibrate``'s extra keyword options by name to the path that takes them."""
-    resp, pipe = dict(response_options or {}), dict(pipeline_options or {})
-    # ResponseOptions' fields: calibrate_response's old keywords (a DeprecationWarning there)
-    resp_names = (set(inspect.signature(calibrate_response).parameters) - {
-        "images", "exposure_times", "progress", "legacy"}) | set(
-            ResponseOptions.__dataclass_fields__)
-    # PipelineOptions' fields: fit_pipeline's knobs, made into its options where it is called
-    pipe_names = (set(inspect.signature(fit_pipeline).parameters) - {
-        "raw_samples", "rendered_samples", "progress", "legacy"}) | set(
-            PipelineOptions.__dataclass_fields__)
-    unknown = []
-    for key, value in options.items():
-        if key == "options" and isinstance(value, PipelineOptions):
-            pipe[key] = value
-        elif key in resp_names:
-            resp[key] = value
-        elif key in pipe_names:
-            pipe[key] = value
-        else:
-            unknown.append(key)
-    if unknown:
-        raise TypeError(f"calibrate() got unknown option(s) {', '.join(sorted(unknown))} "
-                        "(neither calibrate_response nor fit_pipeline takes them)")
-    return resp, pipe
-
-
 # ---- calibrate -----------------------------------------------------------------------
 
 @dataclass(frozen=True)
@@ -211,9 +183,11 @@ class PairOptions:
 def calibrate(paths: Sequence[PathLike], *,
               exposure_times: ExposureTimes | Mapping[PathLike, float | None] | None = None,
               exposure_source: str = "auto", seed: int = 0,
-              pairs: PairOptions | None = None, response_options: dict | None = None,
-              pipeline_options: dict | None = None, progress: Progress | None = None,
-              **options: Any) -> CalibrationResult:
+              refine_exposures: bool | str = "auto", align: bool | str = False,
+              pairs: PairOptions | None = None,
+              response_options: ResponseOptions | None = None,
+              pipeline_options: PipelineOptions | None = None,
+              progress: Progress | None = None) -> CalibrationResult:
     """Calibrate a camera from whatever files are given, taking the path(s) they support.
 
     * Rendered frames of one size at ≥ 2 distinct exposures → the response path,
@@ -251,18 +225,17 @@ def calibrate(paths: Sequence[PathLike], *,
         ``"auto"``: raw ratios when ≥ 2 response frames have raws, else EXIF.  ``"raw"``
         insists on raw ratios (error without them), ``"exif"`` ignores the raws for
         exposures, ``"unknown"`` solves all exposures jointly.
+    refine_exposures : {"auto", True, False}
+        The response path's (:func:`selfcal.calibrate_response`).
+    align : {False, "mtb", "homography"}
+        Align a handheld stack before the response path calibrates it
+        (:func:`selfcal.calibrate_response`).
     pairs : PairOptions, optional
-        How the RAW+JPEG pairs are sampled (half-size raws, samples, block side); the
-        old keywords ``raw_half_size=``, ``max_pair_samples=``, ``block=`` still work,
-        with a ``DeprecationWarning``.
-    response_options, pipeline_options : dict, optional
-        Keyword arguments for :func:`selfcal.calibrate_response` and
-        :func:`selfcal.pipeline.fit_pipeline`.
-    **options
-        Routed by name: those :func:`selfcal.calibrate_response` takes go there (e.g.
-        ``refine_exposures``), the others to ``fit_pipeline``; ``options=`` goes to the
-        path whose options class it is (:class:`~selfcal.response.ResponseOptions` or
-        :class:`~selfcal.pipeline.PipelineOptions`).
+        How the RAW+JPEG pairs are sampled (half-size raws, samples, block side).
+    response_options : ResponseOptions, optional
+        The response path's finer settings (:func:`selfcal.calibrate_response`).
+    pipeline_options : PipelineOptions, optional
+        The pipeline path's finer settings (:func:`selfcal.pipeline.fit_pipeline`).
 
     Returns
     -------
@@ -284,11 +257,9 @@ def calibrate(paths: Sequence[PathLike], *,
     if exposure_source not in ("auto", "raw", "exif", "unknown"):
         raise InputError(f"exposure_source must be auto, raw, exif or unknown, got "
                          f"{exposure_source!r}")
-    pair_fields = {f for f in PairOptions.__dataclass_fields__ if f in options}
-    pairs = options_from_keywords(PairOptions, pairs, {f: options.pop(f) for f in pair_fields},
-                                  "calibrate")
-    resp_opts, pipe_opts = _split_options(options, response_options, pipeline_options)
-    resp_opts.setdefault("seed", seed)
+    pairs = PairOptions() if pairs is None else pairs
+    resp_opts = {"seed": seed, "refine_exposures": refine_exposures, "align": align,
+                 "options": response_options}
     groups = group_inputs(paths)
     report = SessionReport()
     for p, why in groups.ignored:
@@ -330,7 +301,7 @@ def calibrate(paths: Sequence[PathLike], *,
         taken.append("response")
     pipeline_model = None
     if want_pipeline:
-        pipeline_model = _run_pipeline(samples, pair_data, groups, pipe_opts, seed=seed,
+        pipeline_model = _run_pipeline(samples, pair_data, groups, pipeline_options, seed=seed,
                                        progress=progress, response_taken=bool(taken),
                                        report=report)
         if pipeline_model is not None:
@@ -470,17 +441,19 @@ def _read_pairs(groups: InputGroups, *, seed, max_samples, half_size, block, pro
     return samples, pair_data
 
 
-def _run_response(plan: ResponsePlan, resp_opts, *, progress, pipeline_follows,
+def _run_response(plan: ResponsePlan, resp_opts: dict, *, progress, pipeline_follows,
                   report: SessionReport):
     """The response path (:func:`selfcal.calibrate_response`) on the planned frames, or
-    None without frames; a failure is an error unless the pipeline path follows."""
+    None without frames; a failure is an error unless the pipeline path follows.
+    ``resp_opts`` holds its ``seed``, ``refine_exposures``, ``align`` and ``options``."""
     if not plan.frames:
         return None
     try:
         model = calibrate_response(
             [str(p) for p in plan.frames], plan.times, progress=progress,
             times_source=plan.exposure_kind if plan.times is not None else None,
-            **resp_opts)
+            seed=resp_opts["seed"], refine_exposures=resp_opts["refine_exposures"],
+            align=resp_opts["align"], options=resp_opts["options"])
     except CalibrationError as exc:
         if not pipeline_follows:
             raise
@@ -493,8 +466,8 @@ def _run_response(plan: ResponsePlan, resp_opts, *, progress, pipeline_follows,
     return model
 
 
-def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, progress,
-                  response_taken, report: SessionReport):
+def _run_pipeline(samples, pair_data, groups: InputGroups, options: PipelineOptions | None, *,
+                  seed, progress, response_taken, report: SessionReport):
     """The pipeline path (:func:`selfcal.pipeline.fit_pipeline`) on the joined pair samples.
 
     With too few samples it is skipped with a warning when the response path was taken,
@@ -513,16 +486,12 @@ def _run_pipeline(samples, pair_data, groups: InputGroups, pipe_opts, *, seed, p
         report.warn(f"pipeline path skipped: {problem}")
         report.reasons.append(f"pipeline path skipped: {problem}")
         return None
-    if "groups" in pipe_opts:
-        raise TypeError("calibrate() sets fit_pipeline's groups itself (one per RAW+JPEG "
-                        "pair); do not pass groups")
     # one group per pair (PairSamples.groups): with two or more pairs the regulariser
     # weights are chosen by leave-one-scene-out (fit_pipeline's groups; one pair: the
     # call is unchanged, leave-one-sample-out)
     n_groups = len(np.unique(samples.groups))
-    scenes = {"groups": samples.groups} if n_groups > 1 else {}
-    options, rest = PipelineOptions.split({"seed": seed, **pipe_opts, **scenes})
-    model = fit_pipeline(samples.raw, samples.rendered, options, progress=progress, **rest)
+    model = fit_pipeline(samples.raw, samples.rendered, options, seed=seed, progress=progress,
+                         groups=samples.groups if n_groups > 1 else None)
     report.reasons.append(
         f"pipeline path: {len(groups.pairs)} RAW+JPEG pair(s) "
         f"({file_names([j for _, j in groups.pairs], 3)}); {n_samples} samples"
@@ -584,9 +553,8 @@ def _as_list(x):
 
 
 def calibrate_pipeline(raws: Sequence[PathLike], rendered: Sequence[PathLike], *, seed: int = 0,
-                       progress: Progress | None = None, max_samples: int = 20_000,
-                       raw_half_size: bool = True, block: int | None = None,
-                       **fit_options: Any) -> PipelineModel:
+                       progress: Progress | None = None, pairs: PairOptions | None = None,
+                       options: PipelineOptions | None = None) -> PipelineModel:
     """Fit the camera pipeline (raw → rendered and back) to RAW+rendered pairs.
 
     The RAW path: Gong et al., *Rank-based radiometric calibration* [Gong2018], §3 (colour
@@ -606,18 +574,14 @@ def calibrate_pipeline(raws: Sequence[PathLike], rendered: Sequence[PathLike], *
         Seeds the sampling and the fit.
     progress : callable, optional
         ``progress(stage, done, total, detail)``.
-    max_samples : int
-        Samples drawn over all pairs.
-    raw_half_size : bool
-        Read raw files at half size.
-    block : int, optional
-        Block side for the samples (rendered pixels); default adaptive.
-    **fit_options
-        Passed to :func:`selfcal.pipeline.fit_pipeline`: ``options``, or the fields of
-        :class:`~selfcal.pipeline.PipelineOptions` by name (not ``groups``: each pair is one
-        group, so with two or more pairs the regulariser weights are chosen by
-        leave-one-scene-out -- the weights that predict a scene the fit did not see;
-        ``model.diagnostics["groups"]`` holds the samples per pair).
+    pairs : PairOptions, optional
+        How the pairs are sampled: samples drawn over all pairs (``max_pair_samples``),
+        half-size raws, block side (default ``PairOptions()``).
+    options : PipelineOptions, optional
+        The fit's finer settings (:func:`selfcal.pipeline.fit_pipeline`).  Each pair is
+        one group of the fit, so with two or more pairs the regulariser weights are
+        chosen by leave-one-scene-out -- the weights that predict a scene the fit did not
+        see; ``model.diagnostics["groups"]`` holds the samples per pair.
 
     Returns
     -------
@@ -632,22 +596,18 @@ def calibrate_pipeline(raws: Sequence[PathLike], rendered: Sequence[PathLike], *
     CalibrationError
         Too few usable samples (everything clipped or textured).
     """
-    if "groups" in fit_options:
-        raise TypeError("calibrate_pipeline sets fit_pipeline's groups itself (one per "
-                        "pair); do not pass groups")
+    pairs = PairOptions() if pairs is None else pairs
     raws, rendered = _as_list(raws), _as_list(rendered)
-    samples, pairs = collect_pair_samples(raws, rendered, seed=seed, max_samples=max_samples,
-                                          half_size=raw_half_size, block=block,
-                                          progress=progress)
+    samples, pair_data = collect_pair_samples(
+        raws, rendered, seed=seed, max_samples=pairs.max_pair_samples,
+        half_size=pairs.raw_half_size, block=pairs.block, progress=progress)
     if len(samples) < MIN_PIPELINE_SAMPLES:
         raise CalibrationError(
             f"only {len(samples)} usable raw/rendered samples (need ≥ "
             f"{MIN_PIPELINE_SAMPLES}): " + "; ".join(
                 f"{Path(p.rendered_name).name}: " + ", ".join(
-                    f"{k} {v}" for k, v in p.samples.counts.items()) for p in pairs))
+                    f"{k} {v}" for k, v in p.samples.counts.items()) for p in pair_data))
     # one group per pair: leave-one-scene-out weights with two or more pairs
-    if len(np.unique(samples.groups)) > 1:
-        fit_options = {**fit_options, "groups": samples.groups}
-    options, rest = PipelineOptions.split(fit_options)
+    groups = samples.groups if len(np.unique(samples.groups)) > 1 else None
     return fit_pipeline(samples.raw, samples.rendered, options, seed=seed, progress=progress,
-                        **rest)
+                        groups=groups)

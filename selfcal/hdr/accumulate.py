@@ -28,7 +28,7 @@ from ..io.images import import_cv2
 from ..stack.align import negligible_motion, warp_to_reference
 from ..stack.frames import Lineariser, StackFrames, apply_lut, clip_limits, max_code_of
 from .deghost import ghost_mask, neighbour_residual, small_log_luma
-from .weights import NoiseModel, _FrameTables, packed_lookup
+from .weights import NoiseModel, FrameTables, packed_lookup
 
 if TYPE_CHECKING:
     from .sigma import SigmaSums
@@ -78,6 +78,9 @@ class FrameWeighing:
         Test every frame against the reference, per pixel.
     deghost_threshold, deghost_tolerance : float
         ``k`` and the relative error floor of the deghosting test.
+    code_error : bool
+        Add the curve's measured error per code to the variance of the weights and of σ
+        (``MergeOptions.code_error``).
     """
 
     weighting: object
@@ -89,6 +92,7 @@ class FrameWeighing:
     deghost: bool
     deghost_threshold: float = 3.0
     deghost_tolerance: float = 0.1
+    code_error: bool = True
 
 
 
@@ -102,6 +106,10 @@ class MergeSums:
     coverage masks) of the reference, darkest and brightest frames, for deghosting and the
     fill; ``residuals`` the misalignment test of each pair of neighbours.
     """
+
+    #: Unchecked frames whose codes are kept (the table path) when there are at most this
+    #: many; beyond, a float32 sum.  Memory only: both give the same weights.
+    unchecked_codes_limit: int = _UNCHECKED_CODES
 
     def __init__(self, shape, exposures, ref: int, used, unchecked=()):
         hh, ww = shape
@@ -121,7 +129,7 @@ class MergeSums:
         self.darkest = self.order[0]
         self.brightest = self.order[-1]
         self.kept: dict[int, tuple] = {}          # frame -> (codes, coverage mask or None)
-        self.tables: dict[int, _FrameTables] = {}
+        self.tables: dict[int, FrameTables] = {}
         self.used = [0.0] * n                     # pixels each frame contributed to
         self.excluded = [0.0] * n                 # pixels deghosting took from each frame
         self.ghost_stats: dict[int, dict] = {}    # frame -> agreement with the reference
@@ -140,9 +148,9 @@ class MergeSums:
         self.unchecked_codes: list[tuple] = []   # (tables, codes) in merge order
         self.unchecked_mask: np.ndarray | None = None
 
-    def keep_unchecked(self, tab: _FrameTables, shape, dtype, max_code) -> None:
+    def keep_unchecked(self, tab: FrameTables, shape, dtype, max_code) -> None:
         """Where an unchecked frame's weights will be kept (call before its strips)."""
-        if tab.lut and len(self.unchecked) <= _UNCHECKED_CODES:
+        if tab.lut and len(self.unchecked) <= self.unchecked_codes_limit:
             # the maximum code (zero weight) where a strip leaves it
             tab.unchecked_codes = np.full(shape, max_code, dtype=dtype)
             self.unchecked_codes.append((tab, tab.unchecked_codes))
@@ -158,7 +166,7 @@ class MergeSums:
             np.add(total, apply_lut(codes[s], tab.w_table), out=total)
         return total
 
-    def add_strip(self, s: slice, img, cover, off, own_white, tab: _FrameTables, max_code):
+    def add_strip(self, s: slice, img, cover, off, own_white, tab: FrameTables, max_code):
         """One strip of one frame into the sums (strips are disjoint: threads may share).
 
         A pixel counts when every channel is inside the frame's limits, it is not clipped
@@ -312,7 +320,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
                       weighing: FrameWeighing, progress=None):
     """Every frame into ``sums``, shortest exposure first (the reference first if deghosting).
 
-    Per frame: its tables of weights and radiance (:class:`.weights._FrameTables`), with
+    Per frame: its tables of weights and radiance (:class:`.weights.FrameTables`), with
     the clip limits raised to the black floor and lowered to the stuck ceiling of each
     channel (``weighing.stuck``); its warp onto the reference grid with a coverage mask
     (:data:`_CLIPPED` where it was clipped, 255 outside it); its own white-clipped pixels,
@@ -349,9 +357,9 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             elif max_code_of(img) != lin.max_code:
                 raise InputError(f"sample type {img.dtype} differs from the other frames",
                                  frames.sources[k])
-            tab = _FrameTables(lin, exposures[k], weighting, noise, lo, hi,
+            tab = FrameTables(lin, exposures[k], weighting, noise, lo, hi,
                                deghost or k == ref, float(np.max(exposures[sums.order])),
-                               floor=floor)
+                               floor=floor, use_code_error=w.code_error)
             # codes below this in every channel are not near white (see add_strip)
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
@@ -432,7 +440,7 @@ def _read_ahead(frames: StackFrames, order, loaded: dict):
 
 
 def frame_limits(max_code, clip_margin: float, linear: bool, stuck):
-    """Per channel (lo, hi, floor limit or None) for :class:`.weights._FrameTables`.
+    """Per channel (lo, hi, floor limit or None) for :class:`.weights.FrameTables`.
 
     The clip limits of :func:`selfcal.stack.frames.clip_limits` (a pixel with any channel at
     or beyond them is clipped), ``hi`` lowered to the stuck ceiling of each channel, and

@@ -11,7 +11,7 @@ What is done here is the linear path's measurement (:mod:`.linear_exposures`: sp
 thumbnails, :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the ``"sum"``
 statistic, the absolute scale from the times by the median of ``log(time / measured)``)
 on ``f⁻¹(codes)``.  Ours: the trend of the measured exposures over the bracket is the
-times' (:data:`TREND`, :func:`_times_trend`) -- a calibrated curve whose slope is slightly
+times' (``MergeOptions.exposure_trend``, :func:`_times_trend`) -- a calibrated curve whose slope is slightly
 off makes the measured ratios drift by a few per cent per stop, which a shutter does not;
 codes at or beyond the merge's clip limits (any channel at white excludes the pixel, a
 channel at or below its black floor excludes that channel) never enter a thumbnail;
@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ..io.images import read_image
 from ..stack.exposure_ratios import split_thumbnails
 from ..stack.frames import Lineariser, apply_lut, max_code_of
@@ -39,7 +40,7 @@ from .linear_exposures import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
 
 __all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
-           "PAIR_GAP", "MIN_LOG_SIGMA"]
+           "PAIR_GAP", "MIN_LOG_SIGMA", "TRENDS"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
@@ -53,17 +54,9 @@ PREPASS_MIN_SIDE = 1500
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3
-#: What sets the exposures' trend over the bracket: "pixels" (the measured ratios as
-#: they are) or "times" (:func:`_times_trend`).  "times", chosen on the tuning split: the
-#: pixels' trend agrees better between odd and even halves (8×8 blocks, memorial 0.0257
-#: against 0.0321, Fujifilm 1 0.0125 / 0.0131, Sony 1 0.0343 / 0.0345) but carries the
-#: calibrated curve's slope error into the exposures, which the halves share and the
-#: truth does not: on synthetic stacks (tuning seeds, ``--step 20``) it raised the median
-#: error on 4 of 11 stacks (dorf60 0.0187 -> 0.0320), the times' trend lowered it on 10.
-TREND = "times"
-#: σ's exposure term with measured exposures: :func:`fit_log_sigma` (True) or the fixed
-#: :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA` of given times (False).
-SIGMA_FROM_FIT = True
+#: The values of ``MergeOptions.exposure_trend``: what sets the measured exposures' trend
+#: over the bracket, the pixels' ratios as they are or the times' (:func:`_times_trend`).
+TRENDS = ("times", "pixels")
 #: Floor of the exposure term of σ when the exposures are measured (:func:`fit_log_sigma`).
 MIN_LOG_SIGMA = 0.005
 #: Sentinel put on excluded values: above ``_CLIP_LEVEL`` they turn to NaN in a thumbnail.
@@ -71,13 +64,14 @@ _EXCLUDED = np.float32(4.0)
 _CLIP_LEVEL = 2.0
 
 
-def _prepass_reduce(frames) -> int:
-    """The DCT scale for the files' pre-pass (1 for arrays)."""
+def _prepass_reduce(frames, min_side: int = PREPASS_MIN_SIDE) -> int:
+    """The DCT scale for the files' pre-pass (1 for arrays): the largest of
+    :data:`PREPASS_REDUCE` and its halves that keeps the long side >= ``min_side``."""
     if frames.paths[0] is None:
         return 1
     side = max(frames.shape)
     r = PREPASS_REDUCE
-    while r > 1 and side / r < PREPASS_MIN_SIDE:
+    while r > 1 and side / r < min_side:
         r //= 2
     return r
 
@@ -134,7 +128,8 @@ def fit_log_sigma(measured, pairs) -> float:
 
 
 def measure_response_exposures(frames, model, exposures, frame_set, *, clip_margin: float,
-                               stuck=None, reduce: int | None = None, progress=None):
+                               stuck=None, reduce: int | None = None, trend: str = "times",
+                               progress=None):
     """The frames' exposures with their ratios measured from the pixels through ``model``.
 
     Parameters
@@ -153,6 +148,9 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
         Per-channel normalised codes that do not move with exposure (excluded).
     reduce : {1, 2, 4, 8}, optional
         The files' DCT scale; default :data:`PREPASS_REDUCE`, less for small frames.
+    trend : {"times", "pixels"}
+        What sets the exposures' trend over the bracket: the times' (:func:`_times_trend`,
+        default) or the measured ratios as they are.
     progress : callable, optional
         ``progress("exposures", done, total, source)``.
 
@@ -173,7 +171,9 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
     rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP)
     times = [float(exposures[k]) for k in frame_set]
     log_sigma = fit_log_sigma(rel, pairs)
-    if TREND == "times":
+    if trend not in TRENDS:
+        raise InputError(f"trend must be one of {', '.join(TRENDS)}, not {trend!r}")
+    if trend == "times":
         rel = _times_trend(rel, times)
     scale = scale_to_times(rel, times)
     out = np.array(exposures, dtype=float)
@@ -187,7 +187,7 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
                 out[k] = rel[q] * scale
                 differences[k] = float(times[q] / out[k] - 1.0)
     summary = {"measured": measured, "differences": differences,
-               "log_sigma": log_sigma, "reduce": reduce, "trend": TREND,
+               "log_sigma": log_sigma, "reduce": reduce, "trend": trend,
                "frames": [Path(s).name for s in frames.sources]}
     return out, summary
 

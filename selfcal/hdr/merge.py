@@ -80,9 +80,10 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError, SelfcalWarning, options_from_keywords
+from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..io.images import JPEG_SUFFIXES, is_path, read_image
-from ..response.calibrate import DEFAULT_MAX_SAMPLES, calibrate_aligned, calibrate_response
+from ..response.calibrate import (DEFAULT_MAX_SAMPLES, ResponseOptions, calibrate_aligned,
+                                  calibrate_response)
 from ..stack.align import estimate_alignment
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
@@ -102,8 +103,7 @@ from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import misalignment_warning, poor_agreement
 from .linear_exposures import USES, resolve_linear_exposures, stack_frames
-from . import measured_exposures
-from .measured_exposures import measure_response_exposures, measured_warning
+from .measured_exposures import TRENDS, measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums
 
@@ -117,12 +117,6 @@ __all__ = ["HDRResult", "MergeOptions", "merge_hdr", "linearize_images"]
 #: measures, with the true f⁻¹: 2 / 1 / 0; the median error rose 0.0141 -> 0.0148.
 RINGING_RADIUS = 5
 
-#: The calibration's reason for ignoring a frame whose exposure the pixels cannot check
-#: (:mod:`selfcal.response.calibrate`: too few unclipped samples shared with any other
-#: frame); such a frame is merged with its time, flagged (:func:`_frames_to_merge`).
-UNCHECKED_REASON = "too far from the rest of the bracket"
-#: Merge such frames (True) or leave them out as before (False: for benchmarks' "before").
-MERGE_UNCHECKED = True
 
 
 @dataclass(frozen=True)
@@ -149,8 +143,12 @@ class MergeOptions:
         model's ``diagnostics["stuck_codes"]``, else measured; False: none.
     linear_exposures : {"auto", "measured", "times"}
         Linear frames' exposures (:func:`.linear_exposures.measure_linear_exposures`).
-    calibrate_options : dict, optional
-        Keyword arguments for :func:`selfcal.calibrate_response` when it runs on the fly.
+    calibrate_options : ResponseOptions, optional
+        The options of :func:`selfcal.calibrate_response` when it runs on the fly (no
+        model given); default ``ResponseOptions()``.
+    refine_exposures : {"auto", True, False}
+        ``refine_exposures`` of that calibration on the fly (see
+        :func:`selfcal.calibrate_response`).
     sigma : bool
         Also compute the radiance's standard deviation, :attr:`HDRResult.sigma`
         (:mod:`.sigma`: noise model, exposure uncertainty and the curve's band); two more
@@ -160,6 +158,22 @@ class MergeOptions:
         curve, the times setting only the scale (:mod:`.measured_exposures`; files get a
         pre-pass, decoded at 1/2-1/8 when large); σ's exposure term becomes the
         measurement's.  Default False.
+    merge_unchecked : bool
+        Merge a frame the calibration ignored as ``"unchecked"`` (too far from the rest of
+        the bracket, :attr:`selfcal.ResponseModel.frames_ignored`) with its time, flagged
+        in :attr:`HDRResult.unchecked` (ours); False leaves it out.  Default True, chosen
+        on the tuning split, see docs/decisions.md.
+    code_error : bool
+        Add the curve's measured error per code (:mod:`selfcal.response.code_error`, the
+        model's ``diagnostics["code_error_log"]``) to the variance of the noise weights
+        and of σ (ours).  Default True, chosen on the tuning split, see docs/decisions.md.
+    exposure_trend : {"times", "pixels"}
+        With ``measure_exposures``: the exposures' trend over the bracket is the times'
+        (ours, :mod:`.measured_exposures`) or the measured ratios' as they are.  Default
+        ``"times"``, chosen on the tuning split, see docs/decisions.md.
+    sigma_exposure_from_fit : bool
+        With ``measure_exposures`` and ``sigma``: σ's exposure term is the measurement's
+        (:func:`.measured_exposures.fit_log_sigma`) or, False, the fixed one of given times.
     """
 
     reference: int | None = None
@@ -170,9 +184,14 @@ class MergeOptions:
     lossy: bool | None = None
     stuck_codes: dict | bool | None = None
     linear_exposures: str = "auto"
-    calibrate_options: dict | None = None
+    calibrate_options: ResponseOptions | None = None
+    refine_exposures: bool | str = "auto"
     sigma: bool = False
     measure_exposures: bool = False
+    merge_unchecked: bool = True
+    code_error: bool = True
+    exposure_trend: str = "times"
+    sigma_exposure_from_fit: bool = True
 
 
 @dataclass
@@ -248,8 +267,8 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
               model: object = None, *, weighting: str | Callable = "noise",
               align: Literal[False] | str = False, deghost: bool = False,
               linear: bool = False,
-              options: MergeOptions | None = None, progress: Progress | None = None,
-              **old_keywords: Any) -> HDRResult:
+              options: MergeOptions | None = None,
+              progress: Progress | None = None) -> HDRResult:
     """Merge a bracketed exposure stack into a radiance map.
 
     The per-pixel, per-channel weighted mean of Debevec & Malik (SIGGRAPH 1997, Eq. 6,
@@ -314,13 +333,10 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     options : MergeOptions, optional
         The finer settings: reference frame, noise model, clip margin, deghosting
         thresholds, JPEG ringing, stuck codes, linear frames' exposures, the on-the-fly
-        calibration's options.
+        calibration's options, σ, measured exposures, unchecked frames.
     progress : callable, optional
         ``progress(stage, done, total, detail)`` with stages ``"read"``/``"solve"`` (the
         calibration), ``"exposures"`` (linear frames), ``"align"`` and ``"merge"``.
-    **old_keywords
-        The settings that are now :class:`MergeOptions` fields (``reference=``,
-        ``noise=``, ``clip_margin=`` ...), still accepted with a ``DeprecationWarning``.
 
     Returns
     -------
@@ -342,7 +358,7 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     >>> result.radiance.dtype, result.radiance.shape
     (dtype('float32'), (256, 384, 3))
     """
-    opts = options_from_keywords(MergeOptions, options, old_keywords, "merge_hdr")
+    opts = MergeOptions() if options is None else options
     align, noise = _check_options(weighting, align, linear, model, opts)
     warnings: list[str] = []
     diagnostics: dict = {"weighting": weighting if isinstance(weighting, str)
@@ -383,7 +399,7 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
         diagnostics["sigma_curve_band"] = sums.sigma.has_band
     need_x = deghost and len(used) > 1
     weighing = FrameWeighing(weighting, noise, opts.clip_margin, linear, stuck, radius, need_x,
-                             opts.deghost_threshold, opts.deghost_tolerance)
+                             opts.deghost_threshold, opts.deghost_tolerance, opts.code_error)
     accumulate_frames(sums, frames, exposures, model, transforms, weighing, progress)
     unmeasured = _finish(sums, frames, need_x, transforms is None, exposure_source,
                          warnings, diagnostics)
@@ -403,14 +419,14 @@ def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
     checked = [k for k in used if k not in unchecked]
     out, summary = measure_response_exposures(frames, model, exposures, checked,
                                               clip_margin=opts.clip_margin, stuck=stuck,
-                                              progress=progress)
+                                              trend=opts.exposure_trend, progress=progress)
     diagnostics["measured_exposures"] = summary
     label = {"given": "given times", "exif": "EXIF exposures"}.get(
         exposure_source.split("+")[0], "model's exposures")
     moved = measured_warning(summary, label)
     if moved:
         warnings.append(moved)
-    return out, (summary["log_sigma"] if measured_exposures.SIGMA_FROM_FIT else None)
+    return out, (summary["log_sigma"] if opts.sigma_exposure_from_fit else None)
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
@@ -436,7 +452,8 @@ def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
     The reference moves to the middle merged frame when the calibration ignored it (an
     error when the caller chose it), or to the middle checked one when it is unchecked.
     """
-    used, unchecked = _frames_to_merge(frames, model, fresh, exposures, warnings, diagnostics)
+    used, unchecked = _frames_to_merge(frames, model, fresh, exposures, warnings, diagnostics,
+                                       merge_unchecked=opts.merge_unchecked)
     if ref in unchecked:
         ref = [k for k in used if k not in unchecked][default_reference(
             exposures[[k for k in used if k not in unchecked]])]
@@ -478,48 +495,40 @@ def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bo
 
 
 def _frames_to_merge(frames: StackFrames, model, fresh: bool, exposures, warnings: list,
-                     diagnostics: dict):
+                     diagnostics: dict, *, merge_unchecked: bool = True):
     """(indices of the frames to merge, those of them merged unchecked) (ours).
 
-    A frame the model's calibration ignored as a duplicate or as clipped almost everywhere
-    (``model.diagnostics['frames_used']``) is not merged, with the calibration's reason in
-    a warning.  A frame it ignored for sharing too few unclipped samples with the rest of
-    the bracket (:data:`UNCHECKED_REASON`: a long exposure far beyond the others, whose
-    pixels are black in every other frame) is merged with its given or EXIF time, which
-    the pixels could not check -- it alone measures the shadows it sees (ntu's 8 s frame:
-    half of the scene) -- and named in a warning, ``diagnostics['frames_unchecked']`` and
-    :attr:`HDRResult.unchecked`.  Frames the model never saw (a model calibrated on other
-    frames) are merged.
+    From the model's :attr:`~selfcal.ResponseModel.frames_ignored` (not its warnings): a
+    frame ignored as a duplicate or clipped is not merged (a warning says why).  One
+    ignored as ``"unchecked"`` (a long exposure far beyond the others, black in every
+    other frame) is merged with its given or EXIF time, which the pixels could not check
+    -- it alone measures the shadows it sees -- and named in a warning,
+    ``diagnostics['frames_unchecked']`` and :attr:`HDRResult.unchecked` (left out with
+    ``merge_unchecked=False``).  Frames the model never saw are merged.
     """
     n = len(frames)
-    diag = getattr(model, "diagnostics", None) or {}
-    frames_used = diag.get("frames_used")
-    if model is None or frames_used is None:
+    by_source = {f.source: f for f in getattr(model, "frames_ignored", ()) or ()}
+    if model is None or not by_source:
         return list(range(n)), []
     idx = model_frame_index(model, frames, fresh)
     msources = list(getattr(model, "sources", []) or [])
-    used_names = {str(f) for f in frames_used}
-    ignored = [k for k, i in enumerate(idx)
-               if i is not None and i < len(msources) and msources[i] not in used_names]
+    ignored = [(k, by_source[msources[i]]) for k, i in enumerate(idx)
+               if i is not None and i < len(msources) and msources[i] in by_source]
     if not ignored or len(ignored) == n:
         return list(range(n)), []
     left_out, unchecked = [], []
-    for k in ignored:
-        name = msources[idx[k]]
-        reason = next((w[len(name) + 2:] for w in diag.get("warnings", [])
-                       if w.startswith(f"{name}: ") and "ignored" in w), "")
-        reason = reason.replace("; ignored", "").strip()
+    for k, why in ignored:
         e = float(exposures[k])
-        if MERGE_UNCHECKED and UNCHECKED_REASON in reason and np.isfinite(e) and e > 0:
+        if merge_unchecked and why.reason == "unchecked" and np.isfinite(e) and e > 0:
             unchecked.append(k)
             warnings.append(f"{frames.sources[k]}: merged with its exposure time "
                             f"({e:g}), unchecked against the pixels: the calibration "
-                            f"ignored it ({reason}); HDRResult.unchecked flags the pixels "
-                            "that rest on it")
+                            f"ignored it ({why.detail}); HDRResult.unchecked flags the "
+                            "pixels that rest on it")
             continue
         left_out.append(k)
         warnings.append(f"{frames.sources[k]}: not merged: the calibration ignored it"
-                        + (f" ({reason})" if reason else ""))
+                        + (f" ({why.detail})" if why.detail else ""))
     if left_out:
         diagnostics["frames_ignored"] = [frames.sources[k] for k in left_out]
     if unchecked:
@@ -581,6 +590,9 @@ def _check_options(weighting, align, linear: bool, model, opts: MergeOptions):
         raise InputError("linear=True: the frames are linear already; do not pass a model")
     if opts.linear_exposures not in USES:
         raise InputError(f"linear_exposures must be one of {', '.join(USES)}")
+    if opts.exposure_trend not in TRENDS:
+        raise InputError(f"exposure_trend must be one of {', '.join(TRENDS)}, not "
+                         f"{opts.exposure_trend!r}")
     return align, (DEFAULT_NOISE if opts.noise is None else opts.noise)
 
 
@@ -600,7 +612,6 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: Merg
     if len(frames) < 2:
         raise CalibrationError("one frame and no model: give a model (a response needs "
                                "at least two frames to calibrate)")
-    options = dict(opts.calibrate_options or {})
     transforms = ref0 = None
     # its warnings are the merge's (below, in HDRResult.warnings), not warned twice
     with _pywarnings.catch_warnings():
@@ -608,11 +619,13 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: Merg
         if align:
             model, transforms, ref0 = calibrate_aligned(
                 frames, exposure_times, method=align, reference=opts.reference,
-                clip_margin=opts.clip_margin, warnings=warnings, progress=progress, **options)
+                clip_margin=opts.clip_margin, warnings=warnings, progress=progress,
+                refine_exposures=opts.refine_exposures, options=opts.calibrate_options)
             diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
         else:
             model = calibrate_response(frames.items, exposure_times, progress=progress,
-                                       **options)
+                                       refine_exposures=opts.refine_exposures,
+                                       options=opts.calibrate_options)
     diag = getattr(model, "diagnostics", {})
     diagnostics["model_verdict"] = diag.get("verdict")
     for w in diag.get("warnings", []):

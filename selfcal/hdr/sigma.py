@@ -114,7 +114,7 @@ class SigmaSums:
                          for c in range(3)], axis=-1)
 
     def prepare(self, tab) -> None:
-        """Give the frame's :class:`.weights._FrameTables` its two σ tables (table path)."""
+        """Give the frame's :class:`.weights.FrameTables` its two σ tables (table path)."""
         if not tab.lut:
             return
         lin = tab.lin

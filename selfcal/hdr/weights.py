@@ -28,8 +28,8 @@ it exceeds what the noise model explains, as a further term ``(s(z) · x)²`` of
 variance (:func:`_excess_code_error`: the noise weights trusted codes where the
 curve is worse than the noise says); a weight of
 zero wherever *any* channel is clipped or at its stuck ceiling, and for a channel at its
-black floor (:func:`selfcal.stack.frames.stuck_code_levels`), which :class:`_FrameTables` takes
-as per-channel limits; and :class:`_FrameTables`, which tabulates weight, weighted radiance,
+black floor (:func:`selfcal.stack.frames.stuck_code_levels`), which :class:`FrameTables` takes
+as per-channel limits; and :class:`FrameTables`, which tabulates weight, weighted radiance,
 radiance and variance at every code once per frame, so that the merge and the deghosting
 are lookups (``cv2.LUT``).
 """
@@ -123,10 +123,6 @@ class NoiseModel:
 #: 0.0488 / 0.0473 / 0.0508.
 DEFAULT_NOISE = NoiseModel(relative=0.03)
 
-#: Add the curve's measured error per code (:mod:`selfcal.response.code_error`, the
-#: model's ``diagnostics["code_error_log"]``) to the variance of the weights and of σ
-#: (False: the weights before it, for benchmarks' "before").
-USE_CODE_ERROR = True
 
 
 def noise_variance(x: np.ndarray, slope: np.ndarray, exposure: float,
@@ -186,7 +182,7 @@ def _excess_code_error(total, profile, lin, noise: NoiseModel):
     return np.sqrt(np.maximum(total ** 2 - v, 0.0))
 
 
-class _FrameTables:
+class FrameTables:
     """Everything :func:`selfcal.merge_hdr` needs from one frame, as tables on the codes.
 
     ``weighted`` = w·f⁻¹/e, ``weight`` = w (zero at clipped codes), ``radiance`` = f⁻¹/e,
@@ -195,7 +191,9 @@ class _FrameTables:
     ``hi`` are scalars or per-channel limits: a pixel with a code at or below ``lo`` or at
     or above ``hi`` in any channel is clipped (:meth:`valid`; a stuck ceiling lowers
     ``hi``); ``floor`` (per channel, optional) zeroes the weights of a channel's codes at
-    or below it, that channel only (a black floor).
+    or below it, that channel only (a black floor).  With ``use_code_error`` (the LUT path)
+    the curve's measured error per code (the model's ``diagnostics["code_error_log"]``)
+    joins the variance of the weights and of σ (``MergeOptions.code_error``).
     """
 
     #: set by the merge (:mod:`selfcal.hdr.accumulate`): the code above which a pixel is
@@ -205,7 +203,7 @@ class _FrameTables:
 
     def __init__(self, lin: Lineariser, exposure: float, weighting, noise: NoiseModel,
                  lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0,
-                 floor=None):
+                 floor=None, use_code_error: bool = True):
         self.lin = lin
         self.e = float(exposure)
         self.e_norm = float(exposure_norm)
@@ -222,7 +220,7 @@ class _FrameTables:
         if lin.table is None:
             return
         assert lin.max_code is not None and lin.slope is not None   # made with the table
-        if USE_CODE_ERROR and lin.kind == "lut":
+        if use_code_error and lin.kind == "lut":
             from ..response.code_error import code_error_at
 
             diag = getattr(lin.model, "diagnostics", None) or {}

@@ -615,11 +615,15 @@ def encode_image(image: np.ndarray, suffix: str, *, jpeg_quality: int = 95,
 
 
 def write_image(path: PathLike, image: np.ndarray, *, force: bool = False,
-                inputs: Iterable[PathLike] = (), **kwargs: Any) -> Path:
+                inputs: Iterable[PathLike] = (), jpeg_quality: int = 95,
+                exposure_time: float | None = None, f_number: float | None = None,
+                iso: float | None = None) -> Path:
     """Encode ``image`` by the suffix of ``path`` and write it atomically.
 
-    See :func:`encode_image` for the formats and keyword arguments.
+    See :func:`encode_image` for the formats, ``jpeg_quality`` and the EXIF fields
+    (``exposure_time``, ``f_number``, ``iso``).
     """
     path = Path(path)
-    return write_bytes_atomic(path, encode_image(image, path.suffix, **kwargs),
-                              force=force, inputs=inputs)
+    data = encode_image(image, path.suffix, jpeg_quality=jpeg_quality,
+                        exposure_time=exposure_time, f_number=f_number, iso=iso)
+    return write_bytes_atomic(path, data, force=force, inputs=inputs)

@@ -1,11 +1,15 @@
 """Versioned JSON model files: the envelope and the JSON helpers both model kinds use.
 
-Every model file is a JSON object ``{"format": "selfcal-model", "version": 2,
+Every model file is a JSON object ``{"format": "selfcal-model", "version": 3,
 "selfcal_version": "1.0.0", "kind": ...}`` plus the fields of its kind: ``version`` is the
 file format's (what a reader checks), ``selfcal_version`` the release that wrote the file
-(for people and bug reports; files written before 1.0.0 lack it and still load).  Version 2 adds the optional ``inverse_log_sigma`` of a response
-model (its confidence band, :mod:`selfcal.response.bands`); version 1 files still load
-(without a band).  Loading validates the envelope (:func:`read_model_dict`) and
+(for people and bug reports; files written before 1.0.0 lack it and still load).
+Version 2 adds the optional ``inverse_log_sigma`` of a response model (its confidence
+band, :mod:`selfcal.response.bands`); version 1 files still load (without a band).
+Version 3 adds a response model's ``frames_ignored``: the frames its calibration left
+out, each ``{"source", "reason", "detail"}`` with a reason of
+:data:`IGNORED_FRAME_REASONS`; for files of versions 1 and 2 the loader derives them from
+the warnings (``ResponseModel.from_dict``, the one place that reads those words).  Loading validates the envelope (:func:`read_model_dict`) and
 the content (:func:`check_response_content`, :func:`check_pipeline_content`: every field's
 type, shape and range, so that a model that loads can be used), and raises
 :class:`selfcal.errors.ModelFileError` naming the file and the field on anything wrong.
@@ -28,7 +32,10 @@ from .images import write_bytes_atomic
 
 FORMAT = "selfcal-model"
 #: Written; every version from 1 up to it is read.
-VERSION = 2
+VERSION = 3
+#: Why a response calibration ignored a frame (``frames_ignored[].reason`` of a response
+#: model, :class:`selfcal.response.model.IgnoredFrame`).
+IGNORED_FRAME_REASONS = ("clipped", "duplicate", "unchecked")
 
 
 def jsonable(obj):
@@ -303,6 +310,15 @@ def check_response_content(doc: dict, path=None) -> None:
             raise c.error("must hold positive numbers (or null where unknown), one per "
                           "source", key)
     sigma = c.array("inverse_log_sigma", (3, grid.size), optional=True)   # version 2
+    ignored = c.get("frames_ignored", optional=True, nullable=True)        # version 3
+    if ignored is not None and not isinstance(ignored, list):
+        raise c.error(f"must be a list, not {_kind_of(ignored)}", "frames_ignored")
+    for i, item in enumerate(ignored or []):
+        entry = _Checker(item, f"response model: frames_ignored[{i}]", path)
+        if entry.string("source") not in sources:
+            raise entry.error("names a frame that is not among the sources", "source")
+        entry.string("reason", choices=IGNORED_FRAME_REASONS)
+        entry.string("detail", optional=True)
     if sigma is not None and np.any(sigma < 0):
         raise c.error("holds negative values (a standard deviation)", "inverse_log_sigma")
     diag = c.sub("diagnostics", optional=True)

@@ -6,14 +6,13 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass
 
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import CalibrationError, InputError, options_from_keywords
+from ..errors import CalibrationError, InputError
 from ..stack.samples import hsv_saturation
 from ..typing import Progress
 from .clipped import CLIP_HI, CLIP_LO, clipped_mask, clipped_pixel_correction
@@ -243,21 +242,6 @@ class PipelineOptions:
         if self.matrix_method not in ("fast", "literal"):
             raise InputError("matrix_method must be 'fast' or 'literal', got "
                              f"{self.matrix_method!r}")
-
-    @classmethod
-    def split(cls, keywords: dict) -> tuple[PipelineOptions, dict]:
-        """``(options, rest)``: the fields of this class among ``keywords`` as options (on
-        top of ``keywords["options"]`` when given), and the other keywords -- for callers
-        that take :func:`fit_pipeline`'s knobs by name, such as :func:`selfcal.calibrate`.
-
-        >>> PipelineOptions.split({"n_sets": 3, "seed": 1})  # doctest: +ELLIPSIS
-        (PipelineOptions(n_sets=3, ...), {'seed': 1})
-        """
-        rest = dict(keywords)
-        base = rest.pop("options", None) or cls()
-        names = {f.name for f in fields(cls)}
-        chosen = {k: rest.pop(k) for k in list(rest) if k in names}
-        return replace(base, **chosen), rest
 
 
 def _check_groups(groups, n):
@@ -492,7 +476,7 @@ def _diagnostics(raw, rendered, m_inv, fwd: _ForwardFit, bwd: _BackwardFit,
 def fit_pipeline(raw_samples: npt.ArrayLike, rendered_samples: npt.ArrayLike,
                  options: PipelineOptions | None = None, *, n_train: int | None = None,
                  seed: int = 0, groups: npt.ArrayLike | None = None,
-                 progress: Progress | None = None, **legacy: Any) -> PipelineModel:
+                 progress: Progress | None = None) -> PipelineModel:
     """Fit a camera pipeline, raw -> rendered and back, from corresponding samples.
 
     The rank-based radiometric calibration of [Gong2018] with the RBF inverse
@@ -558,10 +542,6 @@ def fit_pipeline(raw_samples: npt.ArrayLike, rendered_samples: npt.ArrayLike,
         is then chosen by the same held-out errors.
     progress : callable, optional
         ``progress(stage, done, total, detail)``; stages ``"matrix"`` and ``"backward"``.
-    **legacy
-        The knobs as keyword arguments (``n_sets=5``, ...), as before
-        :class:`PipelineOptions`: still applied, each with a :class:`DeprecationWarning`
-        naming the field to set instead.
 
     Returns
     -------
@@ -572,7 +552,7 @@ def fit_pipeline(raw_samples: npt.ArrayLike, rendered_samples: npt.ArrayLike,
     InputError
         Wrong shapes, NaN or infinite values, values far outside ``[0, 1]``, bad options.
     TypeError
-        An unknown keyword argument, or ``options`` that is not a :class:`PipelineOptions`.
+        ``options`` that is not a :class:`PipelineOptions`.
     CalibrationError
         Fewer than 30 samples, samples without colour variety (the matrix is not
         determined), or a fit that cannot be solved.
@@ -591,7 +571,6 @@ def fit_pipeline(raw_samples: npt.ArrayLike, rendered_samples: npt.ArrayLike,
     options = PipelineOptions() if options is None else options
     if not isinstance(options, PipelineOptions):
         raise TypeError(f"options must be a PipelineOptions, got {type(options).__name__}")
-    options = options_from_keywords(PipelineOptions, options, legacy, "fit_pipeline")
     seeds = np.random.SeedSequence(seed).spawn(3)   # subset, matrix sets, RBF centres
     raw, rendered, n_given, groups = _training_samples(raw_samples, rendered_samples,
                                                        n_train, seeds[0], groups)

@@ -34,14 +34,13 @@ LUTs (forward and backward) and, unless ``backward="lut"``, the RBF ``h⁻¹`` b
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu, spsolve
 
-from ..errors import CalibrationError, InputError, options_from_keywords
+from ..errors import CalibrationError, InputError
 
 #: Lattice size per axis ([Gong2018] §3.4: 5×5×5).
 LATTICE_SIZE = 5
@@ -267,7 +266,7 @@ def lattice_regression_lut(x: npt.ArrayLike, y: npt.ArrayLike,
                            base: npt.ArrayLike | None = None, lo: npt.ArrayLike | None = None,
                            hi: npt.ArrayLike | None = None,
                            smoothness: float | str = LUT_SMOOTHNESS,
-                           groups: npt.ArrayLike | None = None, **legacy: Any) -> LatticeLUT:
+                           groups: npt.ArrayLike | None = None) -> LatticeLUT:
     """Fit a ``size³`` lattice-regression LUT ``y ≈ base + R(g(x))`` ([Gong2018] §3.4-3.5).
 
     Lattice regression ([GarciaGupta2009]): the node values minimise
@@ -304,10 +303,6 @@ def lattice_regression_lut(x: npt.ArrayLike, y: npt.ArrayLike,
     groups : array_like, optional
         ``(n,)`` labels; with ``smoothness="auto"`` and two or more distinct labels the
         weight is chosen by leave-one-group-out.
-    **legacy
-        ``size``, ``smoothness_grid``, ``gamma``, ``affine`` as keyword arguments, as
-        before :class:`LatticeOptions`: still applied, each with a
-        :class:`DeprecationWarning` naming the field to set instead.
 
     Returns
     -------
@@ -323,7 +318,7 @@ def lattice_regression_lut(x: npt.ArrayLike, y: npt.ArrayLike,
     >>> float(np.sqrt(np.mean((x + lut.residual(x) - y) ** 2))) < 0.003
     True
     """
-    options = options_from_keywords(LatticeOptions, options, legacy, "lattice_regression_lut")
+    options = LatticeOptions() if options is None else options
     size, gamma, affine = options.size, options.gamma, options.affine
     smoothness_grid = options.smoothness_grid
     x = np.asarray(x, dtype=np.float64)

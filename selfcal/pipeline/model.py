@@ -28,7 +28,6 @@ load without it (the mask is then None).
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,49 +97,6 @@ class BackwardStages:
     clipped_corrections: Mapping[str, ClippedCorrection | None] | None = None
 
 
-#: The keyword arguments of ``PipelineModel`` before the stages were grouped, in their old
-#: positional order, and where each one went.
-_LEGACY_ARGUMENTS = {
-    "matrix": ("forward_stages", "matrix"), "tone_curves": ("forward_stages", "tone_curves"),
-    "forward_lut": ("forward_stages", "lut"),
-    "inverse_tone_curves": ("backward_stages", "inverse_tone_curves"),
-    "backward_lut": ("backward_stages", "lut"), "rbf": ("backward_stages", "rbf"),
-    "backward": None, "diagnostics": None, "bake_size": None,
-    "clipped_corrections": ("backward_stages", "clipped_corrections"),
-    "training_colours": None,
-}
-
-
-def _legacy_stages(positional: tuple, keywords: dict,
-                   given: dict) -> tuple[ForwardStages, BackwardStages]:
-    """The stages from ``PipelineModel``'s old arguments (positional in the old order, and
-    keywords), each with a DeprecationWarning naming the stage field that replaces it;
-    ``given`` (the new keyword-only arguments) is updated with old positional values."""
-    old = dict(zip(_LEGACY_ARGUMENTS, positional))
-    if len(positional) > len(_LEGACY_ARGUMENTS):
-        raise TypeError(f"PipelineModel() takes at most {len(_LEGACY_ARGUMENTS)} positional "
-                        f"arguments ({len(positional)} given)")
-    for key in keywords:
-        if key not in _LEGACY_ARGUMENTS or _LEGACY_ARGUMENTS[key] is None or key in old:
-            raise TypeError(f"PipelineModel() got an unexpected keyword argument {key!r}")
-    old.update(keywords)
-    parts: dict[str, dict[str, Any]] = {"forward_stages": {}, "backward_stages": {}}
-    for key, value in old.items():
-        target = _LEGACY_ARGUMENTS[key]
-        if target is None:
-            given[key] = value
-            continue
-        stage, name = target
-        cls = "ForwardStages" if stage == "forward_stages" else "BackwardStages"
-        warnings.warn(f"PipelineModel({key}=...) is deprecated: pass "
-                      f"{stage}={cls}({name}=...)", DeprecationWarning, stacklevel=3)
-        parts[stage][name] = value
-    try:
-        return ForwardStages(**parts["forward_stages"]), BackwardStages(**parts["backward_stages"])
-    except TypeError as exc:
-        raise TypeError(f"PipelineModel() is missing a stage: {exc}") from None
-
-
 def as_rgb_float(x, what: str) -> np.ndarray:
     """Validate ``(..., 3)`` input; uint8/uint16 -> [0, 1]; float kept; NaN rejected."""
     arr = np.asarray(x)
@@ -204,26 +160,14 @@ class PipelineModel:
         ``f⁻¹``, the backward LUT, the RBF and the clipped-pixel corrections.
     backward, diagnostics, bake_size, training_colours
         As the attributes (keyword only).
-    *legacy_args, **legacy
-        The arguments before the stages were grouped (``matrix``, ``tone_curves``,
-        ``forward_lut``, ``inverse_tone_curves``, ``backward_lut``, ``rbf``,
-        ``clipped_corrections``; positional in that old order, or by keyword): still
-        accepted, each with a :class:`DeprecationWarning` naming the stage field to set.
     """
 
-    def __init__(self, forward_stages: ForwardStages | None = None,
-                 backward_stages: BackwardStages | None = None, *legacy_args: Any,
+    def __init__(self, forward_stages: ForwardStages, backward_stages: BackwardStages, *,
                  backward: str = "lut", diagnostics: Mapping[str, Any] | None = None,
                  bake_size: int = BAKE_SIZE,
-                 training_colours: TrainingColours | None = None, **legacy: Any) -> None:
-        if legacy_args or legacy or not isinstance(forward_stages, ForwardStages):
-            given: dict[str, Any] = {"backward": backward, "diagnostics": diagnostics,
-                                     "bake_size": bake_size,
-                                     "training_colours": training_colours}
-            positional = () if forward_stages is None else (forward_stages, backward_stages,
-                                                            *legacy_args)
-            forward_stages, backward_stages = _legacy_stages(positional, legacy, given)
-            backward, diagnostics, bake_size, training_colours = given.values()
+                 training_colours: TrainingColours | None = None) -> None:
+        if not isinstance(forward_stages, ForwardStages):
+            raise TypeError("forward_stages must be a ForwardStages")
         if not isinstance(backward_stages, BackwardStages):
             raise TypeError("backward_stages must be a BackwardStages")
         fwd, bwd = forward_stages, backward_stages

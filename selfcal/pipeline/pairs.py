@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, options_from_keywords
+from ..errors import InputError
 from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image, read_image_size
 from ..io.raw import read_raw_linear
 from ..stack.exposure_ratios import check_linear_raw, split_thumbnails
@@ -171,7 +171,7 @@ class BlockRejection:
 
 def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
                  block: int | None = None, n_max: int | None = None, seed: int = 0,
-                 rejection: BlockRejection | None = None, **legacy) -> PairSamples:
+                 rejection: BlockRejection | None = None) -> PairSamples:
     """Block-mean raw↔rendered correspondences of a registered pair, clipped and
     high-gradient blocks skipped.
 
@@ -209,16 +209,12 @@ def pair_samples(raw_rgb, rendered, registration: Registration | None = None, *,
     rejection : BlockRejection, optional
         The rejection thresholds above, and whether blocks clipped throughout are kept
         (default ``BlockRejection()``).
-    **legacy
-        The fields of :class:`BlockRejection` as keyword arguments, as before it: still
-        applied, each with a :class:`DeprecationWarning` naming the field to set instead.
 
     Returns
     -------
     PairSamples
     """
-    rejection = options_from_keywords(BlockRejection, rejection, legacy, "pair_samples",
-                                      argument="rejection")
+    rejection = BlockRejection() if rejection is None else rejection
     raw_clip, keep_clipped = rejection.raw_clip, rejection.keep_clipped
     rendered_low, rendered_high = rejection.rendered_low, rejection.rendered_high
     cv2 = import_cv2()
@@ -344,7 +340,8 @@ def _jpeg_reduce_for(path, raw_shape) -> int:
 def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
                          half_size: bool = True, block: int | None = None,
                          n_max: int | None = None, seed: int = 0,
-                         register: bool | None = None, **sample_options) -> PairData:
+                         register: bool | None = None,
+                         rejection: BlockRejection | None = None) -> PairData:
     """Read (when paths), register and sample one RAW+rendered pair.
 
     Paths are read with :func:`selfcal.io.raw.read_raw_linear` (``half_size``: 2×2 binned, no
@@ -352,7 +349,8 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
     :data:`HALF_SIZE_MIN_SIDE`) and :func:`selfcal.io.read_image` (a JPEG is
     decoded at a DCT-reduced size no smaller than ~0.9× the raw's), registered with
     :func:`~selfcal.pipeline.registration.register_raw_jpeg` (a mismatch raises InputError naming
-    both files) and sampled with :func:`pair_samples`.  Arrays are taken as aligned when their sizes agree (set
+    both files) and sampled with :func:`pair_samples` (``block``, ``n_max``, ``seed``,
+    ``rejection`` as there).  Arrays are taken as aligned when their sizes agree (set
     ``register=True`` to register anyway).
 
     Returns
@@ -388,7 +386,7 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
                              rendered_name)
         reg = Registration.identity(ren.shape)
     samples = pair_samples(raw_rgb, ren, reg, block=block, n_max=n_max, seed=seed,
-                           **sample_options)
+                           rejection=rejection)
     return PairData(raw_name=str(raw_name), rendered_name=str(rendered_name),
                     registration=reg, samples=samples,
                     thumbnail=split_thumbnails(raw_rgb), raw_exposure=raw_exposure,
@@ -397,7 +395,7 @@ def sample_raw_jpeg_pair(raw, rendered, *, raw_name=None, rendered_name=None,
 
 def collect_pair_samples(raws, rendered, *, seed: int = 0, max_samples: int | None = 20_000,
                          half_size: bool = True, block: int | None = None, progress=None,
-                         names=None, **sample_options):
+                         names=None, rejection: BlockRejection | None = None):
     """Register and sample several RAW+rendered pairs and join their samples.
 
     Each pair goes through :func:`sample_raw_jpeg_pair`; ``max_samples`` is shared equally
@@ -419,6 +417,8 @@ def collect_pair_samples(raws, rendered, *, seed: int = 0, max_samples: int | No
         ``progress("pairs", done, total, name)``.
     names : sequence of (str, str), optional
         Names of array inputs for messages (default ``"raw array #k"``, ...).
+    rejection : BlockRejection, optional
+        The blocks' rejection thresholds (:func:`pair_samples`).
 
     Returns
     -------
@@ -443,7 +443,7 @@ def collect_pair_samples(raws, rendered, *, seed: int = 0, max_samples: int | No
             progress("pairs", k, n, f"{Path(rname).name} + {Path(jname).name}")
         out.append(sample_raw_jpeg_pair(r, j, raw_name=rname, rendered_name=jname,
                                         half_size=half_size, block=block, n_max=per_pair,
-                                        seed=int(seeds[k]), **sample_options))
+                                        seed=int(seeds[k]), rejection=rejection))
     if progress is not None:
         progress("pairs", n, n, "")
     return PairSamples.concatenate([p.samples for p in out]), out

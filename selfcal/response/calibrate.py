@@ -13,13 +13,12 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ..stack.align import aligned_working_frames, estimate_alignment
-from ..errors import CalibrationError, InputError, SelfcalWarning, options_from_keywords
+from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
     default_reference,
@@ -47,7 +46,7 @@ from .exposure_times import (
     refine_decision,
     resolve_exposure_times,
 )
-from .frame_choice import subset, without_clipped_frames, without_duplicates
+from .frame_choice import record_ignored, subset, without_clipped_frames, without_duplicates
 from .solver import SolverOptions, solve_exposure_equations
 from .verdict import judge_calibration
 
@@ -63,20 +62,8 @@ MIN_SHARED_SAMPLES = 20
 DEFAULT_N_COMPONENTS = 5
 #: Sample locations drawn from a stack (block means; stratified, see collect_samples).
 DEFAULT_MAX_SAMPLES = 4000
-#: What Eq. 8 is solved on: ``"histogram"`` (transfer functions matched on the histograms
-#: of every usable pixel, :mod:`.histogram_samples`, [Grossberg2003]) or ``"blocks"`` (the
-#: stratified flat block samples of :func:`selfcal.stack.samples.collect_samples`).  The block
-#: samples serve the verdict, the frame checks and the time contradictions in either case.
-CORRESPONDENCES = "blocks"
-#: Measure how far JPEG damage next to clipped areas reaches on the first fit and solve
-#: again without the samples within it (:mod:`.white_end`).  On: on the tuning split of
-#: ``bench/bench_response_matrix.py`` (3 curves per cell) the median f⁻¹ RMSE of
-#: exact/saturated fell from 0.0078 to 0.0030 and of saturated/base from 0.0040 to 0.0024,
-#: no cell's median rose by more than 0.0004; the D7000 rows and the real_brackets spreads
-#: did not change.  On held-out (seen after choosing) the D7000 rows lost a little (best
-#: scale 0.0145 -> 0.0151 on one raw).  BENCHMARKS, "Every pixel counts".
-MEASURE_RINGING = True
-WITH_BLOCKS = False
+#: The values of :attr:`ResponseOptions.correspondences`.
+CORRESPONDENCE_KINDS = ("blocks", "histogram", "histogram+blocks")
 
 
 @dataclass(frozen=True)
@@ -84,10 +71,15 @@ class ResponseOptions(SolverOptions):
     """The finer settings of :func:`calibrate_response`: its sampling and its solve.
 
     Every field of :class:`selfcal.response.solver.SolverOptions` (``saturation_threshold``
-    β, ``clip_margin``, ``huber_k``, the priors' weights, ...), and ``max_samples``.
+    β, ``clip_margin``, ``huber_k``, the priors' weights, ``centre_ambiguity``, ...), and
+    the fields of the sampling and the correspondences below.
 
     Attributes
     ----------
+    basis : ResponseBasis or path, optional
+        The response basis of Eq. 7 (a :class:`.basis.ResponseBasis`, or a file
+        :func:`.basis.load_basis_file` reads: ``invemor.txt``, ``.npz``); default the
+        built-in log-PCA basis.
     n_components : int
         Number of PCA basis functions per channel (N of Eq. 7); see
         :data:`DEFAULT_N_COMPONENTS`.  Capped at the basis' size.
@@ -98,6 +90,24 @@ class ResponseOptions(SolverOptions):
         Codes (8-bit scale) from 0 or the maximum code that count as clipped.
     max_samples : int
         Number of sample locations (block means) drawn from the stack.
+    correspondences : {"blocks", "histogram", "histogram+blocks"}
+        What Eq. 8 is solved on: ``"blocks"`` (default), the stratified flat block samples
+        of :func:`selfcal.stack.samples.collect_samples`; ``"histogram"``, transfer
+        functions matched on the histograms of every usable pixel
+        (:mod:`.histogram_samples`, [Grossberg2003]), gated by a first fit on the blocks;
+        ``"histogram+blocks"``, both sets of rows in one solve.  The block samples serve
+        the verdict, the frame checks and the time contradictions in every case.
+        Default chosen on the tuning split, see docs/decisions.md.
+    measure_ringing : bool
+        Measure how far JPEG damage next to clipped areas reaches on the first fit and
+        solve again without the samples within it (:mod:`.white_end`, ours); the reach is
+        ``diagnostics["ringing_reach_blocks"]``.  Default True, chosen on the tuning
+        split, see docs/decisions.md.
+    near_clip_blocks : int
+        A block within this many blocks of a clipped one counts as clipped
+        (:func:`selfcal.stack.samples.reduce_frame`: keeps samples away from JPEG ringing at
+        clipped edges, ours).  Default 0 (off), chosen on the tuning split, see
+        docs/decisions.md.
 
     Examples
     --------
@@ -108,10 +118,18 @@ class ResponseOptions(SolverOptions):
 
     n_components: int = DEFAULT_N_COMPONENTS
     max_samples: int = DEFAULT_MAX_SAMPLES
+    basis: ResponseBasis | PathLike | None = field(default=None, repr=False, compare=False)
+    correspondences: str = "blocks"
+    measure_ringing: bool = True
+    near_clip_blocks: int = 0
 
-
-#: The fields of :class:`ResponseOptions`: old keyword arguments of the calibration.
-_OPTION_FIELDS = frozenset(ResponseOptions.__dataclass_fields__)
+    def __post_init__(self) -> None:
+        if self.correspondences not in CORRESPONDENCE_KINDS:
+            raise InputError(f"correspondences must be one of "
+                             f"{', '.join(CORRESPONDENCE_KINDS)}, not {self.correspondences!r}")
+        if int(self.near_clip_blocks) != self.near_clip_blocks or self.near_clip_blocks < 0:
+            raise InputError(f"near_clip_blocks must be a whole number >= 0, not "
+                             f"{self.near_clip_blocks!r}")
 
 
 @dataclass(frozen=True)
@@ -120,18 +138,16 @@ class _Call:
 
     options: ResponseOptions
     refine_exposures: object = "auto"
-    basis: object = None
     seed: int = 0
     progress: object = None
     times_source: str | None = None
 
 
 def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTimes | None = None,
-                       *, refine_exposures: bool | str = "auto",
-                       basis: ResponseBasis | PathLike | None = None, seed: int = 0,
+                       *, refine_exposures: bool | str = "auto", seed: int = 0,
                        align: bool | str = False, progress: Progress | None = None,
                        times_source: str | None = None,
-                       options: ResponseOptions | None = None, **legacy: Any) -> ResponseModel:
+                       options: ResponseOptions | None = None) -> ResponseModel:
     """Estimate each channel's camera response from an exposure stack.
 
     Implements [Lin2011] §5: log-domain PCA model (Eq. 7) fitted to the exposure equation
@@ -153,8 +169,6 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         :data:`selfcal.response.exposure_times.CONTRADICTION_FACTOR` (ours: the
         contradiction is then a warning, not a doubtful verdict); hold times the caller
         gave, and EXIF times most of which are contradicted.  False: hold every time.
-    basis : ResponseBasis or path, optional
-        Response basis; default the built-in log-PCA basis.
     seed : int
         Seed of every random choice (the same input gives the same model).
     align : {False, "mtb", "homography"}
@@ -169,11 +183,8 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         raw files); default ``"given"``.  Times all None are ``"unknown"``.
     options : ResponseOptions, optional
         The finer settings of the sampling and the solve (number of components, β, clip
-        margin, samples, Huber threshold, priors); default ``ResponseOptions()``.
-    legacy
-        The fields of :class:`ResponseOptions` as keyword arguments (``n_components=``,
-        ``saturation_threshold=``, ``clip_margin=``, ``max_samples=`` ...), the old way:
-        they still work, each with a :class:`DeprecationWarning` naming the field.
+        margin, samples, Huber threshold, priors, correspondences); default
+        ``ResponseOptions()``.
 
     Returns
     -------
@@ -181,15 +192,13 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         Its ``diagnostics`` hold the fit's evidence and the verdict
         (:mod:`selfcal.response.verdict`): ``"verdict"`` (``"ok"``, ``"doubtful"`` or
         ``"unusable"`` -- the model is returned in every case), ``"verdict_reasons"``
-        and ``"verdict_evidence"``.
+        and ``"verdict_evidence"``; its ``frames_ignored`` the frames left out and why.
 
     Warns
     -----
     SelfcalWarning
         Each of the model's ``diagnostics["warnings"]`` (frames ignored, contradicted
         times, the exponential ambiguity left to the prior, the verdict's reasons).
-    DeprecationWarning
-        For each call with ``legacy`` keyword arguments.
 
     Raises
     ------
@@ -200,8 +209,8 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
-    options = options_from_keywords(ResponseOptions, options, legacy, "calibrate_response")
-    call = _Call(options=options, refine_exposures=refine_exposures, basis=basis, seed=seed,
+    call = _Call(options=ResponseOptions() if options is None else options,
+                 refine_exposures=refine_exposures, seed=seed,
                  progress=progress, times_source=times_source)
     model = _calibrate_response(images, exposure_times, call, align=align)
     emit_warnings(model)
@@ -244,12 +253,13 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
         lacking = [src for src, t in zip(sources, times) if t is None]
         for src in lacking:
             warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
-    basis, n_components = _log_domain_basis(call.basis, call.options.n_components)
+    basis, n_components = _log_domain_basis(call.options.basis, call.options.n_components)
     options = replace(call.options, n_components=n_components)
 
+    ignored: list = []
     samples, masks, keep = _sample_usable_frames(
         frames, sources, times, warnings, options=options, seed=call.seed,
-        progress=call.progress)
+        progress=call.progress, ignored=ignored)
     sub_times = [times[k] for k in keep]
     usable = _Usable(samples=subset(samples, keep),
                      masks={k: v[keep] for k, v in masks.items()},
@@ -273,8 +283,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
     # measured on the final fit with the exposures held only: refined exposures lean on
     # the samples near clipped areas (a 192x288 stack with one wrong EXIF time, refined,
     # went from 0.0026 to 0.0081 f⁻¹ RMSE without them; tests/test_verdict.py)
-    reach = 0 if refine_exposures else _ringing_reach(usable, basis, result,
-                                                      options.n_components)
+    reach = 0 if refine_exposures else _ringing_reach(usable, basis, result, options)
     if reach:       # the masks the partial holds are updated in place
         result = solve(refine_exposures=False)
     warnings.extend(result.warnings)
@@ -298,7 +307,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
     diagnostics["code_error_log"] = code_error_profile(
         usable.samples, ~(usable.masks["clipped"] | usable.masks["saturated"]), result,
         fit["grid"], fit["inverse"])
-    if MEASURE_RINGING:
+    if options.measure_ringing:
         diagnostics["ringing_reach_blocks"] = int(reach)
     from .model import ResponseModel
 
@@ -306,7 +315,9 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
                           coefficients=result.coefficients, basis_name=basis.name,
                           exposures=full_exposures, exposure_times=list(times),
                           sources=sources, max_code=samples.max_code,
-                          diagnostics=diagnostics, inverse_log_sigma=log_sigma)
+                          diagnostics=diagnostics, inverse_log_sigma=log_sigma,
+                          frames_ignored=tuple(sorted(ignored,
+                                                      key=lambda f: sources.index(f.source))))
     model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
     return model
 
@@ -360,7 +371,9 @@ def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
 
 def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
                       clip_margin: float | None = None, warnings: list | None = None,
-                      progress=None, max_side: int = 2048, **options):
+                      progress=None, max_side: int = 2048,
+                      refine_exposures: bool | str = "auto",
+                      options: ResponseOptions | None = None):
     """Align a handheld stack to its reference frame, then calibrate its response.
 
     Misaligned frames give wrong correspondences, and the solve of [Lin2011] Eq. 8 then
@@ -389,10 +402,14 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         default the ``options``' (``ResponseOptions.clip_margin``).
     warnings : list, optional
         Receives the alignment's warnings (they are not in the model's).
-    options
-        Keyword arguments of :func:`calibrate_response` (``refine_exposures``, ``basis``,
-        ``seed``, ``times_source``, ``options=ResponseOptions(...)``; the old keywords of
-        its options with a DeprecationWarning).
+    progress : callable, optional
+        As for :func:`calibrate_response`.
+    max_side : int
+        Long side (pixels) of the aligned frames the response is calibrated on.
+    refine_exposures : {"auto", True, False}
+        As for :func:`calibrate_response`.
+    options : ResponseOptions, optional
+        The calibration's finer settings (default ``ResponseOptions()``).
 
     Returns
     -------
@@ -408,10 +425,8 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     SelfcalWarning
         Each of the model's ``diagnostics["warnings"]``.
     """
-    legacy = {k: options.pop(k) for k in list(options) if k in _OPTION_FIELDS}
-    resolved = options_from_keywords(ResponseOptions, options.pop("options", None), legacy,
-                                     "calibrate_aligned")
-    call = _Call(options=resolved, progress=progress, **options)
+    resolved = ResponseOptions() if options is None else options
+    call = _Call(options=resolved, progress=progress, refine_exposures=refine_exposures)
     model, transforms, ref = _calibrate_aligned(
         images, exposure_times, call, method=method, reference=reference,
         clip_margin=resolved.clip_margin if clip_margin is None else clip_margin,
@@ -457,6 +472,9 @@ def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", ref
         diag[key] = [name_arrays(w, frames.sources) for w in diag.get(key, [])]
     diag["frames_used"] = [name_arrays(f, frames.sources)
                            for f in diag.get("frames_used", [])]
+    model.frames_ignored = tuple(
+        replace(f, source=name_arrays(f.source, frames.sources),
+                detail=name_arrays(f.detail, frames.sources)) for f in model.frames_ignored)
     diag["per_pair_rms_log"] = {name_arrays(k, frames.sources): v
                                 for k, v in diag.get("per_pair_rms_log", {}).items()}
     for c in diag.get("contradicting_times", []) or []:
@@ -485,7 +503,7 @@ def _log_domain_basis(basis, n_components: int):
 
 
 def _sample_usable_frames(frames, sources, times, warnings, *, options: ResponseOptions, seed,
-                          progress):
+                          progress, ignored: list):
     """Read the frames' samples and masks; choose the frames the solve can use.
 
     Dropped, with a warning each and in this order: frames clipped almost everywhere
@@ -511,12 +529,13 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
     clip_margin = options.clip_margin
     samples = collect_samples(frames, sources=sources, max_samples=options.max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress,
-                              keep_reduced=CORRESPONDENCES == "histogram")
+                              keep_reduced=options.correspondences != "blocks",
+                              near_clip_blocks=options.near_clip_blocks)
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=options.saturation_threshold)
-    keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin)
+    keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin, ignored)
     keep = without_duplicates([samples.digests[k] for k in keep], [times[k] for k in keep],
-                              [sources[k] for k in keep], warnings, keep)
+                              [sources[k] for k in keep], warnings, keep, ignored)
     # A frame that shares (almost) no unclipped samples with any other frame -- e.g. one
     # long exposure far beyond the rest of the bracket -- adds no usable equations: its few
     # pair rows sit at the clipping limits, and its exposure could be neither estimated nor
@@ -525,8 +544,9 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
     for k in list(keep):
         shared = max((int((usable[k] & usable[j]).sum()) for j in keep if j != k), default=0)
         if shared < MIN_SHARED_SAMPLES and len(keep) > 2:
-            warnings.append(f"{sources[k]}: shares only {shared} unclipped samples with any "
-                            "other frame (too far from the rest of the bracket); ignored")
+            record_ignored(sources[k], "unchecked", f"shares only {shared} unclipped samples "
+                           "with any other frame (too far from the rest of the bracket)",
+                           warnings, ignored)
             keep.remove(k)
     if len(keep) < 2:
         raise CalibrationError(
@@ -535,27 +555,28 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
     return samples, masks, keep
 
 
-def _ringing_reach(usable: _Usable, basis, result, n_components: int) -> int:
-    """With :data:`MEASURE_RINGING`: :func:`.white_end.mask_near_clip` (0 when off)."""
-    if not MEASURE_RINGING:
+def _ringing_reach(usable: _Usable, basis, result, options: ResponseOptions) -> int:
+    """With ``options.measure_ringing``: :func:`.white_end.mask_near_clip` (0 when off)."""
+    if not options.measure_ringing:
         return 0
     from .white_end import mask_near_clip
 
-    grid, inverse = _inverse_response(basis, result.coefficients, n_components)
+    grid, inverse = _inverse_response(basis, result.coefficients, options.n_components)
     return mask_near_clip(usable.samples, usable.masks, result, grid, inverse)
 
 
 def _histogram_solve(samples, usable: _Usable, keep, basis, first, options, progress):
     """The solve on histogram correspondences of every usable pixel, gated by a first fit
     (:func:`.histogram_samples.solve_data`), with the block samples too when
-    :data:`WITH_BLOCKS`."""
+    ``options.correspondences == "histogram+blocks"``."""
     from .histogram_samples import solve_data
 
     grid, inverse = _inverse_response(basis, first.coefficients, options.n_components)
     data, masks, weights = solve_data(
         samples, keep, (grid, inverse, first.log_exposures), clip_margin=options.clip_margin,
         saturation_threshold=options.saturation_threshold,
-        blocks=(usable.samples, usable.masks) if WITH_BLOCKS else None)
+        blocks=((usable.samples, usable.masks)
+                if options.correspondences == "histogram+blocks" else None))
     return functools.partial(_solve, replace(usable, samples=data, masks=masks), basis,
                              options=options, progress=progress, weights=weights)
 

@@ -12,13 +12,16 @@ from dataclasses import replace
 import numpy as np
 
 from ..errors import InputError
+from .model import IgnoredFrame
 
 
-def without_clipped_frames(samples, masks, sources, warnings, clip_margin) -> list[int]:
+def without_clipped_frames(samples, masks, sources, warnings, clip_margin,
+                           ignored: list | None = None) -> list[int]:
     """Indices of the frames not clipped almost everywhere (< 1 % of samples unclipped).
 
     The warning of a dropped frame says whether it is white (or black) everywhere, or
-    mostly white or black.
+    mostly white or black; ``ignored`` receives its :class:`.model.IgnoredFrame`
+    (reason ``"clipped"``).
     """
     margin = clip_margin / 255.0
     keep = []
@@ -32,17 +35,19 @@ def without_clipped_frames(samples, masks, sources, warnings, clip_margin) -> li
         if white >= 0.999 or black >= 0.999:
             what = "white" if white >= black else "black"
             share = 100 * max(white, black)
-            warnings.append(f"{sources[k]}: all {what} ({share:.1f}% of samples clipped "
-                            f"{what}); ignored")
+            detail = f"all {what} ({share:.1f}% of samples clipped {what})"
         else:
-            warnings.append(f"{sources[k]}: clipped almost everywhere ({100 * clipped:.1f}% "
-                            f"of samples: {100 * white:.1f}% white, {100 * black:.1f}% "
-                            "black); ignored")
+            detail = (f"clipped almost everywhere ({100 * clipped:.1f}% of samples: "
+                      f"{100 * white:.1f}% white, {100 * black:.1f}% black)")
+        record_ignored(sources[k], "clipped", detail, warnings, ignored)
     return keep
 
 
-def without_duplicates(digests, times, sources, warnings, indices=None) -> list[int]:
+def without_duplicates(digests, times, sources, warnings, indices=None,
+                       ignored: list | None = None) -> list[int]:
     """The frames that are not a copy of an earlier one (``indices`` of the ones kept).
+
+    ``ignored`` receives each copy's :class:`.model.IgnoredFrame` (reason ``"duplicate"``).
 
     ``digests`` are :func:`selfcal.stack.samples.content_digest` of every pixel.  Identical
     pixels at different given times contradict each other: an InputError.
@@ -58,11 +63,22 @@ def without_duplicates(digests, times, sources, warnings, indices=None) -> list[
                 raise InputError(
                     f"identical pixels to {sources[j]} but a different exposure time "
                     f"({times[k]:g} s vs {times[j]:g} s): a duplicated file?", sources[k])
-            warnings.append(f"{sources[k]}: duplicate of {sources[j]}; ignored")
+            record_ignored(sources[k], "duplicate", f"duplicate of {sources[j]}", warnings,
+                           ignored)
             keep.remove(indices[k])
         else:
             seen[dig] = k
     return keep
+
+
+def record_ignored(source: str, reason: str, detail: str, warnings: list,
+                   ignored: list | None) -> None:
+    """A frame left out of the solve: its :class:`.model.IgnoredFrame` into ``ignored``
+    (the fact, which the merge reads) and ``"<source>: <detail>; ignored"`` into
+    ``warnings`` (for people)."""
+    warnings.append(f"{source}: {detail}; ignored")
+    if ignored is not None:
+        ignored.append(IgnoredFrame(source=source, reason=reason, detail=detail))
 
 
 def subset(samples, keep):

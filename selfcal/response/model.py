@@ -17,9 +17,75 @@ import numpy.typing as npt
 
 from ..errors import InputError, ModelFileError
 from ..typing import PathLike
-from ..io.model_file import jsonable, save_model_dict
+from ..io.model_file import IGNORED_FRAME_REASONS, jsonable, save_model_dict
 
 MODEL_KIND = "response"
+
+
+@dataclass(frozen=True)
+class IgnoredFrame:
+    """A frame the calibration left out of its solve, and why.
+
+    Attributes
+    ----------
+    source : str
+        The frame, as named in :attr:`ResponseModel.sources`.
+    reason : {"clipped", "duplicate", "unchecked"}
+        ``"clipped"``: clipped almost everywhere (white or black); ``"duplicate"``: the
+        same pixels as an earlier frame; ``"unchecked"``: it shares too few unclipped
+        samples with any other frame (too far from the rest of the bracket), so the pixels
+        could check neither its exposure nor the curve with it -- the merge still merges
+        such a frame with its time, flagged (:func:`selfcal.merge_hdr`).  One of
+        :data:`selfcal.io.model_file.IGNORED_FRAME_REASONS`.
+    detail : str
+        For people: what was measured (the model's warning says the same).
+    """
+
+    source: str
+    reason: str
+    detail: str = ""
+
+    def __post_init__(self) -> None:
+        if self.reason not in IGNORED_FRAME_REASONS:
+            raise InputError(f"IgnoredFrame.reason must be one of "
+                             f"{', '.join(IGNORED_FRAME_REASONS)}, not {self.reason!r}")
+
+    def to_dict(self) -> dict:
+        return {"source": self.source, "reason": self.reason, "detail": self.detail}
+
+
+#: The words by which model files of versions 1 and 2 told an unchecked frame, in its
+#: warning (:func:`_ignored_from_warnings`, the compatibility path of older files).
+_UNCHECKED_WORDS = "too far from the rest of the bracket"
+
+
+def _ignored_from_warnings(d: dict) -> tuple[IgnoredFrame, ...]:
+    """The ignored frames of a model file of version 1 or 2, which said them in prose only.
+
+    As the merge of those versions read them: a source missing from
+    ``diagnostics["frames_used"]`` (none when that is absent) with a warning
+    ``"<source>: <detail>; ignored"``; the detail names the reason ("duplicate of ...",
+    "... too far from the rest of the bracket ...", else clipped).  Used by the loader
+    only: models of version 3 carry :attr:`ResponseModel.frames_ignored` as data.
+    """
+    diag = d.get("diagnostics") or {}
+    used = diag.get("frames_used")
+    if used is None:
+        return ()
+    used = {str(f) for f in used}
+    out = []
+    for name in d.get("sources", []):
+        if name in used:
+            continue
+        text = next((w[len(name) + 2:] for w in diag.get("warnings", [])
+                     if w.startswith(f"{name}: ") and "ignored" in w), None)
+        if text is None:
+            continue
+        detail = text.replace("; ignored", "").strip()
+        reason = ("unchecked" if _UNCHECKED_WORDS in detail else
+                  "duplicate" if detail.startswith("duplicate of") else "clipped")
+        out.append(IgnoredFrame(source=name, reason=reason, detail=detail))
+    return tuple(out)
 
 
 @dataclass
@@ -56,6 +122,12 @@ class ResponseModel:
         Standard deviation of log f⁻¹ on ``intensity`` per channel, the confidence band
         of the fit (:mod:`selfcal.response.bands`, ours); None for models loaded from
         files of version 1, which have no band.
+    frames_ignored : tuple of IgnoredFrame
+        The frames the calibration left out of its solve, each with its reason (a code)
+        and a detail for people; their exposures are NaN.  What the merge reads to know
+        which frames to leave out or to merge unchecked.  Saved with the model (file
+        format version 3); for files of versions 1 and 2 derived once, on loading, from
+        their warnings (:func:`_ignored_from_warnings`).
     """
 
     intensity: np.ndarray
@@ -68,6 +140,7 @@ class ResponseModel:
     max_code: int = 255
     diagnostics: dict = field(default_factory=dict)
     inverse_log_sigma: np.ndarray | None = None
+    frames_ignored: tuple[IgnoredFrame, ...] = ()
     #: samples of one frame pair with rejection reasons (for plots); not saved
     fit_data: dict | None = field(default=None, repr=False, compare=False)
 
@@ -174,6 +247,7 @@ class ResponseModel:
             "exposure_times": [None if t is None else float(t) for t in self.exposure_times],
             "sources": list(self.sources),
             "diagnostics": jsonable(self.diagnostics),
+            "frames_ignored": [f.to_dict() for f in self.frames_ignored],
             **({} if self.inverse_log_sigma is None else
                {"inverse_log_sigma": np.round(np.asarray(self.inverse_log_sigma).T,
                                               7).tolist()}),
@@ -199,7 +273,12 @@ class ResponseModel:
                         exposure_times=list(d["exposure_times"]), sources=list(d["sources"]),
                         max_code=max_code, diagnostics=dict(d.get("diagnostics", {})),
                         inverse_log_sigma=(None if d.get("inverse_log_sigma") is None else
-                                           np.asarray(d["inverse_log_sigma"], float).T))
+                                           np.asarray(d["inverse_log_sigma"], float).T),
+                        frames_ignored=(
+                            _ignored_from_warnings(d) if d.get("frames_ignored") is None
+                            else tuple(IgnoredFrame(source=f["source"], reason=f["reason"],
+                                                    detail=f.get("detail", ""))
+                                       for f in d["frames_ignored"])))
         except KeyError as exc:
             raise bad(f"response model lacks the field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:

@@ -204,12 +204,14 @@ def estimated_coefficient_variance(basis, N: int, *, n_curves: int = FAMILY_CURV
     return np.maximum(lam, 1e-12 * max(float(lam.max()), 1e-300))
 
 
-def pca_variance_precision(basis, N: int, prior_weight: float):
+def pca_variance_precision(basis, N: int, prior_weight: float,
+                           estimated_scale: float = ESTIMATED_PRIOR_SCALE):
     """Precision ``prior_weight / λ_n`` of the PCA-variance prior, or None when it is off.
 
     λ_n are the basis' PCA variances; for a basis without them (a file such as
     ``invemor.txt``) they are estimated by :func:`estimated_coefficient_variance` and the
-    weight is multiplied by :data:`ESTIMATED_PRIOR_SCALE`.  None when ``prior_weight`` is
+    weight is multiplied by ``estimated_scale`` (``SolverOptions.estimated_prior_scale``,
+    default :data:`ESTIMATED_PRIOR_SCALE`).  None when ``prior_weight`` is
     0 (or N is 0), or for such a basis when that scale is 0: the ridge then takes its
     place.
     """
@@ -218,9 +220,9 @@ def pca_variance_precision(basis, N: int, prior_weight: float):
     ev = getattr(basis, "explained_variance", None)
     if ev is not None and len(ev) >= N:
         return prior_weight / np.asarray(ev[:N], dtype=float)
-    if not ESTIMATED_PRIOR_SCALE > 0:
+    if not estimated_scale > 0:
         return None
-    return prior_weight * ESTIMATED_PRIOR_SCALE / estimated_coefficient_variance(basis, N)
+    return prior_weight * estimated_scale / estimated_coefficient_variance(basis, N)
 
 
 @dataclass(frozen=True, eq=False)

@@ -29,11 +29,12 @@ selfcal's own (one line each on why):
 - PCA-variance prior on the coefficients (:mod:`.priors`): the data leave the bend of the
   never-observed last codes open, and with fewer than two known times the exponential
   ambiguity too; the curve database decides (with fewer than two known times the prior
-  is centred at standard encodings, :data:`CENTRE_AMBIGUITY`).  On in every solve with the built-in basis
+  is centred at standard encodings, ``SolverOptions.centre_ambiguity``).  On in every
+  solve with the built-in basis
   (it carries PCA variances), not only with < 2 known times.  A basis without variances
   (``invemor.txt``) gets them estimated from the curve family projected on it
   (:func:`.priors.estimated_coefficient_variance`, ours); the ridge acts only when the
-  prior is off (``prior_weight = 0``, or ``priors.ESTIMATED_PRIOR_SCALE = 0``).
+  prior is off (``prior_weight = 0``, or ``estimated_prior_scale = 0``).
 - White-continuation prior (:mod:`.priors`): beyond the brightest valid sample f⁻¹(1) = 1
   is extrapolation, and the observed curve's straight continuation should meet it.
 - Censored white-threshold rows (:class:`.equations.ThresholdRows`): where each channel
@@ -66,7 +67,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import CalibrationError, options_from_keywords
+from ..errors import CalibrationError
 from ..stack.frames import DEFAULT_CLIP_MARGIN
 from ..stack.samples import SampleSet, frame_masks
 from .equations import (
@@ -95,10 +96,6 @@ DEFAULT_SATURATION_THRESHOLD = 0.5
 CODE_NOISE = 1.0 / 255.0
 #: IRLS iterations at most when some exposures are estimated (run to convergence).
 MAX_ITERATIONS_ESTIMATED = 60
-#: With fewer than two different known times, centre the PCA-variance prior at
-#: :func:`.priors.ambiguity_centre` (standard encodings) instead of the basis mean, and
-#: start the exposures from that centre's curve (BENCHMARKS, "Exposures unknown").
-CENTRE_AMBIGUITY = True
 
 
 @dataclass
@@ -193,14 +190,14 @@ class SolverOptions:
     ridge : float
         Weight of the ridge on the coefficients, relative to the mean data weight; used
         only when the PCA-variance prior is off (``prior_weight = 0``, or a basis without
-        variances with ``priors.ESTIMATED_PRIOR_SCALE = 0``).
+        variances with ``estimated_prior_scale = 0``).
     white_continuation_sigma : float
         Std (log units) of the white-continuation prior: the observed curve continues
         straight from the brightest valid sample to g(1) = 0.
     prior_weight : float
         Scale of the PCA-variance prior c_n ~ N(0, λ_n / prior_weight) from the basis' PCA
         variances λ_n (estimated for a basis without them, and then weighted by
-        ``priors.ESTIMATED_PRIOR_SCALE``), on in every solve whatever the number of known
+        ``estimated_prior_scale``), on in every solve whatever the number of known
         times.  The data term counts every pair equation as independent, but one sample
         location enters up to 3·(F−1) correlated equations (channels, pairs) and JPEG
         errors are spatially correlated, so the prior is weighted up by about that factor;
@@ -212,6 +209,16 @@ class SolverOptions:
         Add the censored white-threshold rows (:class:`.equations.ThresholdRows`: where
         each channel starts to clip at the top code), which tie the scale of f⁻¹ to the
         data.
+    estimated_prior_scale : float
+        Multiplier of ``prior_weight`` for a basis whose PCA variances are estimated
+        (:func:`.priors.estimated_coefficient_variance`, ours); 0 switches that prior off
+        (the ridge acts instead).  Default :data:`.priors.ESTIMATED_PRIOR_SCALE`, chosen
+        on the tuning split, see docs/decisions.md.
+    centre_ambiguity : bool
+        With fewer than two different known times, centre the PCA-variance prior at
+        :func:`.priors.ambiguity_centre` (standard encodings) instead of the basis mean,
+        and start the exposures from that centre's curve (ours).  Default True, chosen on
+        the tuning split, see docs/decisions.md.
     """
 
     n_components: int = 5
@@ -226,13 +233,14 @@ class SolverOptions:
     prior_weight: float = 100.0
     monotone: bool = True
     white_threshold: bool = True
+    estimated_prior_scale: float = _priors.ESTIMATED_PRIOR_SCALE
+    centre_ambiguity: bool = True
 
 
 def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
                              refine_exposures: bool = False, masks: dict | None = None,
                              options: SolverOptions | None = None,
-                             sample_weights: np.ndarray | None = None,
-                             **legacy) -> SolveResult:
+                             sample_weights: np.ndarray | None = None) -> SolveResult:
     """Solve Eq. 8 of [Lin2011] for three channels' coefficients and exposures.
 
     Parameters
@@ -255,16 +263,12 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
         Weight of each sample's row per channel (histogram correspondences,
         :mod:`.histogram_samples`); rows of weight 0 are left out of the fit and of the
         robust scale.
-    legacy
-        The fields of :class:`SolverOptions` as keyword arguments, the old way: each gives
-        a :class:`DeprecationWarning` naming the field.
 
     Returns
     -------
     SolveResult
     """
-    options = options_from_keywords(SolverOptions, options, legacy,
-                                    "solve_exposure_equations")
+    options = SolverOptions() if options is None else options
     if basis.domain != "log":
         raise CalibrationError(
             f"basis {basis.name!r} is a {basis.domain}-domain basis; Eq. 8 needs a "
@@ -278,10 +282,12 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     clipped, saturated = masks["clipped"], masks["saturated"]
     valid = ~(clipped | saturated)
     log_times = np.asarray(log_times, dtype=float)
-    warnings, ambiguity_prior = _ambiguity_warnings(np.isfinite(log_times), log_times)
-    precision = pca_variance_precision(basis, N, options.prior_weight)
+    warnings, ambiguity_prior = _ambiguity_warnings(np.isfinite(log_times), log_times,
+                                                    centred=options.centre_ambiguity)
+    precision = pca_variance_precision(basis, N, options.prior_weight,
+                                       options.estimated_prior_scale)
     centre = (ambiguity_centre(basis, N) if ambiguity_prior and precision is not None
-              and CENTRE_AMBIGUITY else None)
+              and options.centre_ambiguity else None)
     exposures = _exposure_setup(log_times, refine_exposures, values, valid, basis,
                                 None if centre is None else basis.model_values(centre))
 
@@ -335,7 +341,7 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
                        ambiguity_prior=ambiguity_prior)
 
 
-def _ambiguity_warnings(known: np.ndarray, log_times: np.ndarray):
+def _ambiguity_warnings(known: np.ndarray, log_times: np.ndarray, *, centred: bool = True):
     """The warning that the exponential ambiguity (§5) was left to the prior, if it was.
 
     Returns
@@ -353,7 +359,7 @@ def _ambiguity_warnings(known: np.ndarray, log_times: np.ndarray):
             "fewer than two different exposure times are known: the exponential "
             "ambiguity of the response (Lin et al. §5) was resolved by a prior towards "
             + (f"standard encodings ({', '.join(_priors.AMBIGUITY_CENTRE_CURVES)})"
-               if CENTRE_AMBIGUITY
+               if centred
                else "the basis mean response")
             + ", a guess that can leave f⁻¹ raised to a wrong power; "
             "exposures are relative"

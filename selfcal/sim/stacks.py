@@ -176,7 +176,8 @@ class SyntheticStack:
                 data = jpeg_with_exif(self._encoded[i], exif_bytes(**meta))
                 write_bytes_atomic(path, data, force=force)
             elif ext == "jpg":
-                write_image(path, image, force=force, jpeg_quality=jpeg_quality, **meta)
+                write_image(path, image, force=force, jpeg_quality=jpeg_quality,
+                            exposure_time=t, f_number=self.f_number, iso=self.iso)
             elif ext == "png":
                 from ..io.images import encode_image
 

@@ -32,15 +32,6 @@ REJECTION_REASONS = ("clipped", "saturated", "not_flat")
 #: Long side (pixels) of the grey thumbnail kept of each frame: the verdict measures the
 #: frames' motion against each other on it (:mod:`selfcal.response.verdict`).
 THUMBNAIL_SIDE = 1024
-#: A block within this many blocks of a clipped one counts as clipped (its block max/min
-#: taken over the neighbourhood), to keep samples away from JPEG ringing at clipped edges
-#: (an experiment, off by default).  Off: tried at radius 0 / 1 / 3 / 8 on the tuning split of
-#: ``bench/bench_response_matrix.py`` (256x384 frames, block 1), radius 1 gave 12 (was
-#: 11) of 14 cells with a median f⁻¹ RMSE ≤ 0.005 and 10 (was 7) with p90 ≤ 0.010, but
-#: ``bench_response_synthetic.py --step 10`` went from a median of 0.0044 to 0.0048, the
-#: D7000 rows from 0.0114 / 0.0151 to 0.0117 / 0.0164, and a 192x288 stack with one wrong
-#: EXIF time refined to 0.0074 (0.0034 held): not clearly better, so not on by default.
-NEAR_CLIP_BLOCKS = 0
 
 
 def content_digest(image: np.ndarray) -> str:
@@ -101,13 +92,13 @@ def _as_image_array(image, source: str) -> np.ndarray:
 
 
 def reduce_frame(image, *, block: int, source: str = "array",
-                 digest: str | None = None) -> ReducedFrame:
+                 digest: str | None = None, near_clip_blocks: int = 0) -> ReducedFrame:
     """Reduce one frame to ``block``×``block`` means, plus per-block extreme codes.
 
-    With :data:`NEAR_CLIP_BLOCKS` > 0 the extremes are taken over the block and its
+    With ``near_clip_blocks`` > 0 the extremes are taken over the block and its
     neighbours within that many blocks, so that a block next to a clipped one counts as
     clipped (Lin et al. §5 reject clipped pixels; keeping away from the JPEG damage around
-    them is ours; off by default, see the constant).
+    them is ours; off by default, ``ResponseOptions.near_clip_blocks``).
 
     Parameters
     ----------
@@ -119,6 +110,9 @@ def reduce_frame(image, *, block: int, source: str = "array",
         Name used in error messages.
     digest : str, optional
         The frame's :func:`content_digest` when known (computed from ``image`` otherwise).
+    near_clip_blocks : int
+        Radius, in blocks, of the neighbourhood the extreme codes are taken over (0: the
+        block alone).
     """
     cv2 = import_cv2()
     arr = _as_image_array(image, source)
@@ -151,9 +145,9 @@ def reduce_frame(image, *, block: int, source: str = "array",
         fine3 = np.ascontiguousarray(fine)
         chmax = cv2.dilate(fine3, kernel, anchor=(0, 0))[::2, ::2]
         chmin = cv2.erode(fine3, kernel, anchor=(0, 0))[::2, ::2]
-    if NEAR_CLIP_BLOCKS > 0:
+    if near_clip_blocks > 0:
         # JPEG ringing and chroma bleed from a clipped neighbour damage a block's codes
-        near = np.ones((2 * NEAR_CLIP_BLOCKS + 1,) * 2, np.uint8)
+        near = np.ones((2 * int(near_clip_blocks) + 1,) * 2, np.uint8)
         cmax, cmin = cv2.dilate(cmax, near), cv2.erode(cmin, near)
     blocks = np.ascontiguousarray(blocks, dtype=np.float32)
     return ReducedFrame(blocks=blocks, block_max=cmax, block_min=cmin, max_code=max_code,
@@ -348,9 +342,9 @@ def _dct_factor(block: int) -> int:
 
 
 def collect_samples(frames, *, sources=None, block: int | None = None,
-                    n_bins: int = 48, per_bin: int | None = None, max_samples: int = 6000,
+                    per_bin: int | None = None, max_samples: int = 6000,
                     clip_margin: float = DEFAULT_CLIP_MARGIN, seed: int = 0, progress=None,
-                    keep_reduced: bool = False) -> SampleSet:
+                    keep_reduced: bool = False, near_clip_blocks: int = 0) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
 
     Parameters
@@ -368,6 +362,9 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     keep_reduced : bool
         Keep the reduced frames (every pixel, or block means) in the result's ``reduced``,
         for :func:`selfcal.response.histogram_samples.histogram_correspondences`.
+    near_clip_blocks : int
+        A block within this many blocks of a clipped one counts as clipped
+        (:func:`reduce_frame`); 0, the default, turns it off.
 
     Raises
     ------
@@ -414,7 +411,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         hb, wb = full_shape[0] // block, full_shape[1] // block
         step = block // factor
         arr = arr[: hb * step, : wb * step]
-        r = reduce_frame(arr, block=step, source=src, digest=digest)
+        r = reduce_frame(arr, block=step, source=src, digest=digest,
+                         near_clip_blocks=near_clip_blocks)
         r.shape = tuple(full_shape)
         if reduced and r.max_code != reduced[0].max_code:
             raise InputError("bit depth differs from the first frame's "
@@ -424,7 +422,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         if progress is not None:
             progress(k + 1, n, src)
     per_bin = PER_BIN if per_bin is None else per_bin
-    idx, flatness = choose_locations(reduced, n_bins=n_bins, per_bin=per_bin,
+    idx, flatness = choose_locations(reduced, per_bin=per_bin,
                                      max_samples=max_samples, clip_margin=clip_margin,
                                      seed=seed)
     max_code = reduced[0].max_code
