@@ -218,8 +218,12 @@ def test_outputs_identical_to_calibrate_and_merge_by_hand(batch, tmp_path, capsy
     capsys.readouterr()
     by_hand = json.loads(model.read_text())
     batch_model = json.loads(Path(alone["model_file"]).read_text())
-    assert by_hand["inverse_response"] == batch_model["inverse_response"]
-    assert np.array_equal(_read(exr2), _read(folder / alone["session"] / "radiance.exr"))
+    # Dask's workers run BLAS with one thread, this process with more: with some BLAS builds
+    # (OpenBLAS of numpy 1.26) the solve's last bits differ (scripts/golden_spread.py)
+    np.testing.assert_allclose(by_hand["inverse_response"], batch_model["inverse_response"],
+                               rtol=0, atol=1e-9)
+    np.testing.assert_allclose(_read(exr2), _read(folder / alone["session"] / "radiance.exr"),
+                               rtol=1e-6)
 
 
 def test_a_rerun_skips_finished_sessions_and_retries_the_failed(batch, library, client):
