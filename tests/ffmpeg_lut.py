@@ -1,7 +1,7 @@
 """LUT files applied by ffmpeg, an implementation of the formats independent of selfcal.
 
-Bench-only (the benches and the tests use it; the library does not): importable as
-``ffmpeg_lut`` from the bench scripts and as ``bench.ffmpeg_lut`` from the tests.
+A helper of the tests (``test_export``), not a test module; the benches use it too, as
+``tests.ffmpeg_lut`` through :mod:`bench.peers` (the tests never import from ``bench``).
 """
 
 from __future__ import annotations
