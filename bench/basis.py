@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .tables import finish, start
+from .tables import finish, start, table
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -126,18 +126,15 @@ def calibrate_split(args, invemor: Path) -> int:
     print("RMSE of f⁻¹ over codes 1..254 (f⁻¹(255) = 1)")
     print()
     base = np.array([res[(i, False, 1.0)] for i in indices])
-    head = f"{'basis':<48} | {'median':>7} {'mean':>7} {'p90':>7} {'max':>7} | {'median ratio':>12}"
-    print(head)
-    print("-" * len(head))
     rows = [("built-in", base)]
     for sc in scales:
         label = ("invemor.txt, ridge (prior off, before issue 18)" if sc == 0 else
                  f"invemor.txt, estimated prior x{sc:g}")
         rows.append((label, np.array([res[(i, True, sc)] for i in indices])))
-    for label, v in rows:
-        print(f"{label:<48} | {np.median(v):>7.4f} {v.mean():>7.4f} "
-              f"{np.percentile(v, 90):>7.4f} {v.max():>7.4f} | "
-              f"{np.median(v) / np.median(base):>12.2f}")
+    print(table(["basis", "median", "mean", "p90", "max", "median ratio"],
+                [[label, f"{np.median(v):.4f}", f"{v.mean():.4f}", f"{np.percentile(v, 90):.4f}",
+                  f"{v.max():.4f}", f"{np.median(v) / np.median(base):.2f}"]
+                 for label, v in rows]))
     print()
     if heldout:
         ratio = np.median(rows[-1][1]) / np.median(base)
@@ -196,11 +193,8 @@ def main(argv=None) -> int:
           f"floor {ours.log_floor:g}) - out of sample")
     print(f"inv-EMoR: {emor.name} (linear domain, least squares) - in sample (built from DoRF)")
     print()
-    head = (f"{'N':>2} | {'built-in mean':>13} {'median':>8} {'max':>8} | "
-            f"{'inv-EMoR mean':>13} {'median':>8} {'max':>8} | {'ratio':>5}")
-    print(head)
-    print("-" * len(head))
     best = None
+    rows = []
     t_ours = t_emor = 0.0
     for n in range(3, 9):
         t0 = time.perf_counter()
@@ -210,11 +204,13 @@ def main(argv=None) -> int:
         t2 = time.perf_counter()
         t_ours += t1 - t0
         t_emor += t2 - t1
-        print(f"{n:>2} | {a.mean():>13.5f} {np.median(a):>8.5f} {a.max():>8.5f} | "
-              f"{b.mean():>13.5f} {np.median(b):>8.5f} {b.max():>8.5f} | "
-              f"{a.mean() / b.mean():>5.2f}")
+        rows.append([n, f"{a.mean():.5f}", f"{np.median(a):.5f}", f"{a.max():.5f}",
+                     f"{b.mean():.5f}", f"{np.median(b):.5f}", f"{b.max():.5f}",
+                     f"{a.mean() / b.mean():.2f}"])
         if n <= 6 and a.mean() <= TARGET and best is None:
             best = (n, a.mean())
+    print(table(["N", "built-in mean", "median", "max", "inv-EMoR mean", "median", "max",
+                 "ratio"], rows))
     print()
     print(f"fit time ratio built-in / inv-EMoR: {t_ours / max(t_emor, 1e-9):.1f}x "
           "(non-linear log-domain fit vs one linear solve)")

@@ -102,7 +102,8 @@ def _init_worker():
 SELFCAL_TIMES = "all"
 
 
-#: selfcal's options (``--no-ringing``, ``--basis-mean-prior`` change them).
+#: selfcal's options (``--no-ringing``, ``--basis-mean-prior``, ``--correspondences``,
+#: ``--near-clip-blocks`` change them).
 SELFCAL_OPTIONS = ResponseOptions()
 
 
@@ -385,6 +386,12 @@ def main():
                         help="with fewer than two known times, centre selfcal's prior at "
                              "the basis mean as before issue 25 "
                              "(ResponseOptions(centre_ambiguity=False)), for the comparison")
+    parser.add_argument("--correspondences", choices=("blocks", "histogram"),
+                        help="selfcal's correspondences "
+                             "(ResponseOptions.correspondences); default the library's")
+    parser.add_argument("--near-clip-blocks", type=int, metavar="R",
+                        help="blocks within R blocks of a clipped one count as clipped "
+                             "(ResponseOptions.near_clip_blocks); default the library's")
     args = parser.parse_args()
     start("response_matrix", args.split)
     global SELFCAL_TIMES
@@ -394,6 +401,10 @@ def main():
         SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, measure_ringing=False)
     if args.basis_mean_prior:
         SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, centre_ambiguity=False)
+    if args.correspondences:
+        SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, correspondences=args.correspondences)
+    if args.near_clip_blocks is not None:
+        SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, near_clip_blocks=args.near_clip_blocks)
     args.methods = tuple(m for m in METHODS if m in args.methods.split(","))
     if "selfcal" not in args.methods:
         parser.error("--methods must include selfcal")
