@@ -20,8 +20,8 @@ there are enough).  Choose parameters on the tuning split only; report the held-
 Methods: ``selfcal.calibrate_response`` (defaults); colour-hdri's
 ``camera_response_functions_Debevec1997`` (its default Grossberg 2003 histogram sampling;
 an ``ImageStack`` of code/255 frames, shortest first, BLAS on one thread); OpenCV
-``CalibrateDebevec`` and ``CalibrateRobertson`` (``bench/common.py``); Mitsunaga & Nayar
-1999 (``bench/mitsunaga_nayar.py``: polynomial response, exposure ratios re-estimated from
+``CalibrateDebevec`` and ``CalibrateRobertson`` (``bench.peers``); Mitsunaga & Nayar
+1999 (``bench.peers``: polynomial response, exposure ratios re-estimated from
 the nominal ones).
 
 Metric, per channel: RMSE of f⁻¹ over codes 1 … 254 after the least-squares scale
