@@ -22,52 +22,52 @@ OUT = REPO / "bench" / "BENCHMARKS.md"
 #: Longest BENCHMARKS.md this writes without complaint (issue 34).
 MAX_LINES = 600
 
-#: (script, question, the command of its reference run), in the order of the file.
+#: (script, title, question, the command of its reference run), in the order of the file.
 SECTIONS = (
-    ("basis", "The built-in response basis against inverse EMoR: how well each fits the "
+    ("basis", "Response basis", "The built-in response basis against inverse EMoR: how well each fits the "
      "201 DoRF curves, and calibrating with `--basis invemor.txt`.",
      "python3 -m bench.basis --calibrate heldout"),
-    ("response_synthetic", "The JPEG-only path against the truth: recovered f⁻¹ on DoRF "
+    ("response_synthetic", "Response against the truth", "The JPEG-only path against the truth: recovered f⁻¹ on DoRF "
      "curves rendered by the simulator, against OpenCV.", "python3 -m bench.response_synthetic"),
-    ("response_real", "The JPEG-only path on real stacks: the scale-free linearisation "
+    ("response_real", "Response on real stacks", "The JPEG-only path on real stacks: the scale-free linearisation "
      "error (`selfcal.sim.scoring`) against OpenCV and the per-code floor.",
      "python3 -m bench.response_real"),
-    ("response_unknown", "Missing exposure times: how far the curve and its exponent γ go "
+    ("response_unknown", "Response with unknown times", "Missing exposure times: how far the curve and its exponent γ go "
      "with all, two, one or no known times.", "python3 -m bench.response_unknown --split held-out"),
-    ("response_matrix", "The response on the condition matrix (`selfcal.sim.conditions`, "
+    ("response_matrix", "Response on the condition matrix", "The response on the condition matrix (`selfcal.sim.conditions`, "
      "`selfcal.sim.exact`) and the D7000 in-camera model, against every peer.",
      "python3 -m bench.response_matrix"),
-    ("response_brackets", "A camera's curve across its scenes (real_brackets): the spread "
+    ("response_brackets", "Response across scenes", "A camera's curve across its scenes (real_brackets): the spread "
      "of each method's curves.", "python3 -m bench.response_brackets"),
-    ("response_speed", "Calibration speed and memory from files against the decode.",
+    ("response_speed", "Response: speed and memory", "Calibration speed and memory from files against the decode.",
      "python3 -m bench.response_speed"),
-    ("verdict", "The verdict on good stacks and on wrong data.", "python3 -m bench.verdict"),
-    ("uncertainty", "How sure: curve bands and radiance σ against the truth and on real "
+    ("verdict", "The verdict", "The verdict on good stacks and on wrong data.", "python3 -m bench.verdict"),
+    ("uncertainty", "Bands and σ", "How sure: curve bands and radiance σ against the truth and on real "
      "odd/even halves.", "python3 -m bench.uncertainty"),
-    ("hdr_synthetic", "HDR merge accuracy on hard synthetic stacks with known radiance.",
+    ("hdr_synthetic", "HDR merge against the truth", "HDR merge accuracy on hard synthetic stacks with known radiance.",
      "python3 -m bench.hdr_synthetic --split held-out"),
-    ("hdr_oddeven", "HDR merges on real stacks: odd/even agreement, per pixel and on "
+    ("hdr_oddeven", "HDR merge on real stacks", "HDR merges on real stacks: odd/even agreement, per pixel and on "
      "block means.", "python3 -m bench.hdr_oddeven"),
-    ("measured_exposures", "Exposures measured from the pixels through the curve: the "
+    ("measured_exposures", "Exposures measured from the pixels", "Exposures measured from the pixels through the curve: the "
      "files' pre-pass against the arrays'.", "python3 -m bench.measured_exposures --split heldout"),
-    ("hdr_alignment", "Aligning handheld frames before the merge.",
+    ("hdr_alignment", "Alignment", "Aligning handheld frames before the merge.",
      "python3 -m bench.hdr_alignment"),
-    ("hdr_speed", "HDR merge speed and memory on 24 MP frames.", "python3 -m bench.hdr_speed"),
-    ("roundtrip", "Round trips through a RAW-path model.", "python3 -m bench.roundtrip"),
-    ("pipeline", "The RAW path (forward and backward model) against the peers of Gong et al.",
+    ("hdr_speed", "HDR merge: speed and memory", "HDR merge speed and memory on 24 MP frames.", "python3 -m bench.hdr_speed"),
+    ("roundtrip", "RAW path: round trips", "Round trips through a RAW-path model.", "python3 -m bench.roundtrip"),
+    ("pipeline", "RAW path: forward and backward model", "The RAW path (forward and backward model) against the peers of Gong et al.",
      "python3 -m bench.pipeline"),
-    ("pipeline_crossscene", "The RAW path across scenes.", "python3 -m bench.pipeline_crossscene"),
-    ("linear_bracket", "Raw-only brackets: exposure ratios from the pixels and the merge.",
+    ("pipeline_crossscene", "RAW path across scenes", "The RAW path across scenes.", "python3 -m bench.pipeline_crossscene"),
+    ("linear_bracket", "Raw-only brackets", "Raw-only brackets: exposure ratios from the pixels and the merge.",
      "python3 -m bench.linear_bracket --split heldout"),
-    ("nus_model", "NUS model folders as models: baked tables against the reference.",
+    ("nus_model", "NUS model folders", "NUS model folders as models: baked tables against the reference.",
      "python3 -m bench.nus_model"),
-    ("export_cube", "LUT exports (shaper + 3D, CLF, OpenColorIO, .cube) applied by "
+    ("export_cube", "LUT exports", "LUT exports (shaper + 3D, CLF, OpenColorIO, .cube) applied by "
      "OpenColorIO and ffmpeg.", "python3 -m bench.export_cube"),
-    ("batch", "`selfcal batch` on Dask: throughput and the pooled per-camera curve.",
+    ("batch", "Batch: throughput", "`selfcal batch` on Dask: throughput and the pooled per-camera curve.",
      "python3 -m bench.batch"),
-    ("batch_grouping", "`selfcal batch`: sessions by content on real and simulated cards.",
+    ("batch_grouping", "Batch: sessions by content", "`selfcal batch`: sessions by content on real and simulated cards.",
      "python3 -m bench.batch_grouping"),
-    ("batch_scale", "`selfcal batch` at scale: discovery of 10⁵ files, scheduler overhead.",
+    ("batch_scale", "Batch at scale", "`selfcal batch` at scale: discovery of 10⁵ files, scheduler overhead.",
      "python3 -m bench.batch_scale"),
 )
 
@@ -125,11 +125,11 @@ def render(records: dict) -> str:
     lines = HEADER.splitlines() + [""]
     missing = []
     known = {name for name, *_ in SECTIONS}
-    for name, question, command in SECTIONS:
+    for name, title, question, command in SECTIONS:
         if name not in records:
             missing.append(command)
             continue
-        lines += [f"## {name}", "", question, ""]
+        lines += [f"## {title}", "", f"`bench.{name}`: {question}", ""]
         for record in records[name]:
             lines += render_record(record)
     strays = sorted(set(records) - known)
