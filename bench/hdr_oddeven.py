@@ -107,15 +107,18 @@ def selfcal_merges(frames, times, halves, methods=METHODS):
 
     model = selfcal.calibrate_response(frames, times)
     out, flagged = {}, {}
-    variants = [(BEFORE, {"options": MergeOptions(code_error=False, merge_unchecked=False)})]
-    variants += [("selfcal default", {}), ("selfcal noise", {"weighting": "noise"}),
-                 ("selfcal hat", {"weighting": "hat"})]
-    variants += [(m, {"options": replace(MergeOptions(measure_exposures=True),
-                                         exposure_trend=trend)})
-                 for m, trend in MEASURED.items()]
-    for label, kwargs in variants:
+    # built only when asked for: the options of the variants are fields of MergeOptions
+    variants = [(BEFORE, lambda: {"options": MergeOptions(code_error=False,
+                                                          merge_unchecked=False)}),
+                ("selfcal default", dict), ("selfcal noise", lambda: {"weighting": "noise"}),
+                ("selfcal hat", lambda: {"weighting": "hat"})]
+    variants += [(m, lambda trend=trend: {"options": replace(
+        MergeOptions(measure_exposures=True), exposure_trend=trend)})
+        for m, trend in MEASURED.items()]
+    for label, make in variants:
         if label not in methods:
             continue
+        kwargs = make()
         results = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h],
                                      model, **kwargs) for h in halves]
         out[label] = [r.radiance for r in results]
