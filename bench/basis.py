@@ -79,9 +79,15 @@ def _calibrate_one(task):
 
     import selfcal
     from selfcal import sim
-    from selfcal.response import priors
+    from selfcal.response import ResponseOptions, priors
 
-    priors.ESTIMATED_PRIOR_SCALE = scale
+    options = ResponseOptions()
+    if basis_path is not None:
+        # the prior at ``scale`` times the default weight for a basis whose variances are
+        # estimated (the library multiplies prior_weight by ESTIMATED_PRIOR_SCALE); 0: the
+        # prior off, the ridge in its place, as before issue 18
+        options = ResponseOptions(prior_weight=options.prior_weight * scale
+                                  / priors.ESTIMATED_PRIOR_SCALE)
     curve = sim.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
     pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
     scene = sim.make_scene(*size, seed=seed)
@@ -89,7 +95,8 @@ def _calibrate_one(task):
     truth = stack.inverse_response()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model = selfcal.calibrate_response(stack.images, TIMES, basis=basis_path)
+        model = selfcal.calibrate_response(stack.images, TIMES, basis=basis_path,
+                                           options=options)
     inner = slice(1, 255)
     return (index, basis_path is not None, scale), rmse(model.inverse_response()[inner],
                                                          truth[inner])
