@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import selfcal
-from bench.ffmpeg_lut import apply_cube_ffmpeg, ffmpeg_binaries
+from ffmpeg_lut import apply_cube_ffmpeg, ffmpeg_binaries
 from selfcal.export import cube_table, read_cube_header, write_cube
 from selfcal.io import read_image
 from selfcal_cli.common import EXIT_INPUT, EXIT_OUTPUT

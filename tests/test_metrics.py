@@ -1,4 +1,4 @@
-"""The scores (selfcal.sim.scoring, selfcal.response.delta, bench.real_stack_metrics) on inputs
+"""The scores (selfcal.sim.scoring, selfcal.response.delta) on inputs
 whose answer is known."""
 
 from __future__ import annotations
@@ -6,11 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.real_stack_metrics import (log_linearisation_error,
-                                      log_linearisation_error_by_saturation, per_code_floor)
 from selfcal import sim
 from selfcal.response.delta import delta_eq12
-from selfcal.sim.scoring import best_scale_rmse, rmse
+from selfcal.sim.scoring import (best_scale_rmse, log_linearisation_error,
+                                  log_linearisation_error_by_saturation, per_code_floor, rmse)
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
 

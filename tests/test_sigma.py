@@ -44,7 +44,7 @@ def test_sigma_is_shaped_like_the_radiance_and_leaves_it_alone(stack, model, mer
 def test_sigma_predicts_the_error_against_the_truth(stack, merged):
     # |merge − truth| / σ: 0.674 in the median for a perfect Gaussian σ; a σ ten times
     # too small or too large is far outside this range
-    from bench.bench_hdr_synthetic import truth_masks
+    from selfcal.sim.scoring import truth_masks
 
     e_true, scored, *_ = truth_masks(stack)
     keep = scored & ~merged.unmeasured[..., None]
