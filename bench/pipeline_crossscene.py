@@ -114,7 +114,7 @@ def ssf_scene(illuminant, reflectances, seed, gains, size=SIZE):
     import colour
 
     from selfcal.sim import SensorModel
-    from selfcal.sim.scenes import _unit_noise
+    from selfcal.sim.scenes import unit_noise
 
     wl, ssf = ssf_table()
     sd = colour.SDS_ILLUMINANTS[illuminant]
@@ -137,7 +137,7 @@ def ssf_scene(illuminant, reflectances, seed, gains, size=SIZE):
         for c in range(10):
             idx[ys[r]:ys[r + 1], xs[c]:xs[c + 1]] = r * 10 + c
     yy, xx = np.mgrid[0:h, 0:w] / np.array([h, w], dtype=float)[:, None, None]
-    light = np.exp2(-4.0 * (0.6 * xx + 0.4 * yy) + 0.5 * _unit_noise(rng, (h, w), 20.0))
+    light = np.exp2(-4.0 * (0.6 * xx + 0.4 * yy) + 0.5 * unit_noise(rng, (h, w), 20.0))
     radiance = cam[idx] * light[..., None] / white.max()
     raw = SensorModel(full_well_electrons=20000, read_noise=5e-4).expose(
         radiance, 0.45, np.random.default_rng(seed + 1)).astype(np.float64)

@@ -77,17 +77,16 @@ def band_task(task):
     cell, index, seed, size, frames, method = task
     import selfcal
     from .data import dorf_curve
-    from selfcal.response import bands
     from selfcal.sim.conditions import CONDITIONS
 
-    bands.DEFAULT_BAND_METHOD = method
     cond = CONDITIONS[cell]
     if frames != len(cond.exposure_times):
         t = np.geomspace(min(cond.exposure_times), max(cond.exposure_times), frames)
         cond = dataclasses.replace(cond, exposure_times=tuple(float(x) for x in t))
     stack = cond.simulate(dorf_curve(index), seed, size=size)
     t0 = time.perf_counter()
-    model = selfcal.calibrate_response(stack.images, list(cond.exposure_times))
+    model = selfcal.calibrate_response(stack.images, list(cond.exposure_times),
+                                       options=selfcal.ResponseOptions(band_method=method))
     seconds = time.perf_counter() - t0
     truth = stack.inverse_response()
     lower, upper = model.band_at_codes(np.arange(256), 0.9)

@@ -174,12 +174,6 @@ def test_no_library_global_is_assigned_from_outside(folder):
     assert _scan(folder) == []
 
 
-#: bench/ scripts that still flip library globals (issue 34, item 6 rewrites bench/ with
-#: the options fields): expected to fail until that branch is merged.
-BENCH_PENDING = "bench/ is reorganised on branch i34-bench (issue 34, item 6)"
-
-
-@pytest.mark.xfail(reason=BENCH_PENDING, strict=False)
 def test_no_library_global_is_assigned_from_bench():
     if not (ROOT / "bench").is_dir():
         pytest.skip("no bench/ folder")

@@ -278,13 +278,14 @@ def band_reason(intensity, inverse, log_sigma, max_code: int):
 
 
 def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
-                 n_components: int, seed: int = 0) -> np.ndarray:
+                 n_components: int, seed: int = 0,
+                 method: str = DEFAULT_BAND_METHOD) -> np.ndarray:
     """:func:`curve_band` of a :class:`.solver.SolveResult`, judged (:func:`judge_band`):
     the hook of the calibration.  Returns σ_g, (K, 3)."""
     known = np.isfinite(np.asarray(log_times, dtype=float))
     log_sigma = curve_band(samples, masks, basis, result.coefficients, result.log_exposures,
                            known, n_components=n_components,
-                           settings=BandSettings(method=DEFAULT_BAND_METHOD, seed=seed))
+                           settings=BandSettings(method=method, seed=seed))
     judge_band(fit, log_sigma, samples.max_code, warnings)
     return log_sigma
 

@@ -31,7 +31,7 @@ from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import SampleSet, collect_samples, frame_masks
 from ..typing import ExposureTimes, ImageInput, PathLike, Progress
-from .bands import band_for_fit
+from .bands import DEFAULT_BAND_METHOD, band_for_fit
 from .basis import ResponseBasis
 from .model import ResponseModel
 from .code_error import code_error_profile
@@ -108,6 +108,10 @@ class ResponseOptions(SolverOptions):
         (:func:`selfcal.stack.samples.reduce_frame`: keeps samples away from JPEG ringing at
         clipped edges, ours).  Default 0 (off), chosen on the tuning split, see
         docs/decisions.md.
+    band_method : {"covariance", "bootstrap"}
+        How the confidence band of f⁻¹ is estimated (:func:`selfcal.response.bands.curve_band`,
+        ours): from the fit's covariance, or by resampling the samples.  Default
+        ``"covariance"``, chosen on the tuning split, see docs/decisions.md.
 
     Examples
     --------
@@ -122,11 +126,15 @@ class ResponseOptions(SolverOptions):
     correspondences: str = "blocks"
     measure_ringing: bool = True
     near_clip_blocks: int = 0
+    band_method: str = DEFAULT_BAND_METHOD
 
     def __post_init__(self) -> None:
         if self.correspondences not in CORRESPONDENCE_KINDS:
             raise InputError(f"correspondences must be one of "
                              f"{', '.join(CORRESPONDENCE_KINDS)}, not {self.correspondences!r}")
+        if self.band_method not in ("covariance", "bootstrap"):
+            raise InputError(f"band_method must be covariance or bootstrap, not "
+                             f"{self.band_method!r}")
         if int(self.near_clip_blocks) != self.near_clip_blocks or self.near_clip_blocks < 0:
             raise InputError(f"near_clip_blocks must be a whole number >= 0, not "
                              f"{self.near_clip_blocks!r}")
@@ -294,7 +302,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
                       refine_exposures=refine_exposures, contradictions=contradictions)
     log_sigma = band_for_fit(usable.samples, usable.masks, basis, result, usable.log_times,
                              fit, warnings, n_components=options.n_components,
-                             seed=call.seed)
+                             seed=call.seed, method=options.band_method)
 
     full_exposures = np.full(len(frames), np.nan)
     full_exposures[keep] = np.exp(result.log_exposures)

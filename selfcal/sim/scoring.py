@@ -113,18 +113,18 @@ def truth_masks(stack):
     e_true = (rho @ pipe.matrix.T) * stack.exposure_scale
     h, w = rho.shape[:2]
     scored = np.zeros((h, w, 3), bool)
-    clipped = []
+    clip_masks: list[np.ndarray] = []
     visible = np.ones((h, w), bool)
     for raw, t in zip(stack.raws, stack.true_exposures):
         codes = np.round(pipe.render(raw) * 255)     # before the JPEG round trip
         top = (codes >= 255).any(axis=2)
         clip = (raw >= 1.0).any(axis=2) | top
-        clipped.append(clip)
+        clip_masks.append(clip)
         visible &= top
         x = e_true * float(t)                        # noise-free M ρ s t
         in_gamut = np.abs(pipe.apply_gamut(x) - x).max(axis=2) <= 1e-6
         scored |= (~clip & in_gamut)[..., None] & (x >= TRUTH_FLOOR) & (codes >= TRUTH_MIN_CODE)
-    clipped = np.array(clipped)
+    clipped = np.array(clip_masks)
     clipped_all = clipped.all(axis=0)
     shortest_only = ~clipped[0] & clipped[1:].all(axis=0)
     inv = stack.inverse_response()
