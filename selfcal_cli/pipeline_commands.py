@@ -4,7 +4,7 @@ Nothing numerical lives here: the conversion is :meth:`selfcal.pipeline.Pipeline
 and :meth:`~selfcal.pipeline.PipelineModel.render`.  Both warn, naming the file, when more
 than :data:`WARN_OUTSIDE` of its pixels lie outside the colours the model was trained on
 (their ``return_mask``): there the model extrapolates, and across scenes its error is
-several times larger (``bench/bench_pipeline_crossscene.py``).
+several times larger (``python3 -m bench.pipeline_crossscene``).
 """
 
 from __future__ import annotations

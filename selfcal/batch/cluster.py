@@ -54,7 +54,7 @@ NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 
 #: Sessions under way at most (prepared or being prepared, not finished): bounds the
 #: tasks the scheduler and the driver hold (10⁴ submitted at once starved a loaded
-#: scheduler's connection to the driver in ``bench/bench_batch_scale.py``); the default
+#: scheduler's connection to the driver in ``python3 -m bench.batch_scale``); the default
 #: of ``ClusterOptions.max_in_flight``.
 MAX_IN_FLIGHT = 1000
 
@@ -163,7 +163,7 @@ class DaskExecutor:
             n = int(workers or os.cpu_count() or 1)
             # Dask's nannies export MALLOC_TRIM_THRESHOLD_=65536 to their workers, which
             # turns every large numpy allocation into an mmap/munmap round trip: the
-            # calibration then spends 6-15x more system time (bench/bench_batch.py).
+            # calibration then spends 6-15x more system time (python3 -m bench.batch).
             with dask.config.set({NO_MALLOC_TRIM: None}):
                 cluster = distributed.LocalCluster(
                     n_workers=n, threads_per_worker=1, processes=processes,

@@ -23,7 +23,7 @@ Every decision is written down (:attr:`ContentGroup.reasons`, then
 whose decisions was by time alone or near the thresholds is ``unsure``.  All of this is
 ours; the thresholds were chosen on a simulated tuning card
 (:func:`.simulate.write_mixed_card`, seed 11) and are reported on another (seed 23) and
-on a real card in ``bench/BENCHMARKS.md``.
+on a real card (``python3 -m bench.batch_grouping``).
 """
 
 from __future__ import annotations

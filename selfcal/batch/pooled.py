@@ -31,7 +31,7 @@ the pooled fit here, built on the solver's public pieces
 
 The memory of the block-diagonal layout grows with (frames × samples) of the whole pool,
 which is why the pool is bounded (``max_sessions``, ``samples_per_session``): past a few
-dozen scenes a curve gains little (``bench/bench_batch.py`` measures it).
+dozen scenes a curve gains little (``python3 -m bench.batch`` measures it).
 """
 
 from __future__ import annotations

@@ -45,7 +45,7 @@ model unless ``--no-shaper``).  The 3D-only table here is what ffmpeg's ``lut3d`
 alone; for it, a ``to-raw`` table can follow the model inside a range of codes and extrapolate
 outside it (``code_range``; by default the codes the model was fitted on, when it says:
 an NUS folder's 5-252): the cell holding code 252 then interpolates towards the model at
-252, not at 255.  ``bench/bench_export_cube.py`` measures what is left, and prints the
+252, not at 255.  ``python3 -m bench.export_cube`` measures what is left, and prints the
 one-dimensional evidence of it (the ``render`` table cannot be within 0.5 % in its
 darkest cells whatever its node values).  The table holds the model at its nodes:
 ``to_raw`` / ``render`` of the model, or its exact evaluation where the model has one

@@ -219,7 +219,7 @@ def write_ocio_config(model, folder, *, camera: str = "camera", size: int | None
         chains both directions, and in a round trip JPEG -> linear -> JPEG the render's
         steep toe multiplies the to-raw table's error in the darks; at 33³ a dark frame's
         round trip was within 0.005 of the model's own on 62 % of its pixels, at 65³ on
-        all of them, ``bench/bench_export_cube.py``); response model: LUT1D length
+        all of them, ``python3 -m bench.export_cube``); response model: LUT1D length
         (default ``max_code + 1``).
     shaper_size : int
         RAW path: the shaper's LUT1D length.

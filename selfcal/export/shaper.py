@@ -29,8 +29,8 @@ The shaper is chosen from the model (ours):
     ``e = u^(1/0.6)``): the 3D table then holds only the colour part of the model
     (``M⁻¹ h⁻¹(e)``, or ``M⁻¹ e`` plus the lattice correction), on the grid the model
     itself was baked on, while the steep climb of ``f⁻¹`` over the last codes stays in
-    the 1D table.  (Chosen on the fixture pair's fitted model, where ``e`` alone (power
-    1) left clearly more pixels beyond 0.005 at 33³ than 0.6.)
+    the 1D table.  (The power 0.6 against 1: docs/decisions.md, "The render shaper's
+    knee: output 1/4".)
 
 Either shaper is blended with the identity (``0.999 s + 0.001 x``) so that it is strictly
 increasing (a flat stretch would merge inputs the model tells apart).  The shaper is a
@@ -70,7 +70,8 @@ __all__ = ["ShaperLUT", "SHAPER_DIRECTIONS", "DEFAULT_SHAPER_SIZE", "shaper_curv
 SHAPER_DIRECTIONS = ("to-raw", "render")
 #: Nodes of the 1D shaper unless asked otherwise: 16 per 8-bit code, and one on each code.
 DEFAULT_SHAPER_SIZE = 255 * 16 + 1
-#: The tone-curve output at which the render shaper's log2 knee sits (ours).
+#: The tone-curve output at which the render shaper's log2 knee sits (ours; chosen on the
+#: tuning image, docs/decisions.md, "The render shaper's knee: output 1/4").
 KNEE_OUTPUT = 0.25
 #: Weight of the identity blended into a shaper so that it is strictly increasing.
 IDENTITY_BLEND = 1e-3

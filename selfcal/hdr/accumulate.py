@@ -450,7 +450,7 @@ def frame_limits(max_code, clip_margin: float, linear: bool, stuck):
     itself is the first that does).  A floor zeroes its channel only: the other channels
     of a dark, coloured pixel are still measured (zeroing every channel of a pixel with one
     channel at its floor raised the odd/even median |log ratio| of ntu's night scene,
-    ``bench/bench_hdr_oddeven.py``, from 0.29 to 0.54).
+    ``python3 -m bench.hdr_oddeven``, from 0.29 to 0.54).
     """
     lo, hi = clip_limits(max_code, clip_margin, linear)
     lo = np.full(3, float(lo))

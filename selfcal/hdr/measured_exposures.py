@@ -3,8 +3,8 @@
 [Lin2011] §5 computes a raw bracket's exposure ratios "by dividing the raw values between
 two images"; once a response model gives f⁻¹, a rendered bracket's frames are linear
 values too, and the same ratios measure its exposures.  The times a camera writes are
-nominal (1/60 s for 2⁻⁶ s, third-stop steps of 1.2-1.33×: off from the pixels by a median of
-0.009-0.031 in log on the real brackets of ``bench/BENCHMARKS.md``), and a merge whose
+nominal (1/60 s for 2⁻⁶ s, third-stop steps of 1.2-1.33×; ``python3 -m
+bench.measured_exposures`` prints how far they are from the pixels), and a merge whose
 weights lean on one frame per pixel carries that frame's exposure error whole.
 
 What is done here is the linear path's measurement (:mod:`.linear_exposures`: split
@@ -12,14 +12,15 @@ thumbnails, :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the `
 statistic, the absolute scale from the times by the median of ``log(time / measured)``)
 on ``f⁻¹(codes)``.  Ours: the trend of the measured exposures over the bracket is the
 times' (``MergeOptions.exposure_trend``, :func:`_times_trend`) -- a calibrated curve whose slope is slightly
-off makes the measured ratios drift by a few per cent per stop, which a shutter does not;
+off makes the measured ratios drift by a few per cent per stop, which a shutter does not
+(docs/decisions.md, "Exposures measured from the pixels: an option, with the times' trend");
 codes at or beyond the merge's clip limits (any channel at white excludes the pixel, a
 channel at or below its black floor excludes that channel) never enter a thumbnail;
 arrays are linearised at full size and then area-averaged (unbiased); files are decoded
 with libjpeg's DCT scaling when large (:func:`selfcal.io.read_image` ``reduce``, down to
 :data:`PREPASS_MIN_SIDE`: a pre-pass cheaper than the full decode, whose block means of
 *codes* are then linearised, biased where the texture within a block is strong --
-measured in ``bench/bench_measured_exposures.py``); the exposure term of the merge's σ
+``python3 -m bench.measured_exposures``); the exposure term of the merge's σ
 becomes the pair residual of the measurement (:func:`fit_log_sigma`).  Frames the pixels
 cannot place (no shared well-exposed pixels, merged unchecked) keep their time.
 """
@@ -44,11 +45,9 @@ __all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PRE
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
-#: linearised, are biased where a block holds texture (``bench/bench_measured_exposures.py``,
-#: BENCHMARKS "Exposures measured from the pixels": Sony's 3008-pixel frames at 1/2
-#: within a median 0.0006-0.0045 in log of the full-size measurement, one of them off by
-#: 0.082 at 1/8).  1500 was chosen on the tuning stacks with the pixels' trend (a
-#: development run: Fujifilm's 1500-pixel frames were off at 1/2).
+#: linearised, are biased where a block holds texture (``python3 -m
+#: bench.measured_exposures``).  Chosen on the tuning stacks (docs/decisions.md,
+#: "Exposures measured from the pixels: an option, with the times' trend").
 PREPASS_REDUCE = 8
 PREPASS_MIN_SIDE = 1500
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows

@@ -111,10 +111,7 @@ __all__ = ["HDRResult", "MergeOptions", "merge_hdr", "linearize_images"]
 
 #: Pixels by which a lossy (JPEG) frame's white-clipped region is widened: ringing at a
 #: highlight edge leaves codes a few below white that pass the clip test (ours).  Chosen
-#: on the tuning split of bench/bench_hdr_synthetic.py (seeds < 1000, --step 40, JPEG
-#: 4:2:0 q85-95): pixels clipped in every frame left unflagged 77 / 39 / 21 with radius
-#: 3 / 4 / 5 (3 / 0 / 0 visibly clipped), off by > 5 % where only the shortest frame
-#: measures, with the true f⁻¹: 2 / 1 / 0; the median error rose 0.0141 -> 0.0148.
+#: on the tuning split (docs/decisions.md, "Widening a lossy frame's white clip: 5 pixels").
 RINGING_RADIUS = 5
 
 

@@ -29,10 +29,8 @@ per strip and frame (:func:`.weights.packed_table`, ours); the two sums are floa
 side by side (``H×W×3×2``, 24 bytes a pixel), and σ is written over the merge's own weight
 sum Σ w once it has divided by it (:meth:`SigmaSums.finish_strip`), so the result costs no
 further array.  Float16 sums relative to the merge's numerator would halve that memory but
-must be renormalised with the numerator frame after frame: a prototype of that (not
-committed) cost several times these sums per frame, more than the merge's own lookup and
-sums, so it is not done: σ's memory and its time pull against each other
-(``bench/BENCHMARKS.md``, "Build 5 on the idle machine, after the packed lookups").
+must be renormalised with the numerator frame after frame, which costs more than the
+merge's own lookups (docs/decisions.md, "σ's sums stay float32").
 
 The noise model's constants are fixed, but cameras are not: one JPEG engine smooths its
 noise away, another sharpens it.  So the independent part (noise and exposures) is scaled

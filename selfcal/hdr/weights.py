@@ -17,11 +17,8 @@ compression, carried to the linear domain through the slope of the inverse respo
 which dominates in JPEGs -- and the variance taken from each frame's own measurement
 rather than iterated with the merged estimate as Granados et al. do; a relative term for
 errors of the response model and the exposures (:data:`DEFAULT_NOISE`); fixed default
-noise parameters (not estimated from the stack -- on the tuning stacks of
-``bench/bench_hdr_oddeven.py``, half or twice the code term and a tenth or
-ten times the shot term moved the odd/even median by at most 0.006 (twice the code term
-was better by 0.001 on all three), ten times the read term made it worse by up to 0.015,
-while these weights instead of the hat took memorial's from 0.20 to 0.06); the curve's
+noise parameters (not estimated from the stack; docs/decisions.md, "Default weighting:
+the noise model, with a 3 % relative error"); the curve's
 own error per code, measured on the calibration's samples
 (:mod:`selfcal.response.code_error`, the model's ``diagnostics["code_error_log"]``), where
 it exceeds what the noise model explains, as a further term ``(s(z) · x)²`` of the
@@ -116,11 +113,8 @@ class NoiseModel:
 
 
 #: The merge's default noise model: the defaults of :class:`NoiseModel` and a relative
-#: (model and exposure) error of 3 %, chosen on the tuning split of
-#: ``bench/bench_hdr_oddeven.py`` (memorial, fujifilm_xh1/scene1, sony_ilce6400/scene1,
-#: full size): odd/even median |log ratio| with 0 / 0.01 / 0.03 / 0.1: memorial 0.0613 /
-#: 0.0609 / 0.0587 / 0.0562, Fujifilm 0.0197 / 0.0196 / 0.0195 / 0.0203, Sony 0.0493 /
-#: 0.0488 / 0.0473 / 0.0508.
+#: (model and exposure) error of 3 %, chosen on the tuning split (docs/decisions.md,
+#: "Default weighting: the noise model, with a 3 % relative error").
 DEFAULT_NOISE = NoiseModel(relative=0.03)
 
 

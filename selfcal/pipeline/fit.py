@@ -208,9 +208,9 @@ class PipelineOptions:
         HSV saturation of the rendered colour (ours; [Lin2011] §5 recover the response
         from desaturated pixels, which the gamut map leaves alone, so the curves describe
         the camera's tone rather than a scene's mix of gamut-mapped colours and the LUT
-        takes the gamut map); None (the default): equal weights, Eq. 9 of [Gong2018].
-        ``bench/bench_pipeline_crossscene.py`` (β = 0.15, 0.3): no cross-scene gain that held
-        on held-out pairs, same-scene backward up to 16 % worse with 140 samples: off.
+        takes the gamut map); None (the default): equal weights, Eq. 9 of [Gong2018];
+        chosen on the tuning scenes (docs/decisions.md, "The RAW-path fit: β, LUT weight,
+        γ of g, trust radius").
 
     Raises
     ------

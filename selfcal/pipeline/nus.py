@@ -328,11 +328,10 @@ class NUSPipelineModel(PipelineModel):
       any raw file's step) to find its grid coordinate by a table look-up.
 
     The RBF's kernel ``||e - c_i||`` has a kink at each of its thousands of centres, so
-    linear interpolation converges only to first order: the render grid is fine
-    (within 1e-3 of the reference on a real frame, where a 49³ table was off by 6.7e-3)
-    and hence lazy.  The differences and times are measured by
-    ``bench/bench_nus_model.py``.  The first render of a frame spanning many colours
-    costs a few seconds of RBF evaluation (about 20 µs per node; a 24 MP frame needs
+    linear interpolation converges only to first order: the render grid is fine and
+    hence lazy (docs/decisions.md, "NUS model render grid: 241 nodes per axis, spaced as
+    ρ^0.45"; ``python3 -m bench.nus_model`` measures it).  The first render of a frame
+    spanning many colours costs a few seconds of RBF evaluation (about 20 µs per node; a 24 MP frame needs
     50,000-200,000 nodes), kept for the next frames; an image of random colours over the
     whole cube would need millions.  The render table grows as it renders: not for
     several threads at once (one model per thread).

@@ -26,8 +26,9 @@ NUS_RENDER_SIZE = 49
 NUS_RENDER_REFINE = 5
 #: The render grid's nodes sit at raw ``ρ = u^(1/γ)`` (``u`` uniform): cells grow with
 #: ``ρ^(1-γ)`` as the tone curve's slope falls (for a ``1/2.2`` tone curve the output error
-#: of first-order interpolation is then even over the cube; ours, measured by
-#: ``bench/bench_nus_model.py``).
+#: of first-order interpolation is then even over the cube; ours, ``python3 -m
+#: bench.nus_model``; docs/decisions.md, "NUS model render grid: 241 nodes per axis,
+#: spaced as ρ^0.45").
 NUS_RENDER_GAMMA = 0.45
 #: 16-bit raw codes: the render reads the raw at this precision.
 RAW_CODES = 65536

@@ -2,7 +2,7 @@
 
 A camera's gamut map is only known where the calibration saw colours ([Gong2018] §3.4 fits
 the 5×5×5 LUT to the training samples; what it does between and beyond them is the
-regulariser's guess).  Measured across scenes (``bench/bench_pipeline_crossscene.py``), the
+regulariser's guess).  Measured across scenes (``python3 -m bench.pipeline_crossscene``), the
 forward error of pixels whose raw lies inside the convex hull of the training colours but
 far from every one of them is several times that of pixels near one: the hull is too
 generous a test.  selfcal therefore keeps, in the model, a subsample of the training colours

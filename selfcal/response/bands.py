@@ -7,8 +7,8 @@ deviation σ_g of g = log f⁻¹ (Eq. 7's domain).  The band at a level is then
 ``f⁻¹ · exp(±z σ_g)`` with ``z`` the normal quantile (:func:`band_from_sigma`); at
 I = 1 σ_g is 0 (f⁻¹(1) = 1 is the normalisation of Eq. 7).
 
-Two estimates, measured against each other on the tuning split
-(``bench/bench_uncertainty.py --split tuning``):
+Two estimates (the covariance is the default, chosen on the tuning split:
+docs/decisions.md, "Curve bands: the covariance, σ_t = 0.02, σ_top = 0.03"):
 
 ``"bootstrap"``
     A one-step bootstrap [Efron1993]_ over sample locations: the weighted normal
@@ -27,11 +27,7 @@ Two estimates, measured against each other on the tuning split
     covariance, which treats every row as independent.
 
 To both, an extrapolation term is added in quadrature (:func:`_top_sigma`): the shift of the
-curve below the brightest valid sample, which the data do not see.  On the tuning split
-(6 / 12 frames) the covariance covered the truth on a median 0.806 / 0.859 of the codes, the
-bootstrap 0.888 / 0.908; both are inside the target 0.80–0.95, and the covariance is the
-default because it costs one matrix inverse where the bootstrap costs 64 normal-equation
-builds (+0.4 s / +0.8 s a calibration there) and needs no seed.
+curve below the brightest valid sample, which the data do not see.
 
 The threshold rows of the solve (:class:`.equations.ThresholdRows`) are left out of both:
 they are few and move the curve, not its spread.
@@ -53,7 +49,8 @@ from .priors import ExposurePrior, PriorTerms, pca_variance_precision, white_con
 DEFAULT_BAND_METHOD = "covariance"
 #: Bootstrap replicates (each one a build of the normal equations).
 DEFAULT_REPLICATES = 64
-#: Std of a given time's log (shutter inaccuracy), chosen on the tuning split.
+#: Std of a given time's log (shutter inaccuracy), chosen on the tuning split (see
+#: the module docstring).
 EXPOSURE_LOG_SIGMA = 0.02
 #: Std of the shift of log f⁻¹ below the brightest valid sample (:func:`_top_sigma`),
 #: chosen on the tuning split.
@@ -66,9 +63,9 @@ _GAUGE_PRECISION = 1e10
 #: The body of the curve, for the verdict and ``selfcal show``: normalised codes 0.1 … 0.9.
 BODY = (0.1, 0.9)
 #: A 90 % band wider than this (relative half-width, max over the body and channels) makes
-#: the verdict doubtful; chosen on the tuning split (``bench/bench_uncertainty.py``): the
-#: widest there is ±6.5 % (covariance; ±15.5 % bootstrap), so only a stack far worse than
-#: any tuning stack is flagged.
+#: the verdict doubtful; chosen on the tuning split (``python3 -m bench.uncertainty
+#: --split tuning``; docs/decisions.md, "Curve bands: the covariance, σ_t = 0.02,
+#: σ_top = 0.03").
 BAND_TOO_WIDE = 0.25
 
 

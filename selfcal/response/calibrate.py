@@ -53,12 +53,8 @@ from .verdict import judge_calibration
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
-#: Basis functions per channel (N of Eq. 7), as Lin et al.  More components fit DoRF
-#: curves better (every 20th of the 201 curves: median f⁻¹ RMSE 0.0050 with N = 5, 0.0029
-#: with N = 11) but let the last, never-observed codes bend on sRGB curves (6 synthetic
-#: sRGB stacks: 0.0025 -> 0.0028), and sRGB-like curves are what most cameras write.  On
-#: the real stacks N = 11 lowers the acceptance-2 metric by at most 2.5 % (memorial
-#: 0.1760 -> 0.1716).  All from bench/bench_response_knobs.py.
+#: Basis functions per channel (N of Eq. 7 of [Lin2011]); chosen before the split rule
+#: (docs/decisions.md, "Basis functions per channel: N = 5").
 DEFAULT_N_COMPONENTS = 5
 #: Sample locations drawn from a stack (block means; stratified, see collect_samples).
 DEFAULT_MAX_SAMPLES = 4000
@@ -97,21 +93,23 @@ class ResponseOptions(SolverOptions):
         (:mod:`.histogram_samples`, [Grossberg2003]), gated by a first fit on the blocks;
         ``"histogram+blocks"``, both sets of rows in one solve.  The block samples serve
         the verdict, the frame checks and the time contradictions in every case.
-        Default chosen on the tuning split, see docs/decisions.md.
+        Default chosen on the tuning split (docs/decisions.md, "Correspondences: block
+        samples, not histograms").
     measure_ringing : bool
         Measure how far JPEG damage next to clipped areas reaches on the first fit and
         solve again without the samples within it (:mod:`.white_end`, ours); the reach is
         ``diagnostics["ringing_reach_blocks"]``.  Default True, chosen on the tuning
-        split, see docs/decisions.md.
+        split (docs/decisions.md, "The measured ringing reach next to clipped areas: on").
     near_clip_blocks : int
         A block within this many blocks of a clipped one counts as clipped
         (:func:`selfcal.stack.samples.reduce_frame`: keeps samples away from JPEG ringing at
-        clipped edges, ours).  Default 0 (off), chosen on the tuning split, see
-        docs/decisions.md.
+        clipped edges, ours).  Default 0 (off), chosen on the tuning split
+        (docs/decisions.md, "Blocks next to clipped ones: not widened").
     band_method : {"covariance", "bootstrap"}
         How the confidence band of f⁻¹ is estimated (:func:`selfcal.response.bands.curve_band`,
         ours): from the fit's covariance, or by resampling the samples.  Default
-        ``"covariance"``, chosen on the tuning split, see docs/decisions.md.
+        ``"covariance"``, chosen on the tuning split (docs/decisions.md, "Curve bands: the
+        covariance, σ_t = 0.02, σ_top = 0.03").
 
     Examples
     --------

@@ -14,7 +14,9 @@ Each point of ``T`` is then one row of Eq. 8 of [Lin2011] (``g(T(I)) − g(I) = 
 solved with the log-PCA model of Eq. 7 exactly as the block samples are
 (:func:`selfcal.response.solver.solve_exposure_equations`).
 
-selfcal's choices (measured in ``bench/bench_response_matrix.py``, see BENCHMARKS):
+selfcal's choices (ours; against the block samples: ``python3 -m bench.response_matrix
+--correspondences histogram``, docs/decisions.md, "Correspondences: block samples, not
+histograms"):
 
 * The pixels of channel ``c`` in pair ``(a, b)``: those whose *other* channels are
   unclipped in both frames (a grown clip map, :data:`CLIP_GROW`) and whose HSV saturation
@@ -49,7 +51,8 @@ FULL_WEIGHT_PIXELS = 20.0
 #: they can afford a stricter cut than the block samples).
 SATURATION_FACTOR = 0.6
 #: Share of the usable pixels that enter the histograms (a random subset, seeded; 1: all),
-#: for the curve of error against pixels used (``bench/bench_response_correspondences.py``).
+#: for the curve of error against pixels used (docs/decisions.md, "Correspondences: block
+#: samples, not histograms").
 PIXEL_FRACTION = 1.0
 #: Weight of a full histogram point relative to one block-sample row (the data's weight
 #: against the priors of the solve).

@@ -83,10 +83,9 @@ def white_continuation_terms(values, valid, basis, N: int,
 FAMILY_CURVES = 1000
 FAMILY_SEED = 20110102
 #: Multiplier of ``prior_weight`` for a basis whose variances are estimated
-#: (:func:`estimated_coefficient_variance`); chosen on the tuning split of
-#: ``bench/bench_basis.py`` (even DoRF curves, seeds < 1000) among 1, 3 and 10.  0 switches
-#: the estimate off: the ridge acts instead, as it did before bases without variances got
-#: estimated ones.
+#: (:func:`estimated_coefficient_variance`, ours); 0 switches the estimate off and the
+#: ridge acts instead.  Chosen on the tuning split (docs/decisions.md, "Prior scale for a
+#: basis without PCA variances: ×3").
 ESTIMATED_PRIOR_SCALE = 3.0
 #: κ of the projection weights ``(rms f⁻¹ + κ)²``, as the built-in basis' PCA
 #: (:func:`selfcal.response.basis.log_pca_basis`).
@@ -95,12 +94,9 @@ _WEIGHT_OFFSET = 0.05
 
 #: The standard encodings whose basis coefficients, averaged, centre the PCA-variance prior
 #: when fewer than two different exposure times are known (:func:`ambiguity_centre`);
-#: ``"gamma p"`` is the power law ``E^(1/p)``.  Chosen on the tuning split of
-#: ``bench/bench_response_unknown.py --step 10`` (10 common-encoding and 11 DoRF stacks)
-#: among the basis mean (median f⁻¹ RMSE 0.0593 one time known / 0.0560 none), gamma 1.8
-#: (0.0470 / 0.0521), sRGB + Rec.709 + gamma 2.2 (0.0358 / 0.0361), the same with gamma
-#: 1.8 (0.0387 / 0.0398) and sRGB + Rec.709 (0.0277 / 0.0275).  A centre on the DoRF
-#: curves themselves makes common encodings flatter still (BENCHMARKS, "Exposures unknown (Build 4)").
+#: ``"gamma p"`` is the power law ``E^(1/p)``.  Chosen on the tuning split
+#: (docs/decisions.md, "The prior's centre when fewer than two times are known: sRGB and
+#: Rec.709").
 AMBIGUITY_CENTRE_CURVES = ("srgb", "rec709")
 
 
@@ -129,12 +125,12 @@ def ambiguity_centre(basis, N: int) -> np.ndarray:
     With fewer than two different known exposure times, Eq. 8 of [Lin2011] fixes f⁻¹ only
     up to an exponent γ (§5), and the prior c_n ~ N(μ_n, λ_n / w) chooses it: the γ whose
     (f⁻¹)^γ is least costly.  Centred at the basis mean (μ = 0, the prior of every other
-    solve), that γ is 0.64-0.94 for common encodings (the curve family behind the basis
-    is pulled flat; ``bench/bench_response_prior_gamma.py``).  Centred here instead: the
+    solve), common encodings come out too flat (γ < 1).  Centred here instead: the
     mean of the basis coefficients of the standard encodings
     :data:`AMBIGUITY_CENTRE_CURVES` (their best ``N``-component fits), so that a curve
     shaped like them comes out with γ ≈ 1.  No DoRF data goes into it (DoRF may not be
-    redistributed); the choice of curves was measured on the tuning split.
+    redistributed); the curves were chosen on the tuning split (docs/decisions.md, "The
+    prior's centre when fewer than two times are known: sRGB and Rec.709").
 
     Parameters
     ----------
@@ -175,9 +171,9 @@ def estimated_coefficient_variance(basis, N: int, *, n_curves: int = FAMILY_CURV
     ``(rms f⁻¹ + κ)²`` per intensity, as :func:`~selfcal.response.basis.log_pca_basis`),
     and λ_n is the mean square of its coefficient n.  The prior is centred at the basis
     mean (c = 0), so the second moment, not the variance about the family's mean, is what
-    it needs.  On ``invemor.txt`` this replaces the ridge, which left its curves 1.57 times
-    as far from the truth as the built-in basis' (median RMSE of f⁻¹ on the held-out
-    split of ``bench/bench_basis.py --calibrate heldout``; 1.18 times with this prior).
+    it needs.  On ``invemor.txt`` this replaces the ridge (``python3 -m bench.basis
+    --calibrate heldout``; docs/decisions.md, "Prior scale for a basis without PCA
+    variances: ×3").
 
     Parameters
     ----------

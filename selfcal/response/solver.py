@@ -200,9 +200,9 @@ class SolverOptions:
         ``estimated_prior_scale``), on in every solve whatever the number of known
         times.  The data term counts every pair equation as independent, but one sample
         location enters up to 3·(F−1) correlated equations (channels, pairs) and JPEG
-        errors are spatially correlated, so the prior is weighted up by about that factor;
-        100 was chosen on synthetic stacks (every 10th DoRF curve rendered by selfcal.sim,
-        see bench/bench_response_synthetic.py) between 30 and 1000.
+        errors are spatially correlated, so the prior is weighted up by about that factor
+        (ours; docs/decisions.md, "The other settings of the response solve stay at their
+        defaults").
     monotone : bool
         Constrain f⁻¹ to be non-decreasing (a QP when the plain fit is not).
     white_threshold : bool
@@ -213,12 +213,14 @@ class SolverOptions:
         Multiplier of ``prior_weight`` for a basis whose PCA variances are estimated
         (:func:`.priors.estimated_coefficient_variance`, ours); 0 switches that prior off
         (the ridge acts instead).  Default :data:`.priors.ESTIMATED_PRIOR_SCALE`, chosen
-        on the tuning split, see docs/decisions.md.
+        on the tuning split (docs/decisions.md, "Prior scale for a basis without PCA
+        variances: ×3").
     centre_ambiguity : bool
         With fewer than two different known times, centre the PCA-variance prior at
         :func:`.priors.ambiguity_centre` (standard encodings) instead of the basis mean,
         and start the exposures from that centre's curve (ours).  Default True, chosen on
-        the tuning split, see docs/decisions.md.
+        the tuning split (docs/decisions.md, "The prior's centre when fewer than two times
+        are known: sRGB and Rec.709").
     """
 
     n_components: int = 5

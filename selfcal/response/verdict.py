@@ -29,12 +29,9 @@ Levels: ``"ok"``; ``"doubtful"`` (usable with care; each reason is also a warnin
 ``"unusable"`` (the library still returns the model; the command line refuses it without
 ``--force``).
 
-The thresholds (module constants) were chosen on the **tuning split** of
-``bench/bench_verdict.py`` only -- synthetic stacks with seeds < 1000 (DoRF curves through
-:mod:`selfcal.sim`), memorial, fujifilm_xh1/scene1 and sony_ilce6400/scene1 of
-``../shared/data``, and the wrong-data cases built from them -- and are reported on the
-held-out split (synthetic seeds ≥ 1000, every other real stack, the real handheld bracket
-and their wrong-data cases); the values each rests on are next to it.
+The thresholds (module constants) are ours, chosen on the tuning split and reported on
+the held-out split (``python3 -m bench.verdict --split tuning``; docs/decisions.md, "The
+verdict's thresholds").
 """
 
 from __future__ import annotations
@@ -53,29 +50,25 @@ CODE_NOISE = 1.0 / 255.0
 #: exposure error), as the merge's default noise model (``selfcal.hdr.weights``: 3 %).
 RELATIVE_ERROR = 0.03
 #: Misfit ratio (:func:`residual_evidence`; 1 = what noise explains) above which the fit
-#: is doubtful, and unusable.  Tuning: good stacks at most 1.56 (memorial), times reversed
-#: and two scenes at least 12.2; 4 is about their geometric mean.
+#: is doubtful, and unusable.
 RESIDUAL_DOUBTFUL = 4.0
 RESIDUAL_UNUSABLE = 10.0
 #: Disagreement of two frames (:func:`scene_pairs`: robust scatter of one frame's samples
 #: about the best monotone function of the other's, over their spread) above which the
-#: two frames show different scenes.  Tuning: at most 0.53 between frames of one scene
-#: (memorial's darkest, noisy frames), 0.5 to 2.9 between frames of two.
+#: two frames show different scenes.
 SCENE_DISAGREEMENT = 0.7
 #: Shared valid samples a frame pair needs before it is scored.
 SCENE_MIN_SAMPLES = 30
 #: Share of the scored frame pairs showing different scenes at or above which the
 #: calibration is unusable; below it, a frame disagreeing with most of its partners makes
-#: it doubtful (a stray frame).  Tuning: 0 on good stacks, 0.32 to 0.67 for two scenes.
+#: it doubtful (a stray frame).
 SCENE_UNUSABLE_SHARE = 0.25
 #: Motion between neighbouring frames, in sample blocks, above which a frame counts as
 #: moved (handheld, bumped tripod).
 MOTION_BLOCKS = 1.0
 #: Drop of the neighbouring frames' residual (robust scale, in units of the noise of
 #: :func:`residual_evidence`) when their measured shift is compensated, above which the
-#: shift matters: the pair is misaligned.  Tuning: at most 0.69 on good stacks
-#: (sony_ilce6400/scene1 moves by 8.5 px, harmlessly: aligning it changes f⁻¹ by 0.001),
-#: at least 1.56 on the handheld cases.
+#: shift matters: the pair is misaligned.
 ALIGNMENT_GAIN = 1.0
 #: Phase-correlation peak below which a motion estimate carries no information.
 MOTION_MIN_RESPONSE = 0.2

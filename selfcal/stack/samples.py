@@ -239,9 +239,9 @@ def _local_contrast(blocks: np.ndarray) -> np.ndarray:
     blocks of an intensity bin are taken first.  That is deliberate.  Lin et al. (ICCV
     2011, §5) reject highly saturated pixels because the camera's colour processing moves
     them off the per-channel curves, and the same holds, more weakly, below β.  A per-
-    channel spatial spread alone picks more coloured blocks and, measured on every 20th
-    DoRF curve of acceptance 1 (see ``bench/BENCHMARKS.md``), raised the median f⁻¹ RMSE
-    from 0.0050 to 0.0084.
+    channel spatial spread alone picks more coloured blocks and was less accurate
+    (docs/decisions.md, "The other settings of the response solve stay at their
+    defaults").
     """
     cv2 = import_cv2()
     # per-channel reductions through OpenCV: numpy's axis=2 reductions of an (h, w, 3)
@@ -325,11 +325,8 @@ def working_block_size(shape, target_blocks: int = TARGET_BLOCKS) -> int:
     The edge is rounded down, so a frame has at least ``target_blocks`` blocks (when it
     has that many pixels) and fewer than four times as many; frames under 1.6 MP keep
     every pixel.  Rounding up instead (at most ``target_blocks``: 2×2 blocks for 1.5 MP
-    frames) was tried and not kept: a 7-frame 1.5 MP stack then
-    calibrated in 0.35 s instead of 1.51 s, but on 1.5 MP synthetic stacks (``bench_response_synthetic.py
-    --size 1000x1500 --step 10``) the mean f⁻¹ RMSE rose from 0.0077 to 0.0086 (two
-    times known, median 0.0038 to 0.0044).  See ``bench/BENCHMARKS.md``, "JPEG-only
-    path: speed and memory".
+    frames) was faster and less accurate (docs/decisions.md, "Small frames keep every
+    pixel").
     """
     h, w = shape[:2]
     return max(1, int(np.floor(np.sqrt(h * w / target_blocks))))

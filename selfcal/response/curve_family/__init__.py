@@ -8,7 +8,7 @@ of Camera Response Functions?*, CVPR 2003; *Modeling the Space of Camera Respons
 Functions*, PAMI 2004).  DoRF cannot be redistributed, so selfcal builds its own database
 from what is *published* about how cameras, films and tone mappers encode light, and
 computes the basis from it (``scripts/make_response_basis.py``).  DoRF is used only as an
-out-of-sample benchmark (``bench/bench_basis.py``).
+out-of-sample benchmark (``python3 -m bench.basis``).
 
 Every member is a *forward* response ``f``: normalised irradiance ``E`` in ``[0, 1]`` to
 normalised brightness in ``[0, 1]``, monotone non-decreasing, with ``f(0) = 0`` and
