@@ -15,12 +15,12 @@ per shot, through :class:`selfcal.sim.SensorModel` (shot and read noise, white c
 Per case: whether the bracket is recognised as linear
 (:func:`selfcal.stack.linear_evidence.linear_evidence`, what ``selfcal merge`` acts on), the
 largest error of the exposure ratios (to the first frame) measured by
-:func:`selfcal.merge_hdr` (``linear=True``; :mod:`selfcal.hdr.linear_exposures`) against the
+:func:`selfcal.merge_hdr` (``linear=True``; :mod:`selfcal.exposure.linear`) against the
 true, jittered ones, that of the nominal times, and the radiance's median relative error
 (best scale, pixels lit in the truth) merged with each.
 
 Tuning split: seeds < 1000 (nothing was tuned on this bench: the measurement's thresholds
-are those of :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`, set for the RAW+JPEG path); held
+are those of :func:`selfcal.exposure.raw_ratios.raw_exposure_ratios`, set for the RAW+JPEG path); held
 out: seeds ≥ 1000 and the two real raws.
 
     python3 -m bench.linear_bracket                 # both splits

@@ -3,7 +3,7 @@
 For each real stack (the split of ``bench.hdr_oddeven``; frames in exposure order, ntu's
 decoded at 1/4 for the arrays), one model is calibrated from all frames as there
 (``calibrate_response`` with its defaults), then
-:func:`selfcal.hdr.measured_exposures.measure_response_exposures` measures every frame's
+:func:`selfcal.exposure.measured.measure_response_exposures` measures every frame's
 exposure (scale from the EXIF times or memorial's shutter_times.txt):
 
 * **from arrays** (the frames decoded at full size, linearised, area-averaged): the
@@ -18,7 +18,7 @@ exposure (scale from the EXIF times or memorial's shutter_times.txt):
   ratios), and the ratio; best of ``--repeats``.  memorial's PNGs cannot be DCT-scaled:
   their pre-pass is a full decode.
 
-The measurement is the option's as it stands (``selfcal.hdr.measured_exposures.TREND``:
+The measurement is the option's as it stands (``selfcal.exposure.measured.TREND``:
 the times' trend since b026c6b, so "times off" is the frames' deviation from it).
 
     python3 -m bench.measured_exposures                  # tuning stacks
@@ -40,7 +40,7 @@ REDUCES = (2, 4, 8)
 
 
 def measure(frames, model, times, reduce=None):
-    from selfcal.hdr.measured_exposures import measure_response_exposures
+    from selfcal.exposure.measured import measure_response_exposures
     from selfcal.stack.frames import DEFAULT_CLIP_MARGIN
 
     # the black floors and stuck ceilings the merge would exclude (the model's)

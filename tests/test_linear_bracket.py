@@ -9,7 +9,7 @@ import pytest
 import selfcal
 from selfcal import sim
 from selfcal.hdr import MergeOptions
-from selfcal.hdr.linear_exposures import REPORT_DIFFERENCE
+from selfcal.exposure.linear import REPORT_DIFFERENCE
 
 TIMES = (1 / 125, 1 / 30, 1 / 8, 1 / 2)
 
@@ -121,8 +121,8 @@ def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):
 
 def test_split_halves_remove_the_selection_bias_of_noisy_ratios():
     """Choosing pixels by the values whose ratio is taken biases it (noise pushed into the
-    band); choosing by the other half of the pixels does not (selfcal.stack.exposure_ratios)."""
-    from selfcal.stack.exposure_ratios import raw_exposure_ratios, split_thumbnails
+    band); choosing by the other half of the pixels does not (selfcal.exposure.raw_ratios)."""
+    from selfcal.exposure.raw_ratios import raw_exposure_ratios, split_thumbnails
 
     scene = sim.make_scene(200, 300, dynamic_range_stops=10, seed=5)
     scene = scene / np.median(scene) * 0.1

@@ -1,4 +1,4 @@
-"""Exposures of a rendered bracket measured from its pixels (selfcal.hdr.measured_exposures):
+"""Exposures of a rendered bracket measured from its pixels (selfcal.exposure.measured):
 simulator ground truth with times off by 12-20 %, from arrays and from files."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import selfcal  # noqa: E402
 from selfcal import sim  # noqa: E402
 from selfcal.hdr import MergeOptions  # noqa: E402
-from selfcal.hdr.measured_exposures import MIN_LOG_SIGMA, _prepass_reduce  # noqa: E402
+from selfcal.exposure.measured import MIN_LOG_SIGMA, _prepass_reduce  # noqa: E402
 from selfcal.stack.frames import StackFrames  # noqa: E402
 from test_hdr import true_model, truth_radiance  # noqa: E402
 
@@ -68,7 +68,7 @@ def test_measured_exposures_recover_the_truth_from_arrays(stack):
 
 
 def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path):
-    from selfcal.hdr.measured_exposures import measure_response_exposures
+    from selfcal.exposure.measured import measure_response_exposures
 
     true = np.asarray(stack.true_exposures, float)
     times = np.array(true * OFF)

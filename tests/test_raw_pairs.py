@@ -12,7 +12,7 @@ from selfcal import sim
 from selfcal.errors import InputError
 from selfcal.io import read_image, write_bytes_atomic, write_image
 from selfcal.pipeline.pairs import BlockRejection, pair_samples, sample_raw_jpeg_pair
-from selfcal.stack.exposure_ratios import raw_exposure_ratios, raw_thumbnail
+from selfcal.exposure.raw_ratios import raw_exposure_ratios, raw_thumbnail
 from selfcal.pipeline.registration import Registration, register_raw_jpeg
 from selfcal.io.raw import (RAW_SUFFIXES, is_linear_tiff, read_raw_exposure_info,
                          read_raw_linear)

@@ -132,7 +132,7 @@ def test_sigma_sums_against_an_independent_float64_sum(model):
     # summed in float64 from the same tables (relative error of float32 sums: < 1e-5)
     from dataclasses import replace
 
-    from selfcal.hdr.accumulate import frame_limits
+    from selfcal.stack.frames import frame_limits
     from selfcal.hdr.sigma import SigmaSums
     from selfcal.hdr.weights import DEFAULT_NOISE, FrameTables, noise_variance
     from selfcal.stack.frames import Lineariser

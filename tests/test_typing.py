@@ -13,8 +13,8 @@ from pathlib import Path
 
 import selfcal
 
-SUBPACKAGES = ("io", "stack", "response", "pipeline", "hdr", "export", "choose", "report",
-               "batch", "sim")
+SUBPACKAGES = ("io", "stack", "exposure", "response", "pipeline", "hdr", "export", "choose",
+               "report", "batch", "sim")
 
 
 def _missing_annotations(func, name: str) -> list[str]:

@@ -5,9 +5,7 @@ class for a model file.
 * :mod:`selfcal.choose.paths` -- :func:`calibrate`: the JPEG-only path, the RAW path or
   both, and why (:class:`CalibrationResult`); :func:`calibrate_pipeline`;
 * :mod:`selfcal.choose.loading` -- :func:`load_model`: a model file or NUS model folder as
-  the model object it holds;
-* :mod:`selfcal.choose.exposure_plan` -- a session's exposures for the response path:
-  given, from EXIF, or from the raws.
+  the model object it holds.
 """
 
 from __future__ import annotations

@@ -37,7 +37,7 @@ from ..response.calibrate import ResponseOptions, calibrate_response
 from ..response.model import ResponseModel
 from ..stack.linear_evidence import linear_evidence
 from ..typing import ExposureTimes, PathLike, Progress
-from .exposure_plan import (ResponsePlan, SessionReport, distinct_exposures, file_names,
+from ..exposure.plan import (ResponsePlan, SessionReport, distinct_exposures, file_names,
                             noun, plan_response, seconds_text, times_by_frame)
 from .groups import InputGroups, group_inputs
 
@@ -201,7 +201,7 @@ def calibrate(paths: Sequence[PathLike], *,
       :func:`selfcal.pipeline.fit_pipeline` (Gong et al., rank-based radiometric
       calibration, §3; Lin et al. §6).
     * Both, for a bracketed RAW+JPEG session; the response path's exposures then come from
-      the raws (:func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`, Lin et al. §5: median ratio of
+      the raws (:func:`selfcal.exposure.raw_ratios.raw_exposure_ratios`, Lin et al. §5: median ratio of
       unclipped, well-exposed raw values), which removes the shutter error and the
       exponential ambiguity.  They are put in seconds by the geometric mean of the frames'
       EXIF times (scaled to the first frame's ISO and aperture) when those are known --

@@ -11,17 +11,15 @@ each module.  Where each piece lives:
   :func:`noise_variance` (the noise-aware weights), the per-frame tables;
 * :mod:`selfcal.hdr.accumulate` -- the merge's weighted sums, frame by frame in strips;
 * :mod:`selfcal.hdr.sigma` -- the standard deviation of every merged radiance value;
-* :mod:`selfcal.hdr.measured_exposures` -- a rendered bracket's exposures measured from its
-  pixels through the model's curve;
-* :mod:`selfcal.hdr.linear_exposures` -- a linear bracket's (raws, linear TIFFs) exposures
-  measured from its pixels;
 * :mod:`selfcal.hdr.deghost` -- the per-pixel test against the reference frame;
 * :mod:`selfcal.hdr.io` -- OpenEXR / Radiance HDR / float TIFF output, previews, linear
   images (:func:`write_radiance`, :func:`write_preview`, :func:`write_linear`).
 
 Below this package, and shared with the response path: the frames, linearisers and
 exposures in :mod:`selfcal.stack.frames`, the alignment in :mod:`selfcal.stack.align`; "align, then
-calibrate" is :func:`selfcal.response.calibrate.calibrate_aligned`.
+calibrate" is :func:`selfcal.response.calibrate.calibrate_aligned`.  The exposures the merge
+measures from the pixels (linear brackets, and rendered ones through the curve) are in
+:mod:`selfcal.exposure`.
 """
 
 from __future__ import annotations

@@ -26,14 +26,14 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import import_cv2
 from ..stack.align import negligible_motion, warp_to_reference
-from ..stack.frames import Lineariser, StackFrames, apply_lut, clip_limits, max_code_of
+from ..stack.frames import Lineariser, StackFrames, apply_lut, frame_limits, max_code_of
 from .deghost import ghost_mask, neighbour_residual, small_log_luma
 from .weights import NoiseModel, FrameTables, packed_lookup
 
 if TYPE_CHECKING:
     from .sigma import SigmaSums
 
-__all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "frame_limits", "WHITE_FOLLOWS"]
+__all__ = ["MergeSums", "FrameWeighing", "accumulate_frames", "WHITE_FOLLOWS"]
 
 #: A pixel some shorter frame saw clipped white is clipped in a longer frame where any of
 #: its channels is at least this fraction of the maximum code there (ours).
@@ -437,30 +437,6 @@ def _read_ahead(frames: StackFrames, order, loaded: dict):
             ahead = reader.submit(load, order[i + 1]) if i + 1 < len(order) else None
             yield k, img
             img = None  # noqa: F841 -- the caller's frame is released before the next
-
-
-def frame_limits(max_code, clip_margin: float, linear: bool, stuck):
-    """Per channel (lo, hi, floor limit or None) for :class:`.weights.FrameTables`.
-
-    The clip limits of :func:`selfcal.stack.frames.clip_limits` (a pixel with any channel at
-    or beyond them is clipped), ``hi`` lowered to the stuck ceiling of each channel, and
-    the black floor of each channel, below which that channel's codes get zero weight
-    (``stuck``: normalised codes, :func:`selfcal.stack.frames.stuck_code_levels`; the codes
-    below the floor and from the ceiling up do not move with exposure, the floor code
-    itself is the first that does).  A floor zeroes its channel only: the other channels
-    of a dark, coloured pixel are still measured (zeroing every channel of a pixel with one
-    channel at its floor raised the odd/even median |log ratio| of ntu's night scene,
-    ``python3 -m bench.hdr_oddeven``, from 0.29 to 0.54).
-    """
-    lo, hi = clip_limits(max_code, clip_margin, linear)
-    lo = np.full(3, float(lo))
-    hi = np.full(3, float(hi))
-    floor = None
-    if stuck is not None and max_code is not None:
-        fl, ceiling = (np.asarray(v, dtype=float) * max_code for v in stuck)
-        floor = np.where(fl > 0, fl - 0.5, 0.0)
-        hi = np.minimum(hi, np.where(ceiling < max_code, ceiling, max_code))
-    return lo, hi, floor
 
 
 def _thread_buffers(local, rows: int, width: int, dtype) -> dict:

@@ -53,7 +53,7 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
   accumulators of the frame size, in strips of rows with OpenCV lookup tables for f⁻¹
   and the weights, in parallel threads; only the reference, darkest and brightest
   frames' codes are kept (deghosting, the fill): 17 frames of 24 MP in well under 2 GB;
-* **linear frames** (raws, linear TIFFs): exposures from their pixels (:mod:`.linear_exposures`).
+* **linear frames** (raws, linear TIFFs): exposures from their pixels (:mod:`selfcal.exposure.linear`).
 
 References
 ----------
@@ -102,8 +102,8 @@ from ..stack.samples import collect_samples
 from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import misalignment_warning, poor_agreement
-from .linear_exposures import USES, resolve_linear_exposures, stack_frames
-from .measured_exposures import TRENDS, measure_response_exposures, measured_warning
+from ..exposure.linear import USES, resolve_linear_exposures, stack_frames
+from ..exposure.measured import TRENDS, measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums
 
@@ -139,7 +139,7 @@ class MergeOptions:
         ``{"floor": [R, G, B], "ceiling": [R, G, B]}``, normalised codes.  Default: the
         model's ``diagnostics["stuck_codes"]``, else measured; False: none.
     linear_exposures : {"auto", "measured", "times"}
-        Linear frames' exposures (:func:`.linear_exposures.measure_linear_exposures`).
+        Linear frames' exposures (:func:`selfcal.exposure.linear.measure_linear_exposures`).
     calibrate_options : ResponseOptions, optional
         The options of :func:`selfcal.calibrate_response` when it runs on the fly (no
         model given); default ``ResponseOptions()``.
@@ -152,7 +152,7 @@ class MergeOptions:
         float32 sums the size of the radiance while merging.  Default False.
     measure_exposures : bool
         Rendered frames: measure the exposure ratios from the pixels through the model's
-        curve, the times setting only the scale (:mod:`.measured_exposures`; files get a
+        curve, the times setting only the scale (:mod:`selfcal.exposure.measured`; files get a
         pre-pass, decoded at 1/2-1/8 when large); σ's exposure term becomes the
         measurement's.  Default False.
     merge_unchecked : bool
@@ -166,11 +166,11 @@ class MergeOptions:
         and of σ (ours).  Default True, chosen on the tuning split, see docs/decisions.md.
     exposure_trend : {"times", "pixels"}
         With ``measure_exposures``: the exposures' trend over the bracket is the times'
-        (ours, :mod:`.measured_exposures`) or the measured ratios' as they are.  Default
+        (ours, :mod:`selfcal.exposure.measured`) or the measured ratios' as they are.  Default
         ``"times"``, chosen on the tuning split, see docs/decisions.md.
     sigma_exposure_from_fit : bool
         With ``measure_exposures`` and ``sigma``: σ's exposure term is the measurement's
-        (:func:`.measured_exposures.fit_log_sigma`) or, False, the fixed one of given times.
+        (:func:`selfcal.exposure.measured.fit_log_sigma`) or, False, the fixed one of given times.
     """
 
     reference: int | None = None
@@ -410,7 +410,7 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
 
 def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
                         exposure_source, warnings, diagnostics, progress):
-    """:func:`.measured_exposures.measure_response_exposures` on the checked merged frames:
+    """:func:`selfcal.exposure.measured.measure_response_exposures` on the checked merged frames:
     (exposures, σ's exposure term), the summary in ``diagnostics["measured_exposures"]``
     and a warning naming the times the pixels moved."""
     checked = [k for k in used if k not in unchecked]

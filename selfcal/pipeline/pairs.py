@@ -8,8 +8,8 @@ decodes), then sampled with block means that skip clipped blocks and high-gradie
 blocks, where demosaicing, sharpening and JPEG compression make the two images differ
 (:func:`pair_samples`; the same outlier reasoning as [Lin2011] §5: clipped pixels carry
 no information about the curve).  Each pair also keeps small thumbnails of its raw
-(:func:`selfcal.stack.exposure_ratios.split_thumbnails`), from which a bracketed
-session's exposure ratios are measured (:func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`).
+(:func:`selfcal.exposure.raw_ratios.split_thumbnails`), from which a bracketed
+session's exposure ratios are measured (:func:`selfcal.exposure.raw_ratios.raw_exposure_ratios`).
 
 Coordinates are those of :mod:`selfcal.pipeline.registration`: pixel centres, ``x`` to the right,
 ``y`` down, ``raw_xy = scale * rendered_xy + shift``.  Citation keys are those of
@@ -27,7 +27,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import JPEG_SUFFIXES, import_cv2, is_path, read_image, read_image_size
 from ..io.raw import read_raw_linear
-from ..stack.exposure_ratios import check_linear_raw, split_thumbnails
+from ..exposure.raw_ratios import check_linear_raw, split_thumbnails
 from .registration import (Registration, as_float_rendered, inside_mask, warp_image,
                            register_raw_jpeg)
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import import_cv2
-from ..stack.exposure_ratios import check_linear_raw
+from ..exposure.raw_ratios import check_linear_raw
 
 __all__ = ["Registration", "register_raw_jpeg", "MIN_CORRELATION", "MIN_OVERLAP"]
 

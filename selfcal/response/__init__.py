@@ -14,7 +14,6 @@
 * :mod:`selfcal.response.priors` -- the priors added to Eq. 8's normal equations;
 * :mod:`selfcal.response.solver` -- the joint solve for coefficients and log exposures;
 * :mod:`selfcal.response.frame_choice` -- which frames the solve can use;
-* :mod:`selfcal.response.exposure_times` -- given, refined or unknown exposure times;
 * :mod:`selfcal.response.histogram_samples` -- correspondences by histogram matching;
 * :mod:`selfcal.response.white_end` -- how far JPEG damage next to clipping reaches;
 * :mod:`selfcal.response.code_error` -- the curve's error per code, on its own samples;

@@ -2,7 +2,7 @@
 
 [Lin2011] §5 (Eq. 7-8, outlier rejection) and §7 (δ, Eq. 12); unknown exposures solved
 jointly after [Kim2008].  The stages, in the order they run: the
-exposure times (:mod:`.exposure_times`), the samples and the frames the solve can use
+exposure times (:mod:`selfcal.exposure.times`), the samples and the frames the solve can use
 (:mod:`.frame_choice`), the solve of Eq. 8 (:mod:`.solver`), δ (:mod:`.delta`) and the
 verdict (:mod:`.verdict`).  Their finer settings travel together in
 :class:`ResponseOptions`.
@@ -36,7 +36,7 @@ from .basis import ResponseBasis
 from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
-from .exposure_times import (
+from ..exposure.times import (
     CONTRADICTION_FACTOR,
     anchor_refined,
     check_refine_option,
@@ -172,7 +172,7 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         True: treat the given times as a prior and re-estimate them (shutters are
         inaccurate).  ``"auto"`` (default): refine EXIF times when the pixels contradict
         some of them by more than
-        :data:`selfcal.response.exposure_times.CONTRADICTION_FACTOR` (ours: the
+        :data:`selfcal.exposure.times.CONTRADICTION_FACTOR` (ours: the
         contradiction is then a warning, not a doubtful verdict); hold times the caller
         gave, and EXIF times most of which are contradicted.  False: hold every time.
     seed : int
@@ -601,7 +601,7 @@ def _solve(usable: _Usable, basis, *, options, refine_exposures, progress, weigh
 
 def _contradicted_times(usable: _Usable, basis, options) -> list:
     """Given times the pixels contradict by more than
-    :data:`.exposure_times.CONTRADICTION_FACTOR`.
+    :data:`selfcal.exposure.times.CONTRADICTION_FACTOR`.
 
     Re-solves with the times as a prior (``refine_exposures=True``, a short solve) and
     compares the estimated exposure ratios with the given ones.

@@ -40,6 +40,7 @@ import math
 
 import numpy as np
 
+from ..exposure.times import CONTRADICTED_UNUSABLE_SHARE
 from ..stack.frames import STUCK_CODES, STUCK_RATIO
 from ..io.images import import_cv2
 
@@ -72,12 +73,11 @@ MOTION_BLOCKS = 1.0
 ALIGNMENT_GAIN = 1.0
 #: Phase-correlation peak below which a motion estimate carries no information.
 MOTION_MIN_RESPONSE = 0.2
-#: Share of the known times contradicted at or above which the calibration is unusable
-#: (times in the wrong order, the wrong frames); a time contradicted by at least
-#: :data:`CONTRADICTION_DOUBTFUL` (the calibration's own reporting factor,
-#: ``calibrate.CONTRADICTION_FACTOR``) makes it doubtful: on the synthetic tuning stacks
-#: one time off by 1.25× already doubles to triples the f⁻¹ error.
-CONTRADICTED_UNUSABLE_SHARE = 0.5
+#: A time contradicted by at least this factor (the calibration's own reporting factor,
+#: :data:`selfcal.exposure.times.CONTRADICTION_FACTOR`) makes the calibration doubtful;
+#: at or above :data:`selfcal.exposure.times.CONTRADICTED_UNUSABLE_SHARE` of the known
+#: times contradicted, unusable: on the synthetic tuning stacks one time off by 1.25×
+#: already doubles to triples the f⁻¹ error.
 CONTRADICTION_DOUBTFUL = 1.25
 #: Share of the checked frame pairs darker at the longer given time (:func:`time_order`)
 #: at or above which the calibration is unusable; any such pair makes it doubtful.

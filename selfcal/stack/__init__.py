@@ -5,8 +5,6 @@
 * :mod:`selfcal.stack.align` -- MTB / ECC / feature alignment;
 * :mod:`selfcal.stack.samples` -- block-mean correspondences across a stack and their
   outlier masks with reasons ([Lin2011]_ §5: clipped and saturated samples);
-* :mod:`selfcal.stack.exposure_ratios` -- a bracket's exposure ratios from its linear raw
-  pixels;
 * :mod:`selfcal.stack.linear_evidence` -- whether 16-bit or float TIFFs are linear data.
 
 References

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import read_image
 from ..io.raw import TIFF_SUFFIXES, is_linear_tiff
-from .exposure_ratios import split_thumbnails
+from ..exposure.raw_ratios import split_thumbnails
 
 __all__ = ["linear_evidence", "PHOTOMETRIC_LINEAR_RAW", "LINEAR_RATIO_SPREAD",
            "LINEAR_EXPONENT_TOLERANCE", "LINEAR_MIN_EXPOSURE_RATIO"]
@@ -47,7 +47,7 @@ _Thumbnails = tuple[np.ndarray, np.ndarray]
 
 def _grey_thumbnails(path: str | os.PathLike[str], side: int = 256) -> _Thumbnails:
     """The frame's mean of the channels on [0, 1] as two half-frame thumbnails of about
-    ``side`` pixels a side, (values, selection) of :func:`selfcal.stack.exposure_ratios.split_thumbnails`
+    ``side`` pixels a side, (values, selection) of :func:`selfcal.exposure.raw_ratios.split_thumbnails`
     (NaN where a clipped value went in)."""
     img = read_image(path)
     white = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0

@@ -10,18 +10,25 @@ put back on the given times' absolute scale.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..io.images import is_path
-from .verdict import CONTRADICTED_UNUSABLE_SHARE as CONTRADICTED_MAJORITY
+from ..typing import ExposureTimes
 
 #: A frame whose given time and pixels disagree by more than this factor is reported.
 CONTRADICTION_FACTOR = 1.25
+#: Share of the known times contradicted at or above which the times are not refined and
+#: the calibration is unusable (:mod:`selfcal.response.verdict`: times in the wrong order,
+#: the wrong frames).
+CONTRADICTED_UNUSABLE_SHARE = 0.5
 
 
-def resolve_exposure_times(frames, exposure_times, sources, times_source=None):
+def resolve_exposure_times(frames: Sequence, exposure_times: ExposureTimes | None,
+                           sources: Sequence, times_source: str | None = None,
+                           ) -> tuple[list[float | None], str]:
     """Given times per frame (None = unknown), from the caller or from EXIF, and their label.
 
     When EXIF gives f-number and ISO that vary over the stack, times are scaled to the
@@ -92,7 +99,7 @@ def refine_decision(refine_exposures, time_source, contradictions, log_times) ->
         return bool(refine_exposures)
     known = int(np.isfinite(log_times).sum())
     return (time_source == "exif" and bool(contradictions)
-            and len(contradictions) / known < CONTRADICTED_MAJORITY)
+            and len(contradictions) / known < CONTRADICTED_UNUSABLE_SHARE)
 
 
 def contradiction_messages(contradictions, *, refined: bool) -> list[str]:

@@ -7,8 +7,8 @@ nominal (1/60 s for 2⁻⁶ s, third-stop steps of 1.2-1.33×; ``python3 -m
 bench.measured_exposures`` prints how far they are from the pixels), and a merge whose
 weights lean on one frame per pixel carries that frame's exposure error whole.
 
-What is done here is the linear path's measurement (:mod:`.linear_exposures`: split
-thumbnails, :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the ``"sum"``
+What is done here is the linear path's measurement (:mod:`.linear`: split
+thumbnails, :func:`selfcal.exposure.raw_ratios.raw_exposure_ratios` with the ``"sum"``
 statistic, the absolute scale from the times by the median of ``log(time / measured)``)
 on ``f⁻¹(codes)``.  Ours: the trend of the measured exposures over the bracket is the
 times' (``MergeOptions.exposure_trend``, :func:`_times_trend`) -- a calibrated curve whose slope is slightly
@@ -34,11 +34,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import read_image
-from ..stack.exposure_ratios import split_thumbnails
-from ..stack.frames import Lineariser, apply_lut, max_code_of
-from .accumulate import frame_limits
-from .linear_exposures import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
+from ..stack.frames import Lineariser, apply_lut, frame_limits, max_code_of
+from .linear import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
+from .raw_ratios import split_thumbnails
 
 __all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
            "PAIR_GAP", "MIN_LOG_SIGMA", "TRENDS"]
@@ -77,7 +76,7 @@ def _prepass_reduce(frames, min_side: int = PREPASS_MIN_SIDE) -> int:
 
 def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
     """Frame ``k`` linearised by ``model`` with its clipped codes excluded, as the split
-    thumbnails of :func:`selfcal.stack.exposure_ratios.split_thumbnails`."""
+    thumbnails of :func:`selfcal.exposure.raw_ratios.split_thumbnails`."""
     item = frames.items[k]
     img = read_image(item, reduce=reduce) if frames.paths[k] is not None else np.asarray(item)
     mc = max_code_of(img)
@@ -193,7 +192,7 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
 
 def measured_warning(summary: dict, label: str) -> str | None:
     """The warning saying which times the pixels moved and by how much (as the linear
-    path's), or None when none moved by more than :data:`.linear_exposures.REPORT_DIFFERENCE`."""
+    path's), or None when none moved by more than :data:`.linear.REPORT_DIFFERENCE`."""
     moved = [(abs(d), k) for k, d in enumerate(summary["differences"])
              if d is not None and abs(d) > REPORT_DIFFERENCE]
     if not moved:

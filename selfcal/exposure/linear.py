@@ -4,7 +4,7 @@ Lin, Kim, Süsstrunk & Brown, ICCV 2011 [Lin2011], §5: "with RAW images, the ex
 ratio can be directly computed by dividing the raw values between two images".  Linear data
 have the identity for a response, so a bracket of raws (or of a raw converter's linear
 16-bit TIFFs) needs no calibration: the ratios of the frames' values at pixels well exposed
-in both are the exposure ratios (:func:`selfcal.stack.exposure_ratios.raw_exposure_ratios`), free of the
+in both are the exposure ratios (:func:`selfcal.exposure.raw_ratios.raw_exposure_ratios`), free of the
 shutter's error, and the frames merge to HDR directly (:func:`selfcal.merge_hdr` with
 ``linear=True``).
 
@@ -26,9 +26,9 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..io.images import effective_exposure_times, is_path, read_exposure_info
-from ..stack.exposure_ratios import raw_exposure_ratios, split_thumbnails
 from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, given_exposures
 from ..stack.linear_evidence import linear_evidence
+from .raw_ratios import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
            "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE"]
@@ -91,9 +91,9 @@ class LinearExposures:
                 "frames": [str(Path(s).name) for s in sources]}
 
 
-def _thumbnail(frames, k: int, clip_margin: float) -> np.ndarray:
+def _thumbnail(frames, k: int, clip_margin: float) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``k`` of a :class:`selfcal.stack.frames.StackFrames` on [0, 1] (white = 1), as the two
-    half-frame thumbnails of :func:`selfcal.stack.exposure_ratios.split_thumbnails` (values, selection)."""
+    half-frame thumbnails of :func:`selfcal.exposure.raw_ratios.split_thumbnails` (values, selection)."""
     if frames.raw_files[k]:
         from ..io.raw import read_raw_linear
 
@@ -118,9 +118,9 @@ def scale_to_times(measured: np.ndarray, times: list) -> float | None:
 def thumbnail_exposures(thumbs, max_gap: int | None = None):
     """Relative exposures (first measured frame = 1, NaN outside the largest connected set
     of frames) and the measured pairs, from the frames' split thumbnails
-    (:func:`selfcal.stack.exposure_ratios.split_thumbnails`: ``(values, selection)``), by
-    :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` with the ``"sum"`` statistic.
-    Shared by the linear path and the response path (:mod:`.measured_exposures`, which
+    (:func:`selfcal.exposure.raw_ratios.split_thumbnails`: ``(values, selection)``), by
+    :func:`selfcal.exposure.raw_ratios.raw_exposure_ratios` with the ``"sum"`` statistic.
+    Shared by the linear path and the response path (:mod:`.measured`, which
     passes ``max_gap``)."""
     rel, report = raw_exposure_ratios([v for v, _ in thumbs], select=[c for _, c in thumbs],
                                       statistic="sum", max_side=2 * MEASURE_SIDE,

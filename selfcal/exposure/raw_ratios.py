@@ -8,7 +8,7 @@ disjoint halves of its pixels, so that the pixels are chosen on one half and mea
 other (ours: free of the selection bias of choosing and measuring on the same noisy
 values); :func:`raw_thumbnail` is the reduction both use.
 
-Used by the linear HDR path (:mod:`selfcal.hdr.linear_exposures`), the path choice
+Used by the linear HDR path (:mod:`selfcal.exposure.linear`), the path choice
 (:mod:`selfcal.choose.paths`) and the RAW+JPEG pairs (:mod:`selfcal.pipeline.pairs`), for
 any bracket of linear frames -- nothing here is about pairs.
 
@@ -18,6 +18,7 @@ Citation keys are those of ``docs/references.md``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -27,7 +28,7 @@ from ..io.images import import_cv2
 __all__ = ["check_linear_raw", "raw_thumbnail", "split_thumbnails", "raw_exposure_ratios"]
 
 
-def check_linear_raw(raw_rgb) -> np.ndarray:
+def check_linear_raw(raw_rgb: np.ndarray) -> np.ndarray:
     """The first three channels of an ``HxWxC`` float linear raw (InputError otherwise)."""
     raw = np.asarray(raw_rgb)
     if raw.ndim != 3 or raw.shape[2] < 3:
@@ -38,7 +39,7 @@ def check_linear_raw(raw_rgb) -> np.ndarray:
     return raw
 
 
-def raw_thumbnail(raw_rgb, *, max_side: int = 512, clip_level: float = 0.98) -> np.ndarray:
+def raw_thumbnail(raw_rgb: np.ndarray, *, max_side: int = 512, clip_level: float = 0.98) -> np.ndarray:
     """An area-averaged small copy of a linear raw, NaN where a clipped pixel contributed.
 
     Per channel: a thumbnail pixel is NaN when any raw pixel averaged into it has that
@@ -60,7 +61,8 @@ def raw_thumbnail(raw_rgb, *, max_side: int = 512, clip_level: float = 0.98) -> 
     return small
 
 
-def split_thumbnails(raw_rgb, *, max_side: int = 512, clip_level: float = 0.98):
+def split_thumbnails(raw_rgb: np.ndarray, *, max_side: int = 512,
+                     clip_level: float = 0.98) -> tuple[np.ndarray, np.ndarray]:
     """Thumbnails of a linear raw from two disjoint sets of its pixels, for unbiased ratios.
 
     The even and the odd columns are reduced apart (:func:`raw_thumbnail`, NaN where a
@@ -104,9 +106,11 @@ def _pair_log_ratio(vi, vj, both, statistic: str):
     return float(np.log(vj[keep].sum() / vi[keep].sum())), mad
 
 
-def raw_exposure_ratios(raws, *, low: float = 0.02, high: float = 0.9,
-                        min_count: int = 100, max_side: int = 512, select=None,
-                        statistic: str = "median", max_gap: int | None = None):
+def raw_exposure_ratios(raws: Sequence[np.ndarray], *, low: float = 0.02, high: float = 0.9,
+                        min_count: int = 100, max_side: int = 512,
+                        select: Sequence[np.ndarray] | None = None,
+                        statistic: str = "median",
+                        max_gap: int | None = None) -> tuple[np.ndarray, dict]:
     """Relative exposures of aligned raw frames from the ratios of their values.
 
     [Lin2011] §5: "with RAW images, the exposure ratio can be directly computed by dividing

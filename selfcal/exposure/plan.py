@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..io.images import format_exposure_time
-from ..stack.exposure_ratios import raw_exposure_ratios
+from .raw_ratios import raw_exposure_ratios
 
 __all__ = ["DISTINCT_EXPOSURE_FACTOR", "SessionReport", "ResponsePlan", "plan_response",
            "times_by_frame", "distinct_exposures", "noun", "file_names", "seconds_text"]
@@ -132,9 +132,9 @@ def plan_response(group, pair_data, infos, eff, given_times, exposure_source,
 def _raw_ratios(frames, pair_data, exposure_source, report: SessionReport):
     """Relative exposures of the frames with raws, from the raws themselves.
 
-    :func:`selfcal.stack.exposure_ratios.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
+    :func:`selfcal.exposure.raw_ratios.raw_exposure_ratios` (Lin et al. §5: "the exposure ratio can be
     directly computed by dividing the raw values between two images"), on the two halves
-    of :func:`selfcal.stack.exposure_ratios.split_thumbnails` (pixels chosen on one, measured on the
+    of :func:`selfcal.exposure.raw_ratios.split_thumbnails` (pixels chosen on one, measured on the
     other: no selection bias).  Returns
     ``(raw_rel, framed)``: frame → (relative exposure, connected set), for the frames whose
     ratio is known, and the frames that have a raw.
