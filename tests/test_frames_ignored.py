@@ -17,12 +17,11 @@ import numpy as np
 import pytest
 
 import selfcal
-from selfcal import sim
 from selfcal.errors import InputError, ModelFileError, SelfcalWarning
 from selfcal.hdr import MergeOptions, merge_hdr
 from selfcal.io import write_image
 from selfcal.response.model import IgnoredFrame
-from test_hdr import TIMES, simple_pipeline
+from test_hdr import far_bracket
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +30,7 @@ def far_stack(tmp_path_factory):
     the scene is black in the bracket and measured by the long frame alone; plus a
     duplicate of frame 1.  The calibration ignores the duplicate and the far frame.
     Written as PNG files: the merge finds a given model's frames by their paths."""
-    base = sim.make_scene(96, 144, dynamic_range_stops=6, saturation=0.3, seed=3)
-    scene = base.copy()
-    scene[:, 72:] = base[:, :72] * 2.0 ** -17
-    st = sim.simulate_stack(scene, simple_pipeline(), TIMES, jitter=0.0, jpeg_quality=90,
-                            seed=3, exposure_scale=100.0)
-    far = sim.simulate_stack(scene, simple_pipeline(), [512.0], jitter=0.0, jpeg_quality=90,
-                             seed=3, exposure_scale=100.0)
+    st, far = far_bracket()
     arrays = list(st.images) + list(far.images) + [st.images[1].copy()]
     folder = tmp_path_factory.mktemp("far")
     images = [write_image(folder / f"f{k}.png", a) for k, a in enumerate(arrays)]

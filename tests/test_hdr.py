@@ -726,12 +726,9 @@ def test_shortest_frame_only_pixels_within_five_percent(highlights):
     assert np.max(np.abs(y / y_true - 1)) > 0.05
 
 
-def test_frame_too_far_from_the_bracket_is_merged_unchecked(monkeypatch):
-    """A frame far beyond the bracket (ntu's 8 s one): the right half of the scene is 2⁻¹⁷
-    of the left, black in the four bracketed frames and measured by the long frame alone,
-    which is white on the left.  The calibration ignores that frame (no unclipped sample
-    in common: its exposure cannot be checked against the pixels); the merge uses its
-    time, says so, and flags the pixels it alone measures -- which follow the truth."""
+def far_bracket():
+    """Four bracketed frames (``TIMES``) and one of 512 s far beyond them, of a scene whose
+    right half is 2⁻¹⁷ of its left: black in the bracket, measured by the long frame alone."""
     base = sim.make_scene(96, 144, dynamic_range_stops=6, saturation=0.3, seed=3)
     scene = base.copy()
     scene[:, 72:] = base[:, :72] * 2.0 ** -17
@@ -739,6 +736,16 @@ def test_frame_too_far_from_the_bracket_is_merged_unchecked(monkeypatch):
                             seed=3, exposure_scale=100.0)
     far = sim.simulate_stack(scene, simple_pipeline(), [512.0], jitter=0.0, jpeg_quality=90,
                              seed=3, exposure_scale=100.0)
+    return st, far
+
+
+def test_frame_too_far_from_the_bracket_is_merged_unchecked(monkeypatch):
+    """A frame far beyond the bracket (ntu's 8 s one): the right half of the scene is 2⁻¹⁷
+    of the left, black in the four bracketed frames and measured by the long frame alone,
+    which is white on the left.  The calibration ignores that frame (no unclipped sample
+    in common: its exposure cannot be checked against the pixels); the merge uses its
+    time, says so, and flags the pixels it alone measures -- which follow the truth."""
+    st, far = far_bracket()
     result = merge_hdr(list(st.images) + far.images, list(st.exposure_times) + [512.0])
     assert result.model.diagnostics["frames_used"] == [f"array #{k}" for k in range(4)]
     assert result.diagnostics["frames_unchecked"] == ["array #4"]
