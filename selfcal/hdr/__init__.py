@@ -5,8 +5,9 @@ with the inverse response of Lin et al. (ICCV 2011, §5); what selfcal adds to i
 each module.  Where each piece lives:
 
 * :mod:`selfcal.hdr.merge` -- :func:`merge_hdr` and its :class:`HDRResult` (the weighted
-  sums in strips, the fill of unmeasured pixels, calibration on the fly), and
-  :func:`linearize_images`;
+  sums in strips, the fill of unmeasured pixels, calibration on the fly);
+* :mod:`selfcal.hdr.linearize` -- :func:`linearize_images`, frames through f⁻¹ one at a
+  time;
 * :mod:`selfcal.hdr.weights` -- :func:`weight_hat`, :class:`NoiseModel` and
   :func:`noise_variance` (the noise-aware weights), the per-frame tables;
 * :mod:`selfcal.hdr.accumulate` -- the merge's weighted sums, frame by frame in strips;
@@ -35,7 +36,8 @@ from .io import (
     write_preview,
     write_radiance,
 )
-from .merge import HDRResult, MergeOptions, linearize_images, merge_hdr
+from .linearize import linearize_images
+from .merge import HDRResult, MergeOptions, merge_hdr
 from .weights import NoiseModel, noise_variance, weight_hat
 
 __all__ = [

@@ -74,25 +74,21 @@ References
 from __future__ import annotations
 
 import warnings as _pywarnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..io.images import JPEG_SUFFIXES, is_path, read_image
+from ..io.images import JPEG_SUFFIXES
 from ..response.calibrate import (DEFAULT_MAX_SAMPLES, ResponseOptions, calibrate_aligned,
                                   calibrate_response)
 from ..stack.align import estimate_alignment
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
-    STRIP_PIXELS,
-    Lineariser,
     StackFrames,
-    apply_lut,
     default_reference,
-    max_code_of,
     model_frame_index,
     name_arrays,
     resolve_exposures,
@@ -107,7 +103,7 @@ from ..exposure.measured import TRENDS, measure_response_exposures, measured_war
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums
 
-__all__ = ["HDRResult", "MergeOptions", "merge_hdr", "linearize_images"]
+__all__ = ["HDRResult", "MergeOptions", "merge_hdr"]
 
 #: Pixels by which a lossy (JPEG) frame's white-clipped region is widened: ringing at a
 #: highlight edge leaves codes a few below white that pass the clip test (ours).  Chosen
@@ -643,54 +639,3 @@ def _relative_to(transforms, ref0: int, ref: int):
     transforms = [t / t[2, 2] for t in transforms]
     transforms[ref] = np.eye(3)
     return transforms
-
-
-# --------------------------------------------------------------------------------------
-# linearised frames
-# --------------------------------------------------------------------------------------
-
-def linearize_images(images: Sequence[ImageInput], model: object, *,
-                     progress: Progress | None = None) -> Iterator[tuple[str, np.ndarray]]:
-    """Linearise frames one at a time: ``f⁻¹(I)`` per channel (Lin et al., ICCV 2011, §5).
-
-    A generator, so a long list of large frames never sits in memory at once.  Values are
-    linear camera signal with ``f⁻¹(max code) = 1`` (not divided by the exposure), as
-    :meth:`selfcal.ResponseModel.linearize` gives them; for a model with ``to_raw`` (the
-    RAW path's backward model) that is used instead.
-
-    Parameters
-    ----------
-    images : sequence
-        uint8/uint16 RGB arrays or paths.
-    model : ResponseModel or object with ``to_raw``
-    progress : callable, optional
-        ``progress("linearize", done, total, source)``.
-
-    Yields
-    ------
-    (str, numpy.ndarray)
-        The source (path or ``"array #k"``) and its float32 ``HxWx3`` linear image.
-    """
-    items = list(images)
-    sources = [str(f) if is_path(f) else f"array #{k}" for k, f in enumerate(items)]
-    for k, item in enumerate(items):
-        img = read_image(item) if is_path(item) else np.asarray(item)
-        if img.ndim != 3 or img.shape[2] != 3:
-            raise InputError(f"expected an HxWx3 RGB image, got shape {img.shape}", sources[k])
-        if img.dtype not in (np.uint8, np.uint16):
-            raise InputError(f"unsupported dtype {img.dtype} (uint8 or uint16 codes)",
-                             sources[k])
-        lin = Lineariser(model, False, max_code_of(img))
-        if lin.kind == "lut":
-            out = np.empty(img.shape, dtype=np.float32)
-            assert lin.table is not None    # made for the frame's max code
-            table = lin.table.astype(np.float32)
-            rows = max(8, STRIP_PIXELS // img.shape[1])
-            for y in range(0, img.shape[0], rows):
-                out[y:y + rows] = apply_lut(img[y:y + rows], table)
-        else:
-            out = lin.values(img)
-        del img
-        if progress is not None:
-            progress("linearize", k + 1, len(items), sources[k])
-        yield sources[k], out
