@@ -24,9 +24,9 @@ OUT = REPO / "bench" / "BENCHMARKS.md"
 #: Longest BENCHMARKS.md this writes without complaint (issue 34).
 MAX_LINES = 600
 #: A longer table shows its first and last rows here; every row is in its JSON record.
-MAX_ROWS, HEAD_ROWS, TAIL_ROWS = 12, 8, 3
+MAX_ROWS, HEAD_ROWS, TAIL_ROWS = 9, 6, 2
 #: Likewise a longer block of text.
-MAX_TEXT_LINES, HEAD_TEXT, TAIL_TEXT = 5, 3, 1
+MAX_TEXT_LINES, HEAD_TEXT, TAIL_TEXT = 3, 2, 1
 
 #: (script, title, question, the commands of its reference runs), in the order of the
 #: file; a reference command with no record of that exact command is listed as not
@@ -95,14 +95,17 @@ SECTIONS = (
 #: behind a summary, tuning tables beside held-out ones, a second statistic of one score.
 DETAIL_TABLES = {
     "verdict": {0, 1},             # case by case (the summary below them is shown)
-    "hdr_oddeven": {1, 3},         # p90 of the per-pixel score; the block-size scaling
-    "export_cube": {1, 2, 4},      # Resolve .cube against CLF; ffmpeg; the OCIO config round trip
-    "pipeline": {1, 2},            # backward RMSE (the targets table sums them up)
+    "hdr_oddeven": {1, 3, 4},      # p90 of the per-pixel score; the block-size scaling; memorial's weightings
+    "export_cube": {1, 2, 3, 4},   # Resolve .cube against CLF; ffmpeg; response models; OCIO round trip
+    "pipeline": {0, 1, 2},         # forward and backward RMSE (the targets table sums them up)
     "linear_bracket": {1},         # the negative controls, case by case (their count is shown)
     "batch_grouping": {1},         # the simulated cards, seed by seed
     "response_unknown": {1},       # stack by stack
     "uncertainty": {1},            # σ curve by curve (bands and σ summed up below them)
     "response_real": {1},          # the metric by saturation band
+    "response_synthetic": {1},     # the real-stack metric on the same stacks (a proxy)
+    "hdr_speed": {2},              # what the merge holds at once, array by array
+    "response_speed": {1},         # where selfcal's seconds go (the ratio is shown)
 }
 
 HEADER = """\
