@@ -2,8 +2,8 @@
 
 * odd/even agreement of two merges of one real stack (truth-free):
   :func:`measured`, :func:`agreement`, :func:`block_agreement`;
-* radiance error of a merge against the simulator's truth (:func:`radiance_scores`, on
-  the masks of :func:`selfcal.sim.scoring.truth_masks`).
+* radiance error of a merge against the simulator's truth (:func:`radiance_scores`, after
+  :func:`global_scale`, on the masks of :func:`selfcal.sim.scoring.truth_masks`).
 """
 
 from __future__ import annotations
@@ -70,6 +70,20 @@ def block_agreement(a, b, mask, size):
     return agreement(block_mean(a, size), block_mean(b, size), bm) + (int(bm.sum()),)
 
 
+def global_scale(estimate, e_true, scored) -> float:
+    """The one scale ``s`` that puts ``estimate`` in the truth's units: least squares in
+    log, ``log s = mean(log E_true − log E)`` over the ``scored`` channels where the
+    estimate is finite and positive, leaving out the samples more than 2× from the median
+    ratio; NaN when no channel qualifies."""
+    est = np.asarray(estimate, np.float64)
+    fit = scored & (est > 0) & np.isfinite(est)
+    if not fit.any():
+        return float("nan")
+    log_ratio = np.log(e_true[fit]) - np.log(est[fit])
+    log_ratio = log_ratio[np.abs(log_ratio - np.median(log_ratio)) <= TRIM]
+    return float(np.exp(np.mean(log_ratio)))
+
+
 def radiance_scores(estimate, e_true, scored, readable, unmeasured=None):
     """Median relative error; readable shortest-only pixels off by > 5 % (how many flagged).
 
@@ -78,12 +92,9 @@ def radiance_scores(estimate, e_true, scored, readable, unmeasured=None):
     them that ``unmeasured`` flags (0 without it).
     """
     est = np.asarray(estimate, np.float64)
-    fit = scored & (est > 0) & np.isfinite(est)
-    if not fit.any():
+    s = global_scale(est, e_true, scored)
+    if not np.isfinite(s):
         return float("nan"), int(readable.sum()), 0
-    log_ratio = np.log(e_true[fit]) - np.log(est[fit])
-    log_ratio = log_ratio[np.abs(log_ratio - np.median(log_ratio)) <= TRIM]
-    s = float(np.exp(np.mean(log_ratio)))
     err = np.abs(s * est[scored] / e_true[scored] - 1)
     err = np.where(np.isfinite(err), err, np.inf)
     y_est = s * (est @ LUMA)
