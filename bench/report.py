@@ -59,6 +59,11 @@ SECTIONS = (
      ("python3 -m bench.uncertainty", "python3 -m bench.uncertainty --parts cost")),
     ("hdr_synthetic", "HDR merge against the truth", "HDR merge accuracy on hard synthetic stacks with known radiance.",
      ("python3 -m bench.hdr_synthetic --split held-out",)),
+    ("merge_oracle", "HDR merge against the oracle", "selfcal's merge against the oracle (the true "
+     "curve and exposures) on exact, ±3 % and ±8 % shutters: the radiance error ratio, what "
+     "the curve and the exposures each cost, σ and the exposures used.",
+     ("python3 -m bench.merge_oracle --split held-out",
+      "python3 -m bench.merge_oracle --split held-out --options measure_exposures=true")),
     ("hdr_oddeven", "HDR merge on real stacks", "HDR merges on real stacks: odd/even agreement, per pixel and on "
      "block means.",
      ("python3 -m bench.hdr_oddeven",)),
@@ -106,6 +111,7 @@ DETAIL_TABLES = {
     "response_synthetic": {1},     # the real-stack metric on the same stacks (a proxy)
     "hdr_speed": {2},              # what the merge holds at once, array by array
     "response_speed": {1},         # where selfcal's seconds go (the ratio is shown)
+    "merge_oracle": {1},           # stack by stack (the summary per shutter condition is shown)
 }
 
 HEADER = """\
