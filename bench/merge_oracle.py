@@ -18,9 +18,12 @@ curves ``0, K, 2K, …`` (rounded down to even) and the odd curve after each, as
 
 Merges of each stack (``merge_hdr``, all with ``sigma=True``):
 
-* **selfcal**: ``calibrate_response(images, TIMES)`` with the nominal times, then
-  ``merge_hdr(images, TIMES, model, options=MergeOptions(sigma=True, **OPTIONS))``;
-  ``OPTIONS``: the ``--options KEY=VALUE`` given (none by default);
+* **selfcal**: ``calibrate_response(images, TIMES, **CALIBRATE)`` with the nominal times,
+  then ``merge_hdr(images, TIMES, model, options=MergeOptions(sigma=True, **OPTIONS))``;
+  ``OPTIONS``: the ``--options KEY=VALUE`` given, ``CALIBRATE``: the ``--calibrate
+  KEY=VALUE`` (none by default).  The frames are arrays, so the merge never takes the
+  model's own (refined) exposures (``selfcal.stack.frames.model_frame_index`` matches
+  files only): ``refine_exposures`` changes the curve alone;
 * **oracle**: the true inverse response (``stack.inverse_response()``) and the true
   (jittered) exposures, in a ``ResponseModel`` built as ``bench.hdr_synthetic``'s
   "true f⁻¹, t"; always ``MergeOptions(sigma=True)`` (a fixed reference whatever
@@ -55,7 +58,7 @@ The summary table is per condition (medians over its stacks; seconds: the sum of
 stacks' seconds); the per-stack table has every score and the frames' exposure errors.
 
     python3 -m bench.merge_oracle --split held-out [--step 10] [--size 256x384] [--jobs 2]
-        [--options measure_exposures=true ...]
+        [--options measure_exposures=true ...] [--calibrate refine_exposures=true]
 """
 
 from __future__ import annotations
@@ -82,6 +85,8 @@ TARGET_Z = (0.6, 0.8)
 TARGET_EXPOSURE = 0.005
 #: MergeOptions fields ``--options`` cannot set: σ is always on, the rest are objects.
 NOT_SETTABLE = ("sigma", "noise", "calibrate_options")
+#: The keywords of ``calibrate_response`` that ``--calibrate`` sets.
+CALIBRATE_KEYS = ("refine_exposures", "seed")
 
 
 def _init_worker():
@@ -93,19 +98,20 @@ def _init_worker():
     warnings.filterwarnings("ignore")
 
 
-def parse_options(pairs) -> dict:
-    """``["KEY=VALUE", ...]`` -> MergeOptions keyword arguments (true/false, none, numbers,
-    else the text)."""
+def parse_options(pairs, fields=None, flag="--options") -> dict:
+    """``["KEY=VALUE", ...]`` -> keyword arguments (true/false, none, numbers, else the
+    text); KEY one of ``fields`` (default: the MergeOptions fields ``--options`` sets)."""
     from selfcal.hdr import MergeOptions
 
-    fields = {f.name for f in dataclasses.fields(MergeOptions)}
+    if fields is None:
+        fields = {f.name for f in dataclasses.fields(MergeOptions)} - set(NOT_SETTABLE)
     out = {}
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
         key = key.strip()
-        if not sep or key not in fields or key in NOT_SETTABLE:
-            raise SystemExit(f"--options {pair!r}: want KEY=VALUE with KEY a field of "
-                             f"MergeOptions other than {', '.join(NOT_SETTABLE)}")
+        if not sep or key not in fields:
+            raise SystemExit(f"{flag} {pair!r}: want KEY=VALUE with KEY one of "
+                             f"{', '.join(sorted(fields))}")
         low = text.strip().lower()
         if low in ("true", "false"):
             value: object = low == "true"
@@ -153,7 +159,7 @@ def _truth_model(stack, exposures):
 
 
 def one_stack(task):
-    index, seed, size, condition, jitter, options = task
+    index, seed, size, condition, jitter, options, calibrate = task
     import selfcal
     from selfcal import sim
     from selfcal.hdr import MergeOptions
@@ -172,7 +178,7 @@ def one_stack(task):
 
     opts = MergeOptions(sigma=True, **options)
     given = dataclasses.replace(opts, measure_exposures=False)
-    model = selfcal.calibrate_response(images, TIMES)
+    model = selfcal.calibrate_response(images, TIMES, **calibrate)
     diag = dict(model.diagnostics or {})
     diag.update(refine_exposures=False, contradicting_times=[])
     curve_true_e = dataclasses.replace(model, exposures=true_e.copy(), diagnostics=diag)
@@ -251,7 +257,7 @@ def detail(results) -> str:
                   "frames: log(e_used/e_true) − mean, %", "exposure source", "seconds"], rows)
 
 
-def tasks_for(split, step, size, options) -> list:
+def tasks_for(split, step, size, options, calibrate) -> list:
     n_curves = 201
     even = sorted({i - i % 2 for i in range(0, n_curves, step)})
     stacks = []
@@ -260,7 +266,7 @@ def tasks_for(split, step, size, options) -> list:
     if split in ("both", "held-out"):
         stacks += [(i + 1, 1000 + i + 1) for i in even if i + 1 < n_curves]
     # the slow ±8 % stacks are not left to the end: conditions interleaved per stack
-    return [(index, seed, size, label, jitter, options)
+    return [(index, seed, size, label, jitter, options, calibrate)
             for index, seed in stacks for label, jitter in CONDITIONS]
 
 
@@ -274,13 +280,18 @@ def main():
     parser.add_argument("--options", action="append", metavar="KEY=VALUE",
                         help="a MergeOptions field for selfcal's merge (repeatable), e.g. "
                         "measure_exposures=true")
+    parser.add_argument("--calibrate", action="append", metavar="KEY=VALUE",
+                        help="a keyword of calibrate_response for selfcal's calibration "
+                        f"(repeatable; one of {', '.join(CALIBRATE_KEYS)}), e.g. "
+                        "refine_exposures=true")
     args = parser.parse_args()
     if args.step < 1:
         parser.error("--step must be >= 1")
     options = parse_options(args.options)
+    calibrate = parse_options(args.calibrate, set(CALIBRATE_KEYS), "--calibrate")
     start("merge_oracle", args.split)
     h, w = (int(v) for v in args.size.lower().split("x"))
-    tasks = tasks_for(args.split, args.step, (h, w), options)
+    tasks = tasks_for(args.split, args.step, (h, w), options, calibrate)
     t0 = time.perf_counter()
     with Pool(args.jobs, initializer=_init_worker) as pool:
         results = list(pool.imap_unordered(one_stack, tasks))
@@ -289,11 +300,12 @@ def main():
     results.sort(key=lambda r: (order[r["condition"]], r["index"]))
 
     named = ", ".join(f"{k}={v!r}" for k, v in options.items())
+    cal = "".join(f", {k}={v!r}" for k, v in calibrate.items())
     print(f"{len(results) // len(CONDITIONS)} stacks {h}x{w} per shutter condition "
           f"({args.split} split): bench.hdr_synthetic's stacks (saturation {SATURATION}, "
           "14 stops, smooth gamut map, one DoRF curve, 6 shots 1/250..1/8 s, JPEG q "
           "85/90/95) with exact, ±3 % and ±8 % shutters")
-    print(f"selfcal's merge: calibrate_response(images, TIMES), then merge_hdr with "
+    print(f"selfcal's merge: calibrate_response(images, TIMES{cal}), then merge_hdr with "
           f"MergeOptions(sigma=True{', ' + named if named else ''}); oracle: the true f⁻¹ "
           "and exposures, MergeOptions(sigma=True); curve only: the calibrated curve, the "
           "true exposures; times only: the true curve, the nominal times")
