@@ -84,6 +84,23 @@ def global_scale(estimate, e_true, scored) -> float:
     return float(np.exp(np.mean(log_ratio)))
 
 
+def power_scale_error(estimate, e_true, scored) -> float:
+    """Median ``|a·E^b / E_true − 1|`` over the ``scored`` channels, ``(log a, b)`` fitted
+    by least squares in log on the samples within 2× of the median ratio: the error left
+    once the exponential ambiguity of a self-calibration (``E → a E^b``, the curve's
+    exponent and the exposures' trend traded against each other) is taken out."""
+    est = np.asarray(estimate, np.float64)
+    fit = scored & (est > 0) & np.isfinite(est)
+    if not fit.any():
+        return float("nan")
+    lt, le = np.log(e_true[fit]), np.log(est[fit])
+    keep = np.abs((lt - le) - np.median(lt - le)) <= TRIM
+    b, a = np.polyfit(le[keep], lt[keep], 1)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        err = np.abs(np.exp(a) * est[scored] ** b / e_true[scored] - 1)
+    return float(np.median(np.where(np.isfinite(err), err, np.inf)))
+
+
 def radiance_scores(estimate, e_true, scored, readable, unmeasured=None):
     """Median relative error; readable shortest-only pixels off by > 5 % (how many flagged).
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import CalibrationError, InputError
 from ..io.images import effective_exposure_times, is_path, read_exposure_info
-from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, given_exposures
+from ..stack.frames import DEFAULT_CLIP_MARGIN, REPORT_DIFFERENCE, StackFrames, given_exposures
 from ..stack.linear_evidence import linear_evidence
 from .raw_ratios import raw_exposure_ratios, split_thumbnails
 
@@ -35,8 +35,6 @@ __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposu
 
 #: Long side (pixels) of the area-averaged thumbnails the ratios are measured on.
 MEASURE_SIDE = 512
-#: A time differing from the pixels' ratio by more than this (relative) is reported.
-REPORT_DIFFERENCE = 0.01
 #: ``use`` values of :func:`measure_linear_exposures`.
 USES = ("auto", "measured", "times")
 
@@ -115,16 +113,16 @@ def scale_to_times(measured: np.ndarray, times: list) -> float | None:
     return math.exp(float(np.median(logs))) if logs else None
 
 
-def thumbnail_exposures(thumbs, max_gap: int | None = None):
+def thumbnail_exposures(thumbs, max_gap: int | None = None, min_count: int = 100):
     """Relative exposures (first measured frame = 1, NaN outside the largest connected set
     of frames) and the measured pairs, from the frames' split thumbnails
     (:func:`selfcal.exposure.raw_ratios.split_thumbnails`: ``(values, selection)``), by
     :func:`selfcal.exposure.raw_ratios.raw_exposure_ratios` with the ``"sum"`` statistic.
     Shared by the linear path and the response path (:mod:`.measured`, which
-    passes ``max_gap``)."""
+    passes ``max_gap`` and a ``min_count`` relative to the thumbnails' size)."""
     rel, report = raw_exposure_ratios([v for v, _ in thumbs], select=[c for _, c in thumbs],
                                       statistic="sum", max_side=2 * MEASURE_SIDE,
-                                      max_gap=max_gap)
+                                      max_gap=max_gap, min_count=min_count)
     # one connected set of frames is needed for one scale
     components = [c for c in report["component"] if c >= 0]
     main = max(set(components), key=components.count) if components else None

@@ -39,8 +39,8 @@ from .linear import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
     thumbnail_exposures
 from .raw_ratios import split_thumbnails
 
-__all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
-           "PAIR_GAP", "MIN_LOG_SIGMA", "TRENDS"]
+__all__ = ["measure_response_exposures", "measure_calibration_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
+           "PAIR_GAP", "MIN_LOG_SIGMA", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
@@ -49,14 +49,21 @@ __all__ = ["measure_response_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PRE
 #: "Exposures measured from the pixels: an option, with the times' trend").
 PREPASS_REDUCE = 8
 PREPASS_MIN_SIDE = 1500
+#: Long side of the codes a calibration keeps of each frame it reads, for the measurement
+#: after its fit (:func:`measure_calibration_exposures`): every pixel of the
+#: :data:`.linear.MEASURE_SIDE` thumbnails' two halves.
+MEASURE_CODES_SIDE = 2 * MEASURE_SIDE
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3
 #: The values of ``MergeOptions.exposure_trend``: what sets the measured exposures' trend
 #: over the bracket, the pixels' ratios as they are or the times' (:func:`_times_trend`).
 TRENDS = ("times", "pixels")
-#: Floor of the exposure term of σ when the exposures are measured (:func:`fit_log_sigma`).
-MIN_LOG_SIGMA = 0.005
+#: Floor of the measurement's scatter and of the exposure term of σ (:func:`fit_log_sigma`).
+MIN_LOG_SIGMA = 0.002
+#: A pair of frames counts when it shares this fraction of a thumbnail's values
+#: (:func:`_min_overlap`).
+MIN_PAIR_OVERLAP = 0.01
 #: Sentinel put on excluded values: above ``_CLIP_LEVEL`` they turn to NaN in a thumbnail.
 _EXCLUDED = np.float32(4.0)
 _CLIP_LEVEL = 2.0
@@ -93,29 +100,74 @@ def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
     return split_thumbnails(x, max_side=MEASURE_SIDE, clip_level=_CLIP_LEVEL)
 
 
-def _times_trend(rel, times):
-    """The measured exposures with their trend against the times replaced by the times'
-    (ours): ``log e = a + b log t + r`` fitted by least squares over the measured frames
-    (three at least), and ``t · exp(r)`` kept -- the pixels' deviations frame by frame,
-    the times' ratio over the whole bracket (a curve whose slope is off turns into a
-    trend of the measured ratios, not into a shutter error)."""
+def _trend_residuals(rel, times):
+    """``(residuals, mask, Sxx)`` of ``log e = a + b log t + r`` over the measured frames
+    (three at least; None otherwise), the line by Theil-Sen (Sen 1968: the median of the
+    pairwise slopes, so one frame cannot pull it; ours to use it here)."""
+    from scipy.stats import theilslopes
+
     rel = np.asarray(rel, dtype=float)
     ok = np.isfinite(rel)
     if ok.sum() < 3:
-        return rel
+        return None
     x = np.log(np.asarray(times, dtype=float)[ok])
     y = np.log(rel[ok])
-    b, a = np.polyfit(x, y, 1)
+    b, a = theilslopes(y, x)[:2]
+    r = y - (a + b * x)
+    return r - np.median(r), ok, float(np.sum((x - x.mean()) ** 2))
+
+
+def _times_trend(rel, times, measurement_sigma: float):
+    """The measured exposures with their trend over the bracket set by the times (ours).
+
+    ``log e = a + b log t + r`` is fitted robustly (:func:`_trend_residuals`); the times
+    keep the trend (a curve whose slope is slightly off turns into a trend of the
+    measured ratios, not into a shutter error) and the pixels give each frame's deviation
+    ``r``, shrunk towards the time by ``k = s² / (s² + m²)``: ``m`` the measurement's own
+    scatter (``measurement_sigma``, :func:`fit_log_sigma`), ``s²`` the shutter's, the
+    deviations' variance beyond ``m²`` (an empirical-Bayes estimate; 0 when the deviations
+    are no larger than the measurement's scatter, and then the times are kept).  That is
+    how the pixels decide only where they can.
+
+    Returns
+    -------
+    (numpy.ndarray, dict)
+        The exposures (relative, unscaled) and ``shutter_log_sigma`` (``s``),
+        ``log_sigma`` (the posterior standard deviation of a frame's log exposure,
+        ``s m / √(s² + m²)``), ``trend_log_sigma`` (the standard deviation of the times'
+        trend, the slope ``b``: ``s / √Σ(x − x̄)²``, what the shutter's errors leave in the
+        trend the times set) and ``shrink`` (``k``).
+    """
+    rel = np.asarray(rel, dtype=float)
+    fit = _trend_residuals(rel, times)
+    m = float(measurement_sigma)
+    if fit is None:
+        return rel, {"shutter_log_sigma": None, "log_sigma": m, "trend_log_sigma": 0.0,
+                     "shrink": 1.0}
+    r, ok, sxx = fit
+    n = int(ok.sum())
+    s2 = max(0.0, float(np.sum(r ** 2)) / max(n - 2, 1) - m * m)
+    k = s2 / (s2 + m * m) if s2 + m * m > 0 else 0.0
     out = rel.copy()
-    out[ok] = np.exp(x + (y - (a + b * x)))
-    return out
+    out[ok] = np.asarray(times, dtype=float)[ok] * np.exp(k * r)
+    posterior = math.sqrt(s2 * m * m / (s2 + m * m)) if s2 + m * m > 0 else 0.0
+    return out, {"shutter_log_sigma": math.sqrt(s2), "log_sigma": max(MIN_LOG_SIGMA, posterior),
+                 "trend_log_sigma": math.sqrt(s2 / sxx) if sxx > 0 else 0.0, "shrink": k}
+
+
+def _min_overlap(thumbs) -> int:
+    """Fewest shared well-exposed values a pair of thumbnails needs to count:
+    :data:`MIN_PAIR_OVERLAP` of a thumbnail's values, at least 100 (frames far apart
+    share a few values at the ends of both their ranges, where the curve is least sure)."""
+    size = thumbs[0][0].size if thumbs else 0
+    return max(100, int(MIN_PAIR_OVERLAP * size))
 
 
 def fit_log_sigma(measured, pairs) -> float:
-    """The exposure term of σ for measured exposures (ours): the count-weighted RMS, over
-    the measured pairs, of ``log(ratio) − log(e_j / e_i)`` -- how far the pairs disagree
-    with the exposures fitted to them all -- floored at :data:`MIN_LOG_SIGMA` (a bracket
-    of two frames, or one whose pairs form a chain, has no redundancy to show)."""
+    """The measurement's own scatter (ours): the count-weighted RMS, over the measured
+    pairs, of ``log(ratio) − log(e_j / e_i)`` -- how far the pairs disagree with the
+    exposures fitted to them all -- floored at :data:`MIN_LOG_SIGMA` (a bracket of two
+    frames, or one whose pairs form a chain, has no redundancy to show)."""
     num = den = 0.0
     for i, j, ratio, count in pairs:
         if math.isfinite(measured[i]) and math.isfinite(measured[j]):
@@ -127,7 +179,7 @@ def fit_log_sigma(measured, pairs) -> float:
 
 def measure_response_exposures(frames, model, exposures, frame_set, *, clip_margin: float,
                                stuck=None, reduce: int | None = None, trend: str = "times",
-                               progress=None):
+                               progress=None, names=None):
     """The frames' exposures with their ratios measured from the pixels through ``model``.
 
     Parameters
@@ -151,6 +203,8 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
         default) or the measured ratios as they are.
     progress : callable, optional
         ``progress("exposures", done, total, source)``.
+    names : sequence of str, optional
+        The frames' names in the summary (default ``frames.sources``).
 
     Returns
     -------
@@ -166,13 +220,16 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
         thumbs.append(_thumbnail(frames, k, model, clip_margin, stuck, reduce))
         if progress is not None:
             progress("exposures", q + 1, len(frame_set), frames.sources[k])
-    rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP)
-    times = [float(exposures[k]) for k in frame_set]
-    log_sigma = fit_log_sigma(rel, pairs)
     if trend not in TRENDS:
         raise InputError(f"trend must be one of {', '.join(TRENDS)}, not {trend!r}")
+    rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP, min_count=_min_overlap(thumbs))
+    times = [float(exposures[k]) for k in frame_set]
+    scatter = fit_log_sigma(rel, pairs)
     if trend == "times":
-        rel = _times_trend(rel, times)
+        rel, fit = _times_trend(rel, times, scatter)
+    else:
+        fit = {"shutter_log_sigma": None, "log_sigma": scatter, "trend_log_sigma": 0.0,
+               "shrink": 1.0}
     scale = scale_to_times(rel, times)
     out = np.array(exposures, dtype=float)
     n = len(frames)
@@ -185,9 +242,38 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
                 out[k] = rel[q] * scale
                 differences[k] = float(times[q] / out[k] - 1.0)
     summary = {"measured": measured, "differences": differences,
-               "log_sigma": log_sigma, "reduce": reduce, "trend": trend,
-               "frames": [Path(s).name for s in frames.sources]}
+               "measurement_log_sigma": scatter, **fit, "reduce": reduce, "trend": trend,
+               "frames": [Path(s).name for s in (frames.sources if names is None else names)]}
     return out, summary
+
+
+def measure_calibration_exposures(model, codes, keep, sources, *, clip_margin: float,
+                                  stuck=None):
+    """The exposures of a calibration's own frames measured through its fitted curve.
+
+    :func:`measure_response_exposures` on ``codes``, the frames' codes the calibration
+    kept while it read them (``selfcal.stack.samples.collect_samples(keep_codes=...)``):
+    no frame is read again.  The times (given or EXIF) set the scale and the trend where
+    known, the model's solved exposures where not.
+
+    Returns
+    -------
+    (numpy.ndarray, dict)
+        The exposures (NaN for frames outside ``keep``), in the times' units, and the
+        summary of :func:`measure_response_exposures`.
+    """
+    from ..stack.frames import StackFrames
+
+    solved = np.asarray(model.exposures, dtype=float)
+    anchor = np.array([t if t is not None else e
+                       for t, e in zip(model.exposure_times, solved)], dtype=float)
+    anchor = np.where(np.isfinite(anchor) & (anchor > 0), anchor, 1.0)
+    out, summary = measure_response_exposures(
+        StackFrames(codes, linear=False), model, anchor, list(keep), clip_margin=clip_margin,
+        stuck=stuck, reduce=1, names=sources)
+    measured = np.full(len(codes), np.nan)
+    measured[list(keep)] = out[list(keep)]
+    return measured, summary
 
 
 def measured_warning(summary: dict, label: str) -> str | None:

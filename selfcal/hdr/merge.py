@@ -101,7 +101,7 @@ from .deghost import misalignment_warning, poor_agreement
 from ..exposure.linear import USES, resolve_linear_exposures, stack_frames
 from ..exposure.measured import TRENDS, measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
-from .sigma import SigmaSums
+from .sigma import SigmaSums, add_trend_term
 
 __all__ = ["HDRResult", "MergeOptions", "merge_hdr"]
 
@@ -180,7 +180,7 @@ class MergeOptions:
     calibrate_options: ResponseOptions | None = None
     refine_exposures: bool | str = "auto"
     sigma: bool = False
-    measure_exposures: bool = False
+    measure_exposures: bool = True
     merge_unchecked: bool = True
     code_error: bool = True
     exposure_trend: str = "times"
@@ -366,8 +366,8 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
         fresh = True
     exposures, exposure_source = resolve_linear_exposures(
         frames, exposure_times, opts.linear_exposures, opts.clip_margin, warnings,
-        diagnostics, progress) if linear else resolve_exposures(frames, exposure_times,
-                                                                model, fresh, warnings)
+        diagnostics, progress) if linear else resolve_exposures(
+            frames, exposure_times, model, fresh, warnings, measured=opts.measure_exposures)
     ref = _reference_frame(exposures, opts.reference, len(frames))
     if transforms is not None:
         assert ref0 is not None     # an aligned calibration says its reference
@@ -380,11 +380,17 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     used, unchecked, ref, stuck, radius = _merge_plan(
         frames, model, fresh, exposures, ref, opts, linear=linear, warnings=warnings,
         diagnostics=diagnostics)
-    sigma_t = None
+    sigma_t, trend_sigma = None, 0.0
     if opts.measure_exposures and not linear:
-        exposures, sigma_t = _measured_exposures(frames, model, exposures, used, unchecked,
+        own = _own_measurement(model, frames, fresh, used, unchecked)
+        if own is None:
+            exposures, own = _measured_exposures(frames, model, exposures, used, unchecked,
                                                  stuck, opts, exposure_source, warnings,
                                                  diagnostics, progress)
+        else:
+            diagnostics["measured_exposures"] = {**own, "by": "calibration"}
+        if opts.sigma_exposure_from_fit:
+            sigma_t, trend_sigma = own["log_sigma"], own["trend_log_sigma"]
         exposure_source += "+pixels"
     sums = MergeSums(frames.shape, exposures, ref, used, unchecked)
     if opts.sigma:
@@ -396,30 +402,52 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     accumulate_frames(sums, frames, exposures, model, transforms, weighing, progress)
     unmeasured = _finish(sums, frames, need_x, transforms is None, exposure_source,
                          warnings, diagnostics)
+    sigma = None if sums.sigma is None else _sigma_result(sums, diagnostics)
+    if sigma is not None and trend_sigma > 0:
+        add_trend_term(sigma, sums.num, trend_sigma)
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
-                     sigma=None if sums.sigma is None else _sigma_result(sums, diagnostics),
+                     sigma=sigma,
                      unchecked=sums.unchecked_pixels(unmeasured))
+
+
+def _own_measurement(model, frames: StackFrames, fresh: bool, used, unchecked):
+    """The summary of the exposures the model's calibration measured
+    (``diagnostics["measured_exposures"]``, :mod:`selfcal.exposure.measured`) when every
+    checked frame to merge is one of its own (by path, or an array by its content) and
+    was measured there -- the merge then uses the same numbers, read nowhere again --
+    else None."""
+    summary = (getattr(model, "diagnostics", None) or {}).get("measured_exposures")
+    if not summary:
+        return None
+    idx = model_frame_index(model, frames, fresh)
+    values = summary.get("measured") or []
+    checked = [k for k in used if k not in unchecked]
+    if all(idx[k] is not None and idx[k] < len(values) and values[idx[k]] is not None
+           for k in checked):
+        return summary
+    return None
 
 
 def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
                         exposure_source, warnings, diagnostics, progress):
-    """:func:`selfcal.exposure.measured.measure_response_exposures` on the checked merged frames:
-    (exposures, σ's exposure term), the summary in ``diagnostics["measured_exposures"]``
-    and a warning naming the times the pixels moved."""
+    """:func:`selfcal.exposure.measured.measure_response_exposures` on the checked merged
+    frames: (exposures, the measurement's summary), the summary also in
+    ``diagnostics["measured_exposures"]``, and a warning naming the times the pixels
+    moved."""
     checked = [k for k in used if k not in unchecked]
     out, summary = measure_response_exposures(frames, model, exposures, checked,
                                               clip_margin=opts.clip_margin, stuck=stuck,
                                               trend=opts.exposure_trend, progress=progress)
-    diagnostics["measured_exposures"] = summary
+    diagnostics["measured_exposures"] = {**summary, "by": "merge"}
     label = {"given": "given times", "exif": "EXIF exposures"}.get(
         exposure_source.split("+")[0], "model's exposures")
     moved = measured_warning(summary, label)
     if moved:
         warnings.append(moved)
-    return out, (summary["log_sigma"] if opts.sigma_exposure_from_fit else None)
+    return out, summary
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:

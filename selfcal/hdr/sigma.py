@@ -57,7 +57,7 @@ import numpy as np
 from ..stack.frames import apply_lut
 from .weights import noise_variance, packed_lookup, packed_table
 
-__all__ = ["SigmaSums"]
+__all__ = ["SigmaSums", "add_trend_term"]
 
 #: Every SAMPLE_STRIDE-th pixel of every SAMPLE_STRIDE-th row measures κ.
 SAMPLE_STRIDE = 8
@@ -101,15 +101,29 @@ class SigmaSums:
         self.previous: tuple[np.ndarray, np.ndarray] | None = None
         self.z: list[np.ndarray] = []   # |z| of the pairs so far
         self.kappa = 1.0
+        #: the band's floor (:meth:`_band_at`): σ of log of the radiance's scale
+        self.scale_log_sigma = 0.0
 
     def _band_at(self, max_code: int) -> np.ndarray:
-        """σ_g at every code (K, 3), zero without a band."""
+        """σ_g at every code (K, 3) relative to the band's floor, zero without a band.
+
+        The band's floor over the codes below white (per channel, its smallest σ below
+        95 % of white, where it falls to 0 at white by the curve's normalisation) is an
+        error every code shares -- where white sits, a shift of the whole log curve -- and
+        moves every radiance value by one factor: the radiance's scale, not its values
+        relative to each other.  It is taken out in quadrature, and kept apart in
+        :attr:`scale_log_sigma` (ours)."""
         if not self.has_band:
             return np.zeros((max_code + 1, 3))
         m = self.model
         x = np.arange(max_code + 1) / max_code
-        return np.stack([np.interp(x, m.intensity, m.inverse_log_sigma[:, c])
+        band = np.stack([np.interp(x, m.intensity, m.inverse_log_sigma[:, c])
                          for c in range(3)], axis=-1)
+        # below the last codes, where the band falls to 0 at white by definition
+        body = band[1:max(2, int(0.95 * max_code))]
+        floor = body.min(axis=0) if max_code > 2 else np.zeros(3)
+        self.scale_log_sigma = float(floor.max())
+        return np.sqrt(np.maximum(band ** 2 - floor ** 2, 0.0))
 
     def prepare(self, tab) -> None:
         """Give the frame's :class:`.weights.FrameTables` its two σ tables (table path)."""
@@ -209,6 +223,35 @@ class SigmaSums:
         self.sums = None
         assert self.sigma is not None   # handed over by the merge before
         return self.sigma
+
+
+def add_trend_term(sigma: np.ndarray, radiance: np.ndarray, trend_log_sigma: float,
+                   *, rows: int = 256) -> float:
+    """Add, in place and in quadrature, the error the exposures' trend leaves (ours).
+
+    Measured exposures keep the times' trend over the bracket (the pixels cannot see it:
+    ``f⁻¹ → (f⁻¹)^γ``, ``e → e^γ`` fit them equally, [Lin2011] §4's exponential
+    ambiguity), and the times' trend is off by the slope the shutter's errors happen to
+    have, std ``β`` (``trend_log_sigma``, :func:`selfcal.exposure.measured._times_trend`).
+    A slope error β bends the radiance about the scale's centre ``c``:
+    ``log E → log E + β (log E − c)``; so ``σ² += (E β (log E − c))²``, with ``c`` the
+    median log radiance of the measured values (every 8th pixel of every 8th row).
+    Pixels with σ = +inf stay so.  Returns ``c``.
+    """
+    beta = float(trend_log_sigma)
+    sample = radiance[::SAMPLE_STRIDE, ::SAMPLE_STRIDE]
+    ok = np.isfinite(sigma[::SAMPLE_STRIDE, ::SAMPLE_STRIDE]) & (sample > 0)
+    if beta <= 0 or not ok.any():
+        return 0.0
+    centre = float(np.median(np.log(sample[ok])))
+    for r0 in range(0, radiance.shape[0], rows):
+        e = radiance[r0:r0 + rows].astype(np.float32)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            bend = e * np.float32(beta) * (np.log(np.maximum(e, np.float32(1e-30)))
+                                           - np.float32(centre))
+        out = sigma[r0:r0 + rows]
+        np.sqrt(out * out + bend * bend, out=out)
+    return centre
 
 
 def _pair_z(a, b) -> np.ndarray:

@@ -19,7 +19,8 @@
 * :mod:`selfcal.response.code_error` -- the curve's error per code, on its own samples;
 * :mod:`selfcal.response.bands` -- the confidence band of f⁻¹;
 * :mod:`selfcal.response.delta` -- δ of Eq. 12;
-* :mod:`selfcal.response.verdict` -- whether the fit can be trusted, from its evidence.
+* :mod:`selfcal.response.verdict` -- whether the fit can be trusted, from its evidence;
+* :mod:`selfcal.response.diagnostics` -- what the fit says about itself, in the model.
 """
 
 from .calibrate import ResponseOptions

@@ -46,6 +46,8 @@ from ..exposure.times import (
     refine_decision,
     resolve_exposure_times,
 )
+from .diagnostics import fit_diagnostics
+from ..exposure.measured import MEASURE_CODES_SIDE, measure_calibration_exposures
 from .frame_choice import record_ignored, subset, without_clipped_frames, without_duplicates
 from .solver import SolverOptions, solve_exposure_equations
 from .verdict import judge_calibration
@@ -110,6 +112,12 @@ class ResponseOptions(SolverOptions):
         ours): from the fit's covariance, or by resampling the samples.  Default
         ``"covariance"``, chosen on the tuning split (docs/decisions.md, "Curve bands: the
         covariance, σ_t = 0.02, σ_top = 0.03").
+    measure_exposures : bool
+        Measure the frames' exposures through the fitted curve from the codes kept while
+        reading them (:func:`selfcal.exposure.measured.measure_calibration_exposures`, the
+        merge's measurement; ours): the model's ``exposures`` are then these, and its
+        ``diagnostics["measured_exposures"]`` says how they were found.  Default True
+        (docs/decisions.md, "Exposures measured from the pixels: by default").
 
     Examples
     --------
@@ -125,6 +133,7 @@ class ResponseOptions(SolverOptions):
     measure_ringing: bool = True
     near_clip_blocks: int = 0
     band_method: str = DEFAULT_BAND_METHOD
+    measure_exposures: bool = True
 
     def __post_init__(self) -> None:
         if self.correspondences not in CORRESPONDENCE_KINDS:
@@ -304,7 +313,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
 
     full_exposures = np.full(len(frames), np.nan)
     full_exposures[keep] = np.exp(result.log_exposures)
-    diagnostics = _diagnostics(
+    diagnostics = fit_diagnostics(
         result, fit, warnings=warnings, exposure_source=time_source,
         refine_exposures=refine_exposures, options=options, frames_used=usable.sources,
         samples=samples, contradictions=contradictions)
@@ -325,7 +334,22 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
                           frames_ignored=tuple(sorted(ignored,
                                                       key=lambda f: sources.index(f.source))))
     model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
+    model.diagnostics["frame_digests"] = list(samples.digests)
+    if samples.codes is not None:
+        _measure_own_exposures(model, samples.codes, keep, fit["stuck"], options)
     return model
+
+
+def _measure_own_exposures(model, codes, keep, stuck, options: ResponseOptions) -> None:
+    """The model's exposures measured through its curve on the codes kept while reading
+    (:func:`selfcal.exposure.measured.measure_calibration_exposures`), in place."""
+    levels = None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
+                                         np.asarray(stuck["ceiling"], dtype=float))
+    measured, summary = measure_calibration_exposures(
+        model, codes, keep, model.sources, clip_margin=options.clip_margin, stuck=levels)
+    ok = np.isfinite(measured)
+    model.exposures = np.where(ok, measured, model.exposures)
+    model.diagnostics["measured_exposures"] = summary
 
 
 def _judged_fit(usable: _Usable, basis, result, warnings, *, options, refine_exposures,
@@ -536,7 +560,8 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
     samples = collect_samples(frames, sources=sources, max_samples=options.max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress,
                               keep_reduced=options.correspondences != "blocks",
-                              near_clip_blocks=options.near_clip_blocks)
+                              near_clip_blocks=options.near_clip_blocks,
+                              keep_codes=MEASURE_CODES_SIDE if options.measure_exposures else 0)
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=options.saturation_threshold)
     keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin, ignored)
@@ -633,48 +658,6 @@ def _inverse_response(basis, coefficients, n_components):
     # f⁻¹(1) = 1 is built into the basis (Eq. 7 normalisation)
     inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
     return grid, inverse
-
-
-def _diagnostics(result, fit: dict, *, warnings, exposure_source, refine_exposures,
-                 options: ResponseOptions, frames_used, samples, contradictions) -> dict:
-    """The model's ``diagnostics``: how the fit went, for the report and the CLI.
-
-    ``fit`` is :func:`_judged_fit`'s.  ``delta_eq12`` is δ of Eq. 12
-    (:func:`selfcal.response.delta.delta_eq12`) per channel over the solve's frame pairs
-    and inliers (samples neither clipped nor above β in either frame: what the curve was
-    fitted to), not over all points as [Lin2011] scores its Fig. 4.
-    """
-    verdict, reasons, evidence = fit["verdict"], fit["reasons"], fit["evidence"]
-    per_pair = {f"{frames_used[a]} -> {frames_used[b]}": v
-                for (a, b), v in result.per_pair_rms.items()}
-    return {
-        "verdict": verdict,
-        "verdict_reasons": list(reasons),
-        "verdict_evidence": evidence,
-        "warnings": warnings,
-        "exposure_source": exposure_source,
-        "refine_exposures": bool(refine_exposures),
-        "ambiguity_resolved_by_prior": bool(result.ambiguity_prior),
-        "n_components": options.n_components,
-        "saturation_threshold": options.saturation_threshold,
-        "clip_margin": options.clip_margin,
-        "frames_used": frames_used,
-        "residual_rms_log": result.residual_rms,
-        "per_pair_rms_log": per_pair,
-        "delta_eq12": fit["delta"].tolist(),
-        "samples": {
-            "locations": int(samples.n_samples),
-            "block_size": int(samples.block),
-            "pair_rows_used": int(result.rows_used),
-            "pair_rows_downweighted": int(result.rows_downweighted),
-            "rejected": dict(result.rejections),
-            "valid_locations": evidence["valid_locations"],
-            "code_coverage": evidence["code_coverage"],
-        },
-        "monotone_constrained": bool(result.monotone_constrained),
-        "contradicting_times": contradictions,
-        "exposure_ratio": evidence["exposure_ratio"],
-    }
 
 
 def _btf_data(samples, masks, result, names):

@@ -65,7 +65,17 @@ class StackFrames:
         self.sources = [str(f) if is_path(f) else f"array #{k}"
                         for k, f in enumerate(self.items)]
         self.paths = [Path(f) if is_path(f) else None for f in self.items]
+        self._digests: dict[int, str] = {}
         self._check()
+
+    def digest(self, k: int) -> str:
+        """:func:`selfcal.stack.samples.content_digest` of array frame ``k`` (computed once):
+        how a model calibrated on these arrays recognises them."""
+        if k not in self._digests:
+            from .samples import content_digest
+
+            self._digests[k] = content_digest(np.asarray(self.items[k]))
+        return self._digests[k]
 
     def __len__(self):
         return len(self.items)
@@ -401,7 +411,8 @@ def name_arrays(text: str, sources) -> str:
 
 
 def model_frame_index(model, frames: StackFrames, fresh: bool):
-    """Index of each frame in the model's sources (None where it is not there)."""
+    """Index of each frame in the model's sources (None where it is not there): files by
+    their path, arrays by their content (the model's ``diagnostics["frame_digests"]``)."""
     n = len(frames)
     sources = list(getattr(model, "sources", []) or [])
     exposures = getattr(model, "exposures", None)
@@ -409,6 +420,9 @@ def model_frame_index(model, frames: StackFrames, fresh: bool):
         return [None] * n
     if fresh:
         return list(range(n))
+    digests = list((getattr(model, "diagnostics", None) or {}).get("frame_digests") or [])
+    by_digest = {d: i for i, d in enumerate(digests) if i < len(sources)
+                 and sources[i].startswith("array #")}
     lookup = {}
     for i, s in enumerate(sources):
         if s.startswith("array #"):
@@ -419,21 +433,29 @@ def model_frame_index(model, frames: StackFrames, fresh: bool):
         except OSError:
             pass
     out: list[int | None] = []
-    for p in frames.paths:
+    for k, p in enumerate(frames.paths):
         if p is None:
-            out.append(None)
+            out.append(by_digest.get(frames.digest(k)) if by_digest else None)
             continue
         out.append(lookup.get(str(p), lookup.get(str(p.resolve()))))
     return out
 
 
-def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, warnings):
+#: A time differing from the exposure the pixels measured by more than this (relative) is
+#: said (here and in :mod:`selfcal.exposure`).
+REPORT_DIFFERENCE = 0.01
+
+
+def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, warnings,
+                      measured: bool = False):
     """Relative exposure e_j of each frame, and where it came from.
 
     Given times (the caller's) or EXIF ``t · ISO/100 / N²`` set the scale; the model's
     estimates replace them where it refined them or found them contradicted by the pixels
-    (scaled to the given/EXIF units by the median ratio over the frames it did not
-    contradict), and fill frames whose time is unknown.
+    -- or, with ``measured``, where it measured them (its
+    ``diagnostics["measured_exposures"]``, :mod:`selfcal.exposure.measured`) -- (scaled
+    to the given/EXIF units by the median ratio over the frames it did not contradict),
+    and fill frames whose time is unknown.
     """
     n = len(frames)
     given, source = given_exposures(frames, exposure_times)
@@ -442,13 +464,15 @@ def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, w
     idx = model_frame_index(model, frames, fresh) if model is not None else [None] * n
     est: list[float | None] = [None] * n
     contradicted = set()
-    refined = False
+    refined = by_pixels = False
     if any(i is not None for i in idx):
         mexp = np.asarray(model.exposures, dtype=float)
         diag = getattr(model, "diagnostics", {}) or {}
-        refined = bool(diag.get("refine_exposures", False))
-        contra = {str(c.get("frame")): c.get("estimated")
-                  for c in diag.get("contradicting_times", []) or []}
+        by_pixels = measured and bool(diag.get("measured_exposures"))
+        refined = by_pixels or bool(diag.get("refine_exposures", False))
+        # measured exposures stand for every frame the pixels placed, contradicted or not
+        contra = {} if by_pixels else {str(c.get("frame")): c.get("estimated")
+                                       for c in diag.get("contradicting_times", []) or []}
         msources = list(model.sources)
         for k, i in enumerate(idx):
             if i is None or not math.isfinite(mexp[i]) or mexp[i] <= 0:
@@ -499,9 +523,10 @@ def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, w
         names = ", ".join(Path(frames.sources[k]).name for k in sorted(contradicted))
         warnings.append(f"the model found the {label} of {names} contradicted by the pixels: "
                         "using the model's estimated exposures for them")
-    elif changed:
+    elif changed and not (by_pixels and math.exp(max(changed)[0]) - 1 <= REPORT_DIFFERENCE):
         dev, k, g, new = max(changed)
-        warnings.append(f"using the model's refined exposures instead of the {label} "
+        how = "measured" if by_pixels else "refined"
+        warnings.append(f"using the model's {how} exposures instead of the {label} "
                         f"for {len(changed)} frame(s) (largest difference "
                         f"{100 * (math.exp(dev) - 1):.2g}% at {Path(frames.sources[k]).name})")
     if any(g is None for g in given) and anchor:

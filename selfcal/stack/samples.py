@@ -199,6 +199,8 @@ class SampleSet(FrameSamples):
         :data:`THUMBNAIL_SIDE`), for the motion test of the verdict.
     thumbnail_pixel : float
         Frame pixels per thumbnail pixel.
+    codes : list of ndarray or None
+        Per frame, its decoded codes subsampled (``collect_samples(keep_codes=...)``).
     """
 
     values: np.ndarray
@@ -213,6 +215,7 @@ class SampleSet(FrameSamples):
     digests: list = field(default_factory=list)
     thumbnails: list = field(default_factory=list)
     thumbnail_pixel: float = 1.0
+    codes: list | None = None
     reduced: list | None = None   # the ReducedFrames, when asked for (keep_reduced)
     clip_distance: np.ndarray | None = None   # (F, n) blocks to the nearest clipped block
 
@@ -341,7 +344,8 @@ def _dct_factor(block: int) -> int:
 def collect_samples(frames, *, sources=None, block: int | None = None,
                     per_bin: int | None = None, max_samples: int = 6000,
                     clip_margin: float = DEFAULT_CLIP_MARGIN, seed: int = 0, progress=None,
-                    keep_reduced: bool = False, near_clip_blocks: int = 0) -> SampleSet:
+                    keep_reduced: bool = False, near_clip_blocks: int = 0,
+                    keep_codes: int = 0) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
 
     Parameters
@@ -362,6 +366,12 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     near_clip_blocks : int
         A block within this many blocks of a clipped one counts as clipped
         (:func:`reduce_frame`); 0, the default, turns it off.
+    keep_codes : int
+        Keep, in the result's ``codes``, every decoded frame's codes subsampled (every
+        ``s``-th pixel of every ``s``-th row, no averaging: ``f⁻¹`` of a mean of codes is
+        not the mean of ``f⁻¹``) to a long side of at most this many pixels, for the
+        exposures measured after the fit (:mod:`selfcal.exposure.measured`); 0, the
+        default, keeps none.
 
     Raises
     ------
@@ -375,6 +385,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         sources = [str(f) if isinstance(f, (str, os.PathLike)) else f"array #{k}"
                    for k, f in enumerate(frames)]
     reduced: list[ReducedFrame] = []
+    codes: list[np.ndarray] = []
     for k, frame in enumerate(frames):
         src = sources[k]
         if isinstance(frame, (str, os.PathLike)):
@@ -396,6 +407,9 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
             factor = 1
         arr = _as_image_array(image, src)
         digest = content_digest(arr)      # every decoded pixel, before the crop below
+        if keep_codes:
+            stride = max(1, -(-max(arr.shape[:2]) // keep_codes))
+            codes.append(np.ascontiguousarray(arr[::stride, ::stride]))
         if full_shape is None:
             full_shape = arr.shape[:2]
         if block is None:       # an array frame first: the path frames set it above
@@ -438,7 +452,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
                      thumbnails=[r.thumbnail for r in reduced],
                      thumbnail_pixel=float(reduced[0].shape[1] / thumbnail.shape[1]),
                      reduced=reduced if keep_reduced else None,
-                     clip_distance=distance)
+                     clip_distance=distance, codes=codes if keep_codes else None)
 
 
 def _clip_distance(r: ReducedFrame, clip_margin: float) -> np.ndarray:
