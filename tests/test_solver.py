@@ -307,6 +307,20 @@ def test_monotone_qp_is_cvxpys_model_solved_by_clarabel(basis, F):
     np.testing.assert_allclose(z, zv.value, rtol=0, atol=1e-6 * np.abs(zv.value).max())
 
 
+def test_interpolation_reads_tables_as_np_interp_and_the_degree_1_bspline():
+    from scipy.interpolate import BSpline
+
+    rng = np.random.default_rng(4)
+    grid = np.sort(np.concatenate([[0.0, 1.0], rng.uniform(0, 1, 60)]))
+    x = np.concatenate([rng.uniform(-0.1, 1.1, 500), grid])   # outside, inside, on nodes
+    table = rng.normal(size=grid.size)
+    W = interpolation_matrix(grid, x)
+    np.testing.assert_allclose(W @ table, np.interp(x, grid, table), rtol=0, atol=1e-14)
+    knots = np.concatenate([grid[:1], grid, grid[-1:]])
+    B = BSpline.design_matrix(np.clip(x, 0, 1), knots, 1)
+    np.testing.assert_allclose(W @ table, B @ table, rtol=0, atol=1e-15)
+
+
 # --- noise weights, Huber weights ---------------------------------------------------------
 
 def test_noise_variance_reads_the_slope_of_g_at_both_codes():
