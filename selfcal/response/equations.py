@@ -336,10 +336,13 @@ class NormalEquations:
         self.m = pa.size
         self.A_thr, self.b_thr = A_thr, b_thr
         m = self.m
-        # incidence of the exposure columns: -1 at pb, +1 at pa
+        # incidence of the exposure columns: -1 at pb, +1 at pa; its transpose is what the
+        # products read, formed once (a sparse transpose is a new matrix, checked, every
+        # time: 6 per assembly cost more than the products with it)
         self.S = sp.csr_matrix((np.concatenate([-np.ones(m), np.ones(m)]),
                                 (np.concatenate([np.arange(m)] * 2),
                                  np.concatenate([pb, pa]))), shape=(m, F))
+        self.S_T = self.S.T
 
     def __call__(self, w):
         N, F, m = self.N, self.F, self.m
@@ -352,12 +355,12 @@ class NormalEquations:
             WD = self.dH[c] * wc[:, None]
             blk = slice(c * N, (c + 1) * N)
             Q[blk, blk] = self.dH[c].T @ WD
-            cross = np.asarray(self.S.T @ WD)           # (F, N)
+            cross = np.asarray(self.S_T @ WD)           # (F, N)
             Q[3 * N:, blk] = cross
             Q[blk, 3 * N:] = cross.T
             wy = wc * self.rhs[c]
             q[blk] = self.dH[c].T @ wy
-            q[3 * N:] += self.S.T @ wy
+            q[3 * N:] += self.S_T @ wy
             wsum += wc
         # exposure block: a weighted graph Laplacian of the frame pairs
         lap = np.bincount(self.pa * F + self.pb, weights=wsum, minlength=F * F).reshape(F, F)
