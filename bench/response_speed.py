@@ -3,7 +3,7 @@
 Three stacks, each calibrated by ``selfcal.calibrate_response`` from its files (EXIF times)
 and decoded by OpenCV alone (``cv2.imread`` of each full-size file, one after the other,
 nothing kept), every job in a fresh child process (so peak memory is its own); module
-imports (cv2; selfcal and cvxpy) happen before the clock starts in both:
+imports (cv2; selfcal and clarabel) happen before the clock starts in both:
 
 * ntu_canon_m3: the 17 out-of-camera 6000×4000 JPEGs (issue 3, acceptance 3);
 * the 7 of them with distinct times spread over the bracket (ntu03, 05, 07, 09, 11, 13,
@@ -45,7 +45,8 @@ paths = {paths!r}
 import cv2
 stages = {{}}
 if {what!r} == "selfcal":
-    import cvxpy  # noqa: F401  (imported lazily by the solver; excluded like cv2's import)
+    import clarabel  # noqa: F401  (imported lazily by the solver's monotone QP; excluded
+    # like cv2's import; cvxpy is no longer imported by a calibration)
     import selfcal
     from selfcal.response import calibrate as cal
 

@@ -33,6 +33,7 @@ from selfcal.response.solver import (
     _Exposures,
     _huber_weights,
     _initial_log_exposures,
+    _monotone_qp,
     _noise_variance,
     _theil_sen_rescale,
     _weighted_solve,
@@ -277,6 +278,47 @@ def test_ridge_acts_only_without_pca_variances(random_system):
     with_pca = solve(np.full(N, 2.0), 0.0)
     np.testing.assert_array_equal(solve(np.full(N, 2.0), 50.0), with_pca)
     assert np.max(np.abs(solve(None, 50.0) - solve(None, 0.0))) > 1e-3
+
+
+# --- the monotone QP ----------------------------------------------------------------------
+
+@pytest.mark.parametrize("F", [0, 3])
+def test_monotone_qp_is_cvxpys_model_solved_by_clarabel(basis, F):
+    """The direct Clarabel call solves the cvxpy model it replaced, to solver tolerance."""
+    import cvxpy as cp
+
+    rng = np.random.default_rng(5)
+    n = 3 * N + F
+    M = rng.normal(size=(n + 20, n)) * rng.uniform(1, 30, n)
+    Qf = M.T @ M
+    z_bent = rng.normal(size=n) * 3       # a least-squares minimiser far from monotone
+    qf = Qf @ z_bent
+    mono = MonotoneConstraint.on_grid(basis, N, True)
+    eps = 1e-7
+    z = _monotone_qp(Qf, qf, mono, N, eps)
+    for c in range(3):
+        assert np.min(mono.Dg0 + mono.DH @ z[c * N:(c + 1) * N]) > eps - 1e-8
+    assert np.any(mono.Dg0 + mono.DH @ z_bent[:N] < 0)
+    L = np.linalg.cholesky(Qf + 1e-12 * np.eye(n) * np.trace(Qf) / n)
+    zv = cp.Variable(n)
+    cp.Problem(cp.Minimize(cp.sum_squares(L.T @ zv) - 2 * qf @ zv),
+               [mono.DH @ zv[c * N:(c + 1) * N] >= eps - mono.Dg0
+                for c in range(3)]).solve(solver=cp.CLARABEL)
+    np.testing.assert_allclose(z, zv.value, rtol=0, atol=1e-6 * np.abs(zv.value).max())
+
+
+def test_interpolation_reads_tables_as_np_interp_and_the_degree_1_bspline():
+    from scipy.interpolate import BSpline
+
+    rng = np.random.default_rng(4)
+    grid = np.sort(np.concatenate([[0.0, 1.0], rng.uniform(0, 1, 60)]))
+    x = np.concatenate([rng.uniform(-0.1, 1.1, 500), grid])   # outside, inside, on nodes
+    table = rng.normal(size=grid.size)
+    W = interpolation_matrix(grid, x)
+    np.testing.assert_allclose(W @ table, np.interp(x, grid, table), rtol=0, atol=1e-14)
+    knots = np.concatenate([grid[:1], grid, grid[-1:]])
+    B = BSpline.design_matrix(np.clip(x, 0, 1), knots, 1)
+    np.testing.assert_allclose(W @ table, B @ table, rtol=0, atol=1e-15)
 
 
 # --- noise weights, Huber weights ---------------------------------------------------------

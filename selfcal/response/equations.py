@@ -37,17 +37,37 @@ def frame_pairs(order: np.ndarray, max_rank_gap: int):
             yield order[r], order[r + gap]
 
 
-def interpolation_matrix(grid: np.ndarray, x: np.ndarray):
-    """Sparse ``W`` with ``W @ table == np.interp(x, grid, table)`` for any table on grid.
+@dataclass(frozen=True, eq=False)
+class Interpolation:
+    """A fixed linear interpolation: ``W @ table == np.interp(x, grid, table)`` (to rounding).
+
+    Each point reads two neighbouring grid entries: ``left · table[index] + right ·
+    table[index + 1]``, with the weights of the degree-1 B-spline on the grid, formed as
+    scipy's ``BSpline.design_matrix`` forms them (so the products are the same, bit for
+    bit, as that sparse matrix's), without building a sparse matrix (ours: built in
+    every solve, it cost more than the products it serves).
+    """
+
+    index: np.ndarray       # (M,) left grid point of each x's interval
+    left: np.ndarray        # (M,) weight of grid[index]
+    right: np.ndarray       # (M,) weight of grid[index + 1]
+
+    def __matmul__(self, table: np.ndarray) -> np.ndarray:
+        return self.left * table[self.index] + self.right * table[self.index + 1]
+
+
+def interpolation_matrix(grid: np.ndarray, x: np.ndarray) -> Interpolation:
+    """``W`` with ``W @ table == np.interp(x, grid, table)`` for any table on grid.
 
     The noise weights re-read the slope of g at the same sample codes in every IRLS
-    iteration; the interpolation weights are fixed, so they are formed once (the design
-    matrix of the degree-1 B-spline on the grid).
+    iteration; the interpolation weights are fixed, so they are formed once.  ``x`` is
+    clipped to the grid; the last grid point belongs to the last interval.
     """
-    from scipy.interpolate import BSpline
-
-    knots = np.concatenate([grid[:1], grid, grid[-1:]])
-    return BSpline.design_matrix(np.clip(x, grid[0], grid[-1]), knots, 1)
+    x = np.clip(x, grid[0], grid[-1])
+    i = np.clip(np.searchsorted(grid, x, side="right") - 1, 0, grid.size - 2)
+    lo, hi = grid[i], grid[i + 1]
+    w = 1.0 / (hi - lo)
+    return Interpolation(index=i, left=w * (hi - x), right=w * (x - lo))
 
 
 def _build_pairs(valid: np.ndarray, order: np.ndarray, max_rank_gap: int,
@@ -316,10 +336,13 @@ class NormalEquations:
         self.m = pa.size
         self.A_thr, self.b_thr = A_thr, b_thr
         m = self.m
-        # incidence of the exposure columns: -1 at pb, +1 at pa
+        # incidence of the exposure columns: -1 at pb, +1 at pa; its transpose is what the
+        # products read, formed once (a sparse transpose is a new matrix, checked, every
+        # time: 6 per assembly cost more than the products with it)
         self.S = sp.csr_matrix((np.concatenate([-np.ones(m), np.ones(m)]),
                                 (np.concatenate([np.arange(m)] * 2),
                                  np.concatenate([pb, pa]))), shape=(m, F))
+        self.S_T = self.S.T
 
     def __call__(self, w):
         N, F, m = self.N, self.F, self.m
@@ -332,12 +355,12 @@ class NormalEquations:
             WD = self.dH[c] * wc[:, None]
             blk = slice(c * N, (c + 1) * N)
             Q[blk, blk] = self.dH[c].T @ WD
-            cross = np.asarray(self.S.T @ WD)           # (F, N)
+            cross = np.asarray(self.S_T @ WD)           # (F, N)
             Q[3 * N:, blk] = cross
             Q[blk, 3 * N:] = cross.T
             wy = wc * self.rhs[c]
             q[blk] = self.dH[c].T @ wy
-            q[3 * N:] += self.S.T @ wy
+            q[3 * N:] += self.S_T @ wy
             wsum += wc
         # exposure block: a weighted graph Laplacian of the frame pairs
         lap = np.bincount(self.pa * F + self.pb, weights=wsum, minlength=F * F).reshape(F, F)
