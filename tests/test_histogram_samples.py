@@ -7,7 +7,7 @@ import numpy as np
 from selfcal import sim
 from selfcal.response import calibrate as cal
 from selfcal.response.histogram_samples import histogram_correspondences, transfer_points
-from selfcal.stack.samples import collect_samples
+from selfcal.stack.samples import KeptData, collect_samples
 from selfcal.sim.exact import EXACT_CONDITIONS
 
 CURVE = sim.ToneCurve.film(contrast=1.1, toe=0.05, shoulder=0.85)
@@ -29,7 +29,7 @@ def _stack():
 
 def test_points_follow_the_true_curve():
     stack = _stack()
-    s = collect_samples(stack.images, keep_reduced=True)
+    s = collect_samples(stack.images, keep=KeptData(reduced=True))
     hs = histogram_correspondences(s.reduced)
     g = np.log(np.maximum(stack.inverse_response()[:, 1], 1e-6))
     logk = np.log(stack.true_exposures)

@@ -213,13 +213,17 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
         exposures, ``differences`` ``time / measured − 1`` per frame, ``log_sigma`` of
         :func:`fit_log_sigma`, the pre-pass ``reduce``).
     """
-    frame_set = sorted(frame_set, key=lambda k: (float(exposures[k]), k))
     reduce = _prepass_reduce(frames) if reduce is None else int(reduce)
-    thumbs = []
+    made = {}
     for q, k in enumerate(frame_set):
-        thumbs.append(_thumbnail(frames, k, model, clip_margin, stuck, reduce))
+        made[k] = _thumbnail(frames, k, model, clip_margin, stuck, reduce)
         if progress is not None:
             progress("exposures", q + 1, len(frame_set), frames.sources[k])
+    # by exposure, frames of one exposure by their content: the pairs, and so the
+    # result, do not depend on the order the frames came in
+    frame_set = sorted(made, key=lambda k: (float(exposures[k]),
+                                            float(np.nansum(made[k][0], dtype=np.float64)), k))
+    thumbs = [made[k] for k in frame_set]
     if trend not in TRENDS:
         raise InputError(f"trend must be one of {', '.join(TRENDS)}, not {trend!r}")
     rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP, min_count=_min_overlap(thumbs))
@@ -254,7 +258,8 @@ def measure_calibration_exposures(model, codes, keep, sources, *, clip_margin: f
     :func:`measure_response_exposures` on ``codes``, the frames' codes the calibration
     kept while it read them (``selfcal.stack.samples.collect_samples(keep_codes=...)``):
     no frame is read again.  The times (given or EXIF) set the scale and the trend where
-    known, the model's solved exposures where not.
+    known, the model's solved exposures where not -- and everywhere when the solve refined
+    them (the curve was fitted with their trend).
 
     Returns
     -------
@@ -265,7 +270,9 @@ def measure_calibration_exposures(model, codes, keep, sources, *, clip_margin: f
     from ..stack.frames import StackFrames
 
     solved = np.asarray(model.exposures, dtype=float)
-    anchor = np.array([t if t is not None else e
+    refined = bool((model.diagnostics or {}).get("refine_exposures"))
+    # refined exposures carry the trend the curve was fitted with: they anchor it then
+    anchor = np.array([t if t is not None and not refined else e
                        for t, e in zip(model.exposure_times, solved)], dtype=float)
     anchor = np.where(np.isfinite(anchor) & (anchor > 0), anchor, 1.0)
     out, summary = measure_response_exposures(

@@ -454,6 +454,7 @@ def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
     """:attr:`HDRResult.sigma`, with the noise scale κ it used in the diagnostics."""
     assert sums.sigma is not None   # the merge kept σ sums
     diagnostics["sigma_noise_scale"] = round(sums.sigma.kappa, 4)
+    diagnostics["sigma_scale_log"] = sums.sigma.scale_log_sigma
     return sums.sigma.result()
 
 

@@ -29,7 +29,7 @@ from ..stack.frames import (
 )
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
-from ..stack.samples import SampleSet, collect_samples, frame_masks
+from ..stack.samples import KeptData, SampleSet, collect_samples, frame_masks
 from ..typing import ExposureTimes, ImageInput, PathLike, Progress
 from .bands import DEFAULT_BAND_METHOD, band_for_fit
 from .basis import ResponseBasis
@@ -559,9 +559,10 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
     clip_margin = options.clip_margin
     samples = collect_samples(frames, sources=sources, max_samples=options.max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress,
-                              keep_reduced=options.correspondences != "blocks",
-                              near_clip_blocks=options.near_clip_blocks,
-                              keep_codes=MEASURE_CODES_SIDE if options.measure_exposures else 0)
+                              keep=KeptData(reduced=options.correspondences != "blocks",
+                                            codes_side=MEASURE_CODES_SIDE
+                                            if options.measure_exposures else 0),
+                              near_clip_blocks=options.near_clip_blocks)
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=options.saturation_threshold)
     keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin, ignored)

@@ -49,7 +49,7 @@ def without_duplicates(digests, times, sources, warnings, indices=None,
 
     ``ignored`` receives each copy's :class:`.model.IgnoredFrame` (reason ``"duplicate"``).
 
-    ``digests`` are :func:`selfcal.stack.samples.content_digest` of every pixel.  Identical
+    ``digests`` are :func:`selfcal.stack.frames.content_digest` of every pixel.  Identical
     pixels at different given times contradict each other: an InputError.
     """
     indices = list(range(len(digests))) if indices is None else list(indices)

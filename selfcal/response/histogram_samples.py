@@ -362,7 +362,7 @@ def solve_data(samples, keep, prediction, *, clip_margin: float, saturation_thre
                blocks=None):
     """What the solver takes from the histograms of the frames ``keep``: (data, masks, weights).
 
-    ``samples.reduced`` (kept by ``collect_samples(keep_reduced=True)``) is released.
+    ``samples.reduced`` (kept by ``collect_samples(keep=KeptData(reduced=True))``) is released.
     ``prediction`` as :func:`histogram_correspondences`.  With ``blocks`` = (block
     samples, their masks) of the same frames, both sets of rows go into one solve (block
     rows at weight 1).

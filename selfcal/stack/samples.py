@@ -16,7 +16,6 @@ flat regions).
 
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,28 +24,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.images import import_cv2
-from .frames import DEFAULT_CLIP_MARGIN
+from .frames import DEFAULT_CLIP_MARGIN, content_digest
 
 #: Reasons a sample can be rejected in a frame (or a pair), in the order they are tested.
 REJECTION_REASONS = ("clipped", "saturated", "not_flat")
 #: Long side (pixels) of the grey thumbnail kept of each frame: the verdict measures the
 #: frames' motion against each other on it (:mod:`selfcal.response.verdict`).
 THUMBNAIL_SIDE = 1024
-
-
-def content_digest(image: np.ndarray) -> str:
-    """Hash of every pixel of ``image`` (with its shape and dtype): equal for identical frames.
-
-    Frames are judged duplicates on their full content, not on a subsample: two frames
-    that are almost entirely white differ in a few dozen pixels only.  SHA-1, not for
-    security (nothing here is adversarial) but for speed: with the CPU's SHA instructions
-    it hashes about three times faster than BLAKE2b, and the digest reads every pixel of
-    every frame (on a 1.5 MP stack it cost half as much as decoding it).
-    """
-    h = hashlib.sha1(usedforsecurity=False)
-    h.update(f"{image.shape}{image.dtype}".encode())
-    h.update(np.ascontiguousarray(image).data.cast("B"))
-    return h.hexdigest()[:32]
 
 
 def _grey_thumbnail(blocks: np.ndarray, max_code: int) -> np.ndarray:
@@ -200,7 +184,7 @@ class SampleSet(FrameSamples):
     thumbnail_pixel : float
         Frame pixels per thumbnail pixel.
     codes : list of ndarray or None
-        Per frame, its decoded codes subsampled (``collect_samples(keep_codes=...)``).
+        Per frame, its decoded codes subsampled (:attr:`KeptData.codes_side`).
     """
 
     values: np.ndarray
@@ -341,11 +325,30 @@ def _dct_factor(block: int) -> int:
     return max(f for f in (1, 2, 4, 8) if f == 1 or (f * 3 <= block and block % f == 0))
 
 
+@dataclass(frozen=True)
+class KeptData:
+    """What :func:`collect_samples` keeps of the frames it reads, beyond the samples.
+
+    Attributes
+    ----------
+    reduced : bool
+        The reduced frames (every pixel, or block means) in the result's ``reduced``, for
+        :func:`selfcal.response.histogram_samples.histogram_correspondences`.
+    codes_side : int
+        Every decoded frame's codes subsampled (every ``s``-th pixel of every ``s``-th
+        row, no averaging: ``f⁻¹`` of a mean of codes is not the mean of ``f⁻¹``) to a
+        long side of at most this many pixels, in the result's ``codes``, for the
+        exposures measured after the fit (:mod:`selfcal.exposure.measured`); 0 keeps none.
+    """
+
+    reduced: bool = False
+    codes_side: int = 0
+
+
 def collect_samples(frames, *, sources=None, block: int | None = None,
                     per_bin: int | None = None, max_samples: int = 6000,
                     clip_margin: float = DEFAULT_CLIP_MARGIN, seed: int = 0, progress=None,
-                    keep_reduced: bool = False, near_clip_blocks: int = 0,
-                    keep_codes: int = 0) -> SampleSet:
+                    keep: KeptData | None = None, near_clip_blocks: int = 0) -> SampleSet:
     """Read a stack streaming and return samples at stratified flat locations.
 
     Parameters
@@ -360,18 +363,11 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
         the DCT scaling they are decoded at (a 24 MP frame: 7 -> 8, read at half size).
     progress : callable, optional
         Called as ``progress(k, n, source)`` after each frame is read.
-    keep_reduced : bool
-        Keep the reduced frames (every pixel, or block means) in the result's ``reduced``,
-        for :func:`selfcal.response.histogram_samples.histogram_correspondences`.
+    keep : KeptData, optional
+        What else to keep of the frames read (default nothing).
     near_clip_blocks : int
         A block within this many blocks of a clipped one counts as clipped
         (:func:`reduce_frame`); 0, the default, turns it off.
-    keep_codes : int
-        Keep, in the result's ``codes``, every decoded frame's codes subsampled (every
-        ``s``-th pixel of every ``s``-th row, no averaging: ``f⁻¹`` of a mean of codes is
-        not the mean of ``f⁻¹``) to a long side of at most this many pixels, for the
-        exposures measured after the fit (:mod:`selfcal.exposure.measured`); 0, the
-        default, keeps none.
 
     Raises
     ------
@@ -384,6 +380,7 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
     if sources is None:
         sources = [str(f) if isinstance(f, (str, os.PathLike)) else f"array #{k}"
                    for k, f in enumerate(frames)]
+    keep = KeptData() if keep is None else keep
     reduced: list[ReducedFrame] = []
     codes: list[np.ndarray] = []
     for k, frame in enumerate(frames):
@@ -407,8 +404,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
             factor = 1
         arr = _as_image_array(image, src)
         digest = content_digest(arr)      # every decoded pixel, before the crop below
-        if keep_codes:
-            stride = max(1, -(-max(arr.shape[:2]) // keep_codes))
+        if keep.codes_side:
+            stride = max(1, -(-max(arr.shape[:2]) // keep.codes_side))
             codes.append(np.ascontiguousarray(arr[::stride, ::stride]))
         if full_shape is None:
             full_shape = arr.shape[:2]
@@ -451,8 +448,8 @@ def collect_samples(frames, *, sources=None, block: int | None = None,
                      digests=[r.digest for r in reduced],
                      thumbnails=[r.thumbnail for r in reduced],
                      thumbnail_pixel=float(reduced[0].shape[1] / thumbnail.shape[1]),
-                     reduced=reduced if keep_reduced else None,
-                     clip_distance=distance, codes=codes if keep_codes else None)
+                     reduced=reduced if keep.reduced else None,
+                     clip_distance=distance, codes=codes if keep.codes_side else None)
 
 
 def _clip_distance(r: ReducedFrame, clip_margin: float) -> np.ndarray:
