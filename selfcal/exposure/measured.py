@@ -10,19 +10,36 @@ weights lean on one frame per pixel carries that frame's exposure error whole.
 What is done here is the linear path's measurement (:mod:`.linear`: split
 thumbnails, :func:`selfcal.exposure.raw_ratios.raw_exposure_ratios` with the ``"sum"``
 statistic, the absolute scale from the times by the median of ``log(time / measured)``)
-on ``f⁻¹(codes)``.  Ours: the trend of the measured exposures over the bracket is the
-times' (``MergeOptions.exposure_trend``, :func:`_times_trend`) -- a calibrated curve whose slope is slightly
-off makes the measured ratios drift by a few per cent per stop, which a shutter does not
-(docs/decisions.md, "Exposures measured from the pixels: an option, with the times' trend");
-codes at or beyond the merge's clip limits (any channel at white excludes the pixel, a
-channel at or below its black floor excludes that channel) never enter a thumbnail;
-arrays are linearised at full size and then area-averaged (unbiased); files are decoded
-with libjpeg's DCT scaling when large (:func:`selfcal.io.read_image` ``reduce``, down to
-:data:`PREPASS_MIN_SIDE`: a pre-pass cheaper than the full decode, whose block means of
-*codes* are then linearised, biased where the texture within a block is strong --
-``python3 -m bench.measured_exposures``); the exposure term of the merge's σ
-becomes the pair residual of the measurement (:func:`fit_log_sigma`).  Frames the pixels
-cannot place (no shared well-exposed pixels, merged unchecked) keep their time.
+on ``f⁻¹(codes)``.  Ours:
+
+* **where**: a calibration measures its own frames once its curve is fitted, on codes it
+  kept while reading them (every pixel of a :data:`MEASURE_CODES_SIDE` subsample, no
+  frame read again: :func:`measure_calibration_exposures`), and its model's exposures are
+  these; a merge of those frames takes the same numbers, and measures only frames the
+  model has not seen, with a pre-pass (:func:`measure_response_exposures`: arrays
+  linearised at full size and area-averaged, files decoded with libjpeg's DCT scaling
+  when large, down to :data:`PREPASS_MIN_SIDE`, whose block means of *codes* are biased
+  where the texture within a block is strong);
+* **pairs**: a pair counts when the frames share :data:`MIN_PAIR_OVERLAP` of a
+  thumbnail's values (frames far apart share a few at the ends of both ranges);
+* **the trend** over the bracket is the times' (``MergeOptions.exposure_trend``,
+  :func:`_times_trend`): the pixels cannot see it -- ``f⁻¹ → (f⁻¹)^γ`` and ``e → e^γ``
+  fit them equally, §4's exponential ambiguity -- and a curve whose slope is slightly off
+  makes the measured ratios drift by a few per cent per stop; the line is Theil-Sen's,
+  which one frame cannot pull;
+* **the pixels decide where they can**: each frame's deviation from the trend is kept in
+  proportion ``s² / (s² + m²)`` -- ``m`` the measurement's own scatter (the pairs'
+  disagreement, :func:`fit_log_sigma`), ``s`` the shutter's beyond it -- so exact times
+  stay as they are and jittered ones follow the pixels;
+* **σ**: the exposure term of the merge's σ becomes the posterior spread of a frame's
+  exposure, and the trend's own uncertainty (what the shutter's errors leave in the
+  times' trend) a term of its own (:func:`selfcal.hdr.sigma.add_trend_term`);
+* codes at or beyond the merge's clip limits (any channel at white excludes the pixel, a
+  channel at or below its black floor excludes that channel) never enter a thumbnail.
+
+Frames the pixels cannot place (no pair with enough shared well-exposed pixels, merged
+unchecked) keep their time.  The constants and the choices are in docs/decisions.md,
+"Exposures measured from the pixels: by default".
 """
 
 from __future__ import annotations
@@ -50,9 +67,11 @@ __all__ = ["measure_response_exposures", "measure_calibration_exposures", "fit_l
 PREPASS_REDUCE = 8
 PREPASS_MIN_SIDE = 1500
 #: Long side of the codes a calibration keeps of each frame it reads, for the measurement
-#: after its fit (:func:`measure_calibration_exposures`): every pixel of the
-#: :data:`.linear.MEASURE_SIDE` thumbnails' two halves.
-MEASURE_CODES_SIDE = 2 * MEASURE_SIDE
+#: after its fit (:func:`measure_calibration_exposures`): the thumbnails' two halves then
+#: hold every kept pixel, unaveraged; 175,000 pixels a 3:2 frame, and on ntu's 24 MP
+#: frames a quarter of the cost of twice this side (docs/decisions.md, "Exposures
+#: measured from the pixels: by default").
+MEASURE_CODES_SIDE = MEASURE_SIDE
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3

@@ -147,10 +147,13 @@ class MergeOptions:
         (:mod:`.sigma`: noise model, exposure uncertainty and the curve's band); two more
         float32 sums the size of the radiance while merging.  Default False.
     measure_exposures : bool
-        Rendered frames: measure the exposure ratios from the pixels through the model's
-        curve, the times setting only the scale (:mod:`selfcal.exposure.measured`; files get a
-        pre-pass, decoded at 1/2-1/8 when large); σ's exposure term becomes the
-        measurement's.  Default False.
+        Rendered frames: the exposures measured from the pixels through the model's
+        curve, the times setting only their scale and trend (:mod:`selfcal.exposure.measured`):
+        the model's own measurement for the frames it was calibrated on (files by path,
+        arrays by content: the same numbers, nothing read again), else a pre-pass (files
+        decoded at 1/2-1/8 when large); σ's exposure term becomes the measurement's, with
+        the trend's.  Default True (docs/decisions.md, "Exposures measured from the
+        pixels: by default"); False merges with the given, EXIF or model's exposures.
     merge_unchecked : bool
         Merge a frame the calibration ignored as ``"unchecked"`` (too far from the rest of
         the bracket, :attr:`selfcal.ResponseModel.frames_ignored`) with its time, flagged
@@ -232,8 +235,9 @@ class HDRResult:
     sigma : numpy.ndarray or None
         float32 ``HxWx3``, shaped like :attr:`radiance` and in its units: the standard
         deviation of each value from the noise model, the exposures' uncertainty and the
-        curve's confidence band (:mod:`selfcal.hdr.sigma`); +inf where unmeasured.  None
-        unless ``MergeOptions(sigma=True)``.
+        curve's confidence band (:mod:`selfcal.hdr.sigma`), relative to the radiance's
+        scale (the scale's own σ, in log, is ``diagnostics["sigma_scale_log"]``); +inf
+        where unmeasured.  None unless ``MergeOptions(sigma=True)``.
     """
 
     radiance: np.ndarray

@@ -12,12 +12,18 @@ three parts, which :class:`SigmaSums` accumulates beside the merge's own sums:
   code beyond that noise (:mod:`selfcal.response.code_error`, as the weights take it):
   frames of one pixel sit at different codes, so it is independent between them;
 * each frame's exposure error, independent between frames: a log exposure off by δ_j
-  (std σ_t, :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA`) moves ``X_j`` by
-  ``X_j δ_j``;
+  (std σ_t: the measurement's posterior spread when the exposures were measured,
+  :mod:`selfcal.exposure.measured`, else :data:`selfcal.response.bands.EXPOSURE_LOG_SIGMA`)
+  moves ``X_j`` by ``X_j δ_j``;
 * the error of the curve, the same curve for every frame: where log f⁻¹ is off by ε(I)
   (std σ_g of the model's confidence band, :mod:`selfcal.response.bands`), ``X_j`` moves
-  by ``X_j ε(I_j)``; taken as fully correlated between the frames (the band is dominated
-  by a shift of the whole curve), so it adds linearly.
+  by ``X_j ε(I_j)``; taken as fully correlated between the frames, so it adds linearly.
+  The band's floor over the codes (a shift of the whole curve, where white sits) moves
+  every value by one factor -- the radiance's scale, not its values relative to each
+  other -- so it is taken out in quadrature and said apart (:attr:`SigmaSums.scale_log_sigma`,
+  the merge's ``diagnostics["sigma_scale_log"]``; ours);
+* with measured exposures, the trend the times set over the bracket, off by the slope the
+  shutter's errors happen to have: :func:`add_trend_term`, after the sums.
 
 Together::
 
