@@ -106,7 +106,7 @@ class PairRows:
 
 
 def build_pair_rows(values, valid, order, log_exposures, basis, N: int,
-                    max_rank_gap: int, sample_weights=None, chan_valid=None) -> PairRows:
+                    max_rank_gap: int, sample_weights=None) -> PairRows:
     """Eq. 8 rows of every sample valid in both frames of each pair, with Eq. 7 put in.
 
     Each frame is paired with the next ``max_rank_gap`` frames in the exposure order
@@ -114,20 +114,14 @@ def build_pair_rows(values, valid, order, log_exposures, basis, N: int,
     ends of the curve together).  The basis is read at the sample codes by linear
     interpolation on its grid (``basis.design``).  ``sample_weights`` ``(n, 3)``, when
     given, weight each sample's row per channel (histogram correspondences,
-    :mod:`.histogram_samples`: 0 for padding).  ``chan_valid`` ``(F, n, 3)``, when given
-    (:func:`.shoulder.channel_valid`, ours): the rows are built on the samples valid in
-    some channel, and a channel's row weighs 0 where that channel is invalid in either
-    frame or does not move with the exposure (the stuck test per channel).
+    :mod:`.histogram_samples`: 0 for padding).
 
     Raises
     ------
     CalibrationError
         When no pair, or fewer than 20 sample pairs, remain to fit.
     """
-    if chan_valid is not None:
-        valid = valid | chan_valid.any(axis=2)
-    pairs, stuck = _build_pairs(valid, order, max_rank_gap, values, log_exposures,
-                                stuck_ratio=np.inf if chan_valid is not None else STUCK_RATIO)
+    pairs, stuck = _build_pairs(valid, order, max_rank_gap, values, log_exposures)
     if not pairs:
         raise CalibrationError("no sample is unclipped and unsaturated in two frames: "
                                "the stack cannot determine a response")
@@ -150,15 +144,6 @@ def build_pair_rows(values, valid, order, log_exposures, basis, N: int,
         rhs.append(-(g0b - g0a))
     weight = (None if sample_weights is None
               else np.concatenate([sample_weights[ps, c] for c in range(3)]))
-    if chan_valid is not None:
-        from .shoulder import channel_row_weights
-
-        moves = log_exposures[pb] - log_exposures[pa] >= np.log(STUCK_RATIO)
-        frozen = moves[:, None] & (np.abs(Ib - Ia) < STUCK_CODES / 255)
-        w = channel_row_weights(chan_valid, pa, pb, ps, frozen)
-        stuck += int((frozen & (channel_row_weights(chan_valid, pa, pb, ps)
-                                .reshape(3, -1).T > 0)).any(axis=1).sum())
-        weight = w if weight is None else weight * w
     return PairRows(pairs=pairs, stuck=stuck, pa=pa, pb=pb, pair_id=pair_id, Ia=Ia, Ib=Ib,
                     dH=dH, rhs=rhs, weight=weight)
 

@@ -79,7 +79,6 @@ from .equations import (
     rejection_counts,
 )
 from . import priors as _priors
-from .shoulder import channel_valid
 from .priors import (
     ExposurePrior,
     PriorTerms,
@@ -238,7 +237,6 @@ class SolverOptions:
     white_threshold: bool = True
     estimated_prior_scale: float = _priors.ESTIMATED_PRIOR_SCALE
     centre_ambiguity: bool = True
-    channel_clipping: bool = True
 
 
 def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *,
@@ -298,11 +296,8 @@ def solve_exposure_equations(samples: SampleSet, basis, log_times: np.ndarray, *
     # frames by exposure; shots of one exposure by brightness, not by their place in the
     # input (the pairs, and so the model, must not depend on the order of the frames)
     order = np.lexsort((values.mean(axis=(1, 2)), exposures.initial))
-    chan_valid = (channel_valid(samples, masks, options.clip_margin,
-                                options.saturation_threshold)
-                  if options.channel_clipping and sample_weights is None else None)
     rows = build_pair_rows(values, valid, order, exposures.initial, basis, N,
-                           options.max_rank_gap, sample_weights, chan_valid)
+                           options.max_rank_gap, sample_weights)
     rejections = rejection_counts(clipped, saturated, order, options.max_rank_gap, rows.stuck)
     thresholds = (white_thresholds(values, valid, order, options.max_rank_gap,
                                     samples.max_code, options.clip_margin / 255.0)
