@@ -19,6 +19,7 @@ code is the table "brightest kept sample").
 
     python3 -m bench.response_top [--split heldout|tuning] [--curves 2]
         [--cells exact,saturated] [--methods selfcal,colour] [--jobs 2]
+        [--no-hidden-white] [--tag before]
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import resource
 import sys
 import time
 import warnings
+from dataclasses import replace
 from multiprocessing import Pool
 
 import numpy as np
@@ -176,7 +178,12 @@ def main():
     parser.add_argument("--tag", default="",
                         help="a name for the run's record (bench/results/response_top.*"
                              "tag-<name>*.json), e.g. before / after a change")
+    parser.add_argument("--no-hidden-white", action="store_true",
+                        help="selfcal with ResponseOptions(hidden_white=False), for the "
+                             "comparison")
     args = parser.parse_args()
+    if args.no_hidden_white:      # set before the workers fork
+        rm.SELFCAL_OPTIONS = replace(rm.SELFCAL_OPTIONS, hidden_white=False)
     start("response_top", args.split)
     args.methods = tuple(m for m in rm.METHODS if m in args.methods.split(","))
     if "selfcal" not in args.methods:
