@@ -59,7 +59,8 @@ def hidden_white_mask(samples, valid: np.ndarray, result, grid: np.ndarray,
     Returns
     -------
     ndarray of bool, shape (F, n)
-        Also set in every frame brighter than one where it is set (by K), as
+        Also set in every frame at least as bright as one where it is set (by K; the
+        repeated shots of one exposure alike), as
         :func:`selfcal.stack.samples.frame_masks` propagates clipping; only where
         ``valid``.
     """
@@ -75,8 +76,8 @@ def hidden_white_mask(samples, valid: np.ndarray, result, grid: np.ndarray,
         for c in range(3):
             predicted = np.interp(samples.values[a, idx, c], grid, g[c]) + K[b] - K[a]
             white[b, idx[predicted >= g_top[c]]] = True
-    order = np.argsort(K, kind="stable")
-    white[order] = np.logical_or.accumulate(white[order], axis=0)
+    # every frame at least as bright (repeated shots alike, whatever their input order)
+    white = np.array([white[K <= K[f]].any(axis=0) for f in range(K.size)])
     return white & valid
 
 
