@@ -42,7 +42,7 @@ channel with its own scale).  Skipped, with a message, when the data are absent.
 
     python3 -m bench.response_matrix [--split heldout|tuning] [--curves 6]
         [--cells saturated/base,neutral] [--size 256x384] [--jobs 2] [--no-d7000]
-        [--methods selfcal,colour,...] [--no-ringing]
+        [--methods selfcal,colour,...] [--no-ringing] [--no-hidden-white]
 """
 
 from __future__ import annotations
@@ -392,6 +392,10 @@ def main():
     parser.add_argument("--near-clip-blocks", type=int, metavar="R",
                         help="blocks within R blocks of a clipped one count as clipped "
                              "(ResponseOptions.near_clip_blocks); default the library's")
+    parser.add_argument("--no-hidden-white", action="store_true",
+                        help="selfcal without counting the samples its first fit predicts "
+                             "at white as clipped (ResponseOptions(hidden_white=False)), "
+                             "for the comparison")
     args = parser.parse_args()
     start("response_matrix", args.split)
     global SELFCAL_TIMES
@@ -399,6 +403,8 @@ def main():
     global SELFCAL_OPTIONS          # set before the workers fork
     if args.no_ringing:
         SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, measure_ringing=False)
+    if args.no_hidden_white:
+        SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, hidden_white=False)
     if args.basis_mean_prior:
         SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, centre_ambiguity=False)
     if args.correspondences:

@@ -289,11 +289,11 @@ def exif_stack_with_one_wrong_time(stack, folder, wrong=3, factor=1.6):
 
 def test_contradicted_exif_times_are_refined_by_default(stack, tmp_path):
     # refining against holding, alone: the measured ringing reach
-    # (ResponseOptions.measure_ringing) acts on held exposures only, and on this stack it
-    # also hides most of the wrong time
+    # (ResponseOptions.measure_ringing) and the hidden white samples (hidden_white) act on
+    # held exposures only, and on this stack each also hides most of the wrong time
     from selfcal.response import ResponseOptions
 
-    without_reach = ResponseOptions(measure_ringing=False)
+    without_reach = ResponseOptions(measure_ringing=False, hidden_white=False)
     paths = exif_stack_with_one_wrong_time(stack, tmp_path / "s")
     with pytest.warns(SelfcalWarning, match=r"frame_03.*contradict the EXIF.*refined"):
         model = selfcal.calibrate_response(paths, options=without_reach)

@@ -16,6 +16,8 @@
 * :mod:`selfcal.response.frame_choice` -- which frames the solve can use;
 * :mod:`selfcal.response.histogram_samples` -- correspondences by histogram matching;
 * :mod:`selfcal.response.white_end` -- how far JPEG damage next to clipping reaches;
+* :mod:`selfcal.response.hidden_white` -- samples at white that JPEG moved below the clip
+  limit;
 * :mod:`selfcal.response.code_error` -- the curve's error per code, on its own samples;
 * :mod:`selfcal.response.bands` -- the confidence band of f⁻¹;
 * :mod:`selfcal.response.delta` -- δ of Eq. 12;

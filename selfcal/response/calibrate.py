@@ -36,6 +36,7 @@ from .basis import ResponseBasis
 from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
+from .hidden_white import white_end_masks
 from ..exposure.times import (
     CONTRADICTION_FACTOR,
     anchor_refined,
@@ -107,6 +108,12 @@ class ResponseOptions(SolverOptions):
         (:func:`selfcal.stack.samples.reduce_frame`: keeps samples away from JPEG ringing at
         clipped edges, ours).  Default 0 (off), chosen on the tuning split
         (docs/decisions.md, "Blocks next to clipped ones: not widened").
+    hidden_white : bool
+        Count the samples the first fit predicts at white in a frame as clipped there, and
+        solve again (:mod:`.hidden_white`, ours: JPEG moves clipped areas below the clip
+        limit); how many is ``diagnostics["hidden_white_samples"]``.  Default True, chosen
+        on the tuning split (docs/decisions.md, "Samples the fit predicts at white count
+        as clipped: on, half a code").
     band_method : {"covariance", "bootstrap"}
         How the confidence band of f⁻¹ is estimated (:func:`selfcal.response.bands.curve_band`,
         ours): from the fit's covariance, or by resampling the samples.  Default
@@ -132,6 +139,7 @@ class ResponseOptions(SolverOptions):
     correspondences: str = "blocks"
     measure_ringing: bool = True
     near_clip_blocks: int = 0
+    hidden_white: bool = True
     band_method: str = DEFAULT_BAND_METHOD
     measure_exposures: bool = True
 
@@ -298,8 +306,9 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
     # measured on the final fit with the exposures held only: refined exposures lean on
     # the samples near clipped areas (a 192x288 stack with one wrong EXIF time, refined,
     # went from 0.0026 to 0.0081 f⁻¹ RMSE without them; tests/test_verdict.py)
-    reach = 0 if refine_exposures else _ringing_reach(usable, basis, result, options)
-    if reach:       # the masks the partial holds are updated in place
+    reach, hidden = ((0, 0) if refine_exposures else
+                     white_end_masks(usable.samples, usable.masks, basis, result, options))
+    if reach or hidden:       # the masks the partial holds are updated in place
         result = solve(refine_exposures=False)
     warnings.extend(result.warnings)
     warnings.extend(contradiction_messages(contradictions, refined=refine_exposures))
@@ -324,6 +333,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
         fit["grid"], fit["inverse"])
     if options.measure_ringing:
         diagnostics["ringing_reach_blocks"] = int(reach)
+    diagnostics["hidden_white_samples"] = hidden
     from .model import ResponseModel
 
     model = ResponseModel(intensity=fit["grid"].copy(), inverse=fit["inverse"],
@@ -585,16 +595,6 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
             "fewer than two usable frames remain (the others are duplicates, clipped "
             "everywhere or share no unclipped samples): " + "; ".join(warnings))
     return samples, masks, keep
-
-
-def _ringing_reach(usable: _Usable, basis, result, options: ResponseOptions) -> int:
-    """With ``options.measure_ringing``: :func:`.white_end.mask_near_clip` (0 when off)."""
-    if not options.measure_ringing:
-        return 0
-    from .white_end import mask_near_clip
-
-    grid, inverse = _inverse_response(basis, result.coefficients, options.n_components)
-    return mask_near_clip(usable.samples, usable.masks, result, grid, inverse)
 
 
 def _histogram_solve(samples, usable: _Usable, keep, basis, first, options, progress):
