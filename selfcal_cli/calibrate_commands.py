@@ -86,7 +86,7 @@ def cmd_calibrate(args) -> int:
         refine_exposures=args.refine_exposures, align=args.align or False,
         response_options=selfcal.ResponseOptions(
             n_components=args.components, saturation_threshold=args.saturation_threshold,
-            basis=basis))
+            basis=basis, measure_exposures=args.measure_exposures))
     for line in result.summary_lines():
         say(line)
     if result.response is not None:
@@ -215,6 +215,10 @@ def register(sub) -> None:
     refine.add_argument("--no-refine-exposures", dest="refine_exposures",
                         action="store_const", const=False,
                         help="hold every time, EXIF times the pixels contradict included")
+    p.add_argument("--no-measure-exposures", dest="measure_exposures", action="store_false",
+                   help="keep the solve's exposures in the model (default: measured from "
+                        "the pixels through the fitted curve, the times keeping their "
+                        "scale and trend)")
     p.add_argument("--align", choices=("mtb", "homography"),
                    help="align handheld frames before calibrating the response: "
                         "translation (median threshold bitmaps) or homography (ECC)")

@@ -54,7 +54,8 @@ def cmd_merge(args) -> int:
                        align=args.align or False, deghost=args.deghost, linear=args.linear,
                        options=MergeOptions(reference=args.reference,
                                             linear_exposures=args.linear_exposures,
-                                            sigma=args.sigma),
+                                            sigma=args.sigma,
+                                            measure_exposures=args.measure_exposures),
                        progress=progress_bar("merge"))
     args.linear = args.linear or "linear_evidence" in result.diagnostics
     if model is None and not args.linear:
@@ -242,6 +243,10 @@ def register(subparsers) -> None:
                    help="linear frames: exposures from the pixels' ratios in the times' "
                         "scale (auto; --times are kept as given), always from the pixels "
                         "(measured), or the times as they are (times)")
+    p.add_argument("--no-measure-exposures", dest="measure_exposures", action="store_false",
+                   help="rendered frames: merge with the given, EXIF or model's exposures "
+                        "as they are (default: measured from the pixels through the "
+                        "curve, the times keeping their scale and trend)")
     p.add_argument("--reference", type=int, metavar="K",
                    help="index of the reference frame (default: the middle exposure)")
     p.add_argument("--half", action="store_true",
