@@ -13,7 +13,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import selfcal  # noqa: E402
 from selfcal import sim  # noqa: E402
 from selfcal.hdr import MergeOptions  # noqa: E402
-from selfcal.exposure.measured import MIN_LOG_SIGMA, _prepass_reduce  # noqa: E402
+from selfcal.exposure.linear import MIN_LOG_SIGMA  # noqa: E402
+from selfcal.exposure.measured import _prepass_reduce  # noqa: E402
 from selfcal.stack.frames import StackFrames  # noqa: E402
 from test_hdr import true_model, truth_radiance  # noqa: E402
 

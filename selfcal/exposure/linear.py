@@ -31,10 +31,13 @@ from ..stack.linear_evidence import linear_evidence
 from .raw_ratios import raw_exposure_ratios, split_thumbnails
 
 __all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
-           "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE"]
+           "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE",
+           "fit_log_sigma", "MIN_LOG_SIGMA"]
 
 #: Long side (pixels) of the area-averaged thumbnails the ratios are measured on.
 MEASURE_SIDE = 512
+#: Floor of the measurement's scatter and of the exposure term of σ (:func:`fit_log_sigma`).
+MIN_LOG_SIGMA = 0.002
 #: ``use`` values of :func:`measure_linear_exposures`.
 USES = ("auto", "measured", "times")
 
@@ -86,6 +89,7 @@ class LinearExposures:
                              for m in self.measured],
                 "times": list(self.times),
                 "differences": list(self.differences),
+                "log_sigma": fit_log_sigma(self.measured, self.pairs),
                 "frames": [str(Path(s).name) for s in sources]}
 
 
@@ -131,6 +135,20 @@ def thumbnail_exposures(thumbs, max_gap: int | None = None, min_count: int = 100
     if np.isfinite(measured).any():
         measured /= measured[np.isfinite(measured)][0]
     return measured, report["pairs"]
+
+
+def fit_log_sigma(measured, pairs) -> float:
+    """The measurement's own scatter (ours): the count-weighted RMS, over the measured
+    pairs, of ``log(ratio) − log(e_j / e_i)`` -- how far the pairs disagree with the
+    exposures fitted to them all -- floored at :data:`MIN_LOG_SIGMA` (a bracket of two
+    frames, or one whose pairs form a chain, has no redundancy to show)."""
+    num = den = 0.0
+    for i, j, ratio, count in pairs:
+        if math.isfinite(measured[i]) and math.isfinite(measured[j]):
+            r = math.log(ratio) - math.log(measured[j] / measured[i])
+            num += count * r * r
+            den += count
+    return max(MIN_LOG_SIGMA, math.sqrt(num / den) if den else 0.0)
 
 
 def measure_linear_exposures(frames, times, times_source: str, *, use: str = "auto",

@@ -29,7 +29,7 @@ on ``f⁻¹(codes)``.  Ours:
   which one frame cannot pull;
 * **the pixels decide where they can**: each frame's deviation from the trend is kept in
   proportion ``s² / (s² + m²)`` -- ``m`` the measurement's own scatter (the pairs'
-  disagreement, :func:`fit_log_sigma`), ``s`` the shutter's beyond it -- so exact times
+  disagreement, :func:`.linear.fit_log_sigma`), ``s`` the shutter's beyond it -- so exact times
   stay as they are and jittered ones follow the pixels;
 * **σ**: the exposure term of the merge's σ becomes the posterior spread of a frame's
   exposure, and the trend's own uncertainty (what the shutter's errors leave in the
@@ -52,12 +52,12 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import read_image
 from ..stack.frames import Lineariser, apply_lut, frame_limits, max_code_of
-from .linear import MEASURE_SIDE, REPORT_DIFFERENCE, scale_to_times, \
-    thumbnail_exposures
+from .linear import MEASURE_SIDE, MIN_LOG_SIGMA, REPORT_DIFFERENCE, fit_log_sigma, \
+    scale_to_times, thumbnail_exposures
 from .raw_ratios import split_thumbnails
 
-__all__ = ["measure_response_exposures", "measure_calibration_exposures", "fit_log_sigma", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
-           "PAIR_GAP", "MIN_LOG_SIGMA", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
+__all__ = ["measure_response_exposures", "measure_calibration_exposures", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
+           "PAIR_GAP", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
@@ -78,8 +78,6 @@ PAIR_GAP = 3
 #: The values of ``MergeOptions.exposure_trend``: what sets the measured exposures' trend
 #: over the bracket, the pixels' ratios as they are or the times' (:func:`_times_trend`).
 TRENDS = ("times", "pixels")
-#: Floor of the measurement's scatter and of the exposure term of σ (:func:`fit_log_sigma`).
-MIN_LOG_SIGMA = 0.002
 #: A pair of frames counts when it shares this fraction of a thumbnail's values
 #: (:func:`_min_overlap`).
 MIN_PAIR_OVERLAP = 0.01
@@ -143,7 +141,7 @@ def _times_trend(rel, times, measurement_sigma: float):
     keep the trend (a curve whose slope is slightly off turns into a trend of the
     measured ratios, not into a shutter error) and the pixels give each frame's deviation
     ``r``, shrunk towards the time by ``k = s² / (s² + m²)``: ``m`` the measurement's own
-    scatter (``measurement_sigma``, :func:`fit_log_sigma`), ``s²`` the shutter's, the
+    scatter (``measurement_sigma``, :func:`.linear.fit_log_sigma`), ``s²`` the shutter's, the
     deviations' variance beyond ``m²`` (an empirical-Bayes estimate; 0 when the deviations
     are no larger than the measurement's scatter, and then the times are kept).  That is
     how the pixels decide only where they can.
@@ -182,20 +180,6 @@ def _min_overlap(thumbs) -> int:
     return max(100, int(MIN_PAIR_OVERLAP * size))
 
 
-def fit_log_sigma(measured, pairs) -> float:
-    """The measurement's own scatter (ours): the count-weighted RMS, over the measured
-    pairs, of ``log(ratio) − log(e_j / e_i)`` -- how far the pairs disagree with the
-    exposures fitted to them all -- floored at :data:`MIN_LOG_SIGMA` (a bracket of two
-    frames, or one whose pairs form a chain, has no redundancy to show)."""
-    num = den = 0.0
-    for i, j, ratio, count in pairs:
-        if math.isfinite(measured[i]) and math.isfinite(measured[j]):
-            r = math.log(ratio) - math.log(measured[j] / measured[i])
-            num += count * r * r
-            den += count
-    return max(MIN_LOG_SIGMA, math.sqrt(num / den) if den else 0.0)
-
-
 def measure_response_exposures(frames, model, exposures, frame_set, *, clip_margin: float,
                                stuck=None, reduce: int | None = None, trend: str = "times",
                                progress=None, names=None):
@@ -230,7 +214,7 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
     (numpy.ndarray, dict)
         The exposures to merge with, and a JSON-ready summary (``measured`` relative
         exposures, ``differences`` ``time / measured − 1`` per frame, ``log_sigma`` of
-        :func:`fit_log_sigma`, the pre-pass ``reduce``).
+        :func:`.linear.fit_log_sigma`, the pre-pass ``reduce``).
     """
     reduce = _prepass_reduce(frames) if reduce is None else int(reduce)
     made = {}

@@ -169,7 +169,7 @@ class MergeOptions:
         ``"times"``, chosen on the tuning split, see docs/decisions.md.
     sigma_exposure_from_fit : bool
         With ``measure_exposures`` and ``sigma``: σ's exposure term is the measurement's
-        (:func:`selfcal.exposure.measured.fit_log_sigma`) or, False, the fixed one of given times.
+        (:func:`selfcal.exposure.linear.fit_log_sigma`) or, False, the fixed one of given times.
     """
 
     reference: int | None = None
@@ -385,6 +385,8 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
         frames, model, fresh, exposures, ref, opts, linear=linear, warnings=warnings,
         diagnostics=diagnostics)
     sigma_t, trend_sigma = None, 0.0
+    if linear and exposure_source.startswith("measured") and opts.sigma_exposure_from_fit:
+        sigma_t = diagnostics["linear_exposures"]["log_sigma"]
     if opts.measure_exposures and not linear:
         own = _own_measurement(model, frames, fresh, used, unchecked)
         if own is None:
