@@ -115,3 +115,88 @@ def test_show_prints_the_widest_band_and_the_plot_shades_it(model, tmp_path):
     assert "90 % band of f⁻¹" in text and "widest ±" in text
     png = plot_response(model, tmp_path / "curve.png")
     assert (tmp_path / "curve.png").stat().st_size > 1000 or png
+
+
+# ------------------------------------------------------------------ issue 35: unknown times
+
+def _coverage(model, truth) -> float:
+    lower, upper = model.band_at_codes(np.arange(256))
+    inner = slice(1, 255)
+    return float(np.mean((truth[inner] >= lower[inner]) & (truth[inner] <= upper[inner])))
+
+
+@pytest.fixture(scope="module")
+def small_stacks():
+    """Small stacks of three curves the prior's centre (sRGB, Rec.709) does not match
+    exactly: sRGB itself, a flatter power law, a film curve."""
+    out = []
+    for curve in (sim.ToneCurve.srgb(), sim.ToneCurve.gamma(1.8), sim.ToneCurve.film()):
+        pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=3)
+        scene = sim.make_scene(96, 144, saturation=0.5, seed=3)
+        out.append(sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90,
+                                      seed=3))
+    return out
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_band_with_no_time_known_carries_the_ambiguity(small_stacks, monkeypatch):
+    # with no time (or one) the prior chooses γ; the band must cover the truth anyway
+    from selfcal.response import bands
+
+    one = [TIMES[0]] + [None] * (len(TIMES) - 1)
+    covered = []
+    for stack in small_stacks:
+        truth = stack.inverse_response()
+        for known in ([None] * len(TIMES), one):
+            model = selfcal.calibrate_response(stack.images, known)
+            assert model.diagnostics["ambiguity_resolved_by_prior"]
+            covered.append(_coverage(model, truth))
+    assert min(covered) >= 0.8, covered
+    # without the ambiguity term the band is the scatter around the prior's choice, which
+    # misses the flatter curve (this is what the term is for)
+    monkeypatch.setattr(bands, "AMBIGUITY_LOG_GAMMA_SIGMA", 0.0)
+    flat = small_stacks[1]
+    bare = selfcal.calibrate_response(flat.images, [None] * len(TIMES))
+    assert _coverage(bare, flat.inverse_response()) < 0.5
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_band_with_all_times_known_is_unchanged_by_the_ambiguity_term(small_stacks,
+                                                                      monkeypatch):
+    from selfcal.response import bands
+
+    stack = small_stacks[0]
+    before = selfcal.calibrate_response(stack.images, TIMES)
+    two = [TIMES[0]] + [None] * (len(TIMES) - 2) + [TIMES[-1]]
+    before_two = selfcal.calibrate_response(stack.images, two)
+    monkeypatch.setattr(bands, "AMBIGUITY_LOG_GAMMA_SIGMA", 5.0)
+    np.testing.assert_array_equal(
+        selfcal.calibrate_response(stack.images, TIMES).inverse_log_sigma,
+        before.inverse_log_sigma)
+    np.testing.assert_array_equal(
+        selfcal.calibrate_response(stack.images, two).inverse_log_sigma,
+        before_two.inverse_log_sigma)
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_ambiguity_term_is_the_log_effect_of_gamma(small_stacks):
+    from selfcal.response import bands
+
+    grid = np.linspace(0.0, 1.0, 11)
+    inverse = np.tile(grid[:, None] ** 2.2, (1, 3))
+    amb = bands.ambiguity_sigma(inverse, 0.3)
+    assert np.all(np.isfinite(amb)) and np.all(amb[-1] == 0.0)      # f⁻¹(1) = 1
+    np.testing.assert_allclose(amb[1:], 0.3 * 2.2 * np.abs(np.log(grid[1:, None]))
+                               * np.ones((1, 3)))
+    # in the model: the band with no time known is the data's band and this term in
+    # quadrature; the verdict is judged on the data's band alone (the ambiguity has its
+    # own warning)
+    stack = small_stacks[0]
+    model = selfcal.calibrate_response(stack.images, [None] * len(TIMES))
+    amb = bands.ambiguity_sigma(model.inverse)
+    assert np.all(model.inverse_log_sigma >= amb - 1e-12)
+    data = np.sqrt(np.maximum(model.inverse_log_sigma ** 2 - amb ** 2, 0.0))
+    wide = bands.widest_band(model.intensity, model.inverse, data)
+    evidence = model.diagnostics["verdict_evidence"]["band_width_90"]
+    assert evidence["width"] == pytest.approx(wide["width"], abs=1e-4)
+    assert model.diagnostics["verdict"] == "ok"

@@ -29,6 +29,15 @@ docs/decisions.md, "Curve bands: the covariance, σ_t = 0.02, σ_top = 0.03"):
 To both, an extrapolation term is added in quadrature (:func:`_top_sigma`): the shift of the
 curve below the brightest valid sample, which the data do not see.
 
+With fewer than two different known times, a third term (:func:`ambiguity_sigma`, issue 35):
+Eq. 8 then fixes f⁻¹ only up to the exponential ambiguity of [Lin2011] §5 (f⁻¹ → (f⁻¹)^γ,
+exposures → exposures^γ) and the prior chooses γ (:func:`.priors.ambiguity_centre`).  Neither
+estimate above sees how wrong that choice can be -- the prior's precision pins γ to a
+percent or so, while camera curves stray from the prior's centre by far more -- so the band
+would describe the scatter around the prior's choice, not the ambiguity.  The term is the
+log-domain effect of γ, |log f⁻¹| · σ_γ, with σ_γ (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) the
+spread of log γ that the prior leaves on the tuning split.
+
 The threshold rows of the solve (:class:`.equations.ThresholdRows`) are left out of both:
 they are few and move the curve, not its spread.
 """
@@ -55,9 +64,17 @@ EXPOSURE_LOG_SIGMA = 0.02
 #: Std of the shift of log f⁻¹ below the brightest valid sample (:func:`_top_sigma`),
 #: chosen on the tuning split.
 TOP_LOG_SIGMA = 0.03
+#: σ_γ of :func:`ambiguity_sigma`: the std of log γ (the exponent by which the fitted f⁻¹
+#: misses the true one) with fewer than two known times, chosen on the tuning split so that
+#: the 90 % band covers the true curve on 90 % of the (code, channel, stack) there
+#: (``python3 -m bench.response_unknown --split tuning --step 5 --band``; docs/decisions.md,
+#: "The band with fewer than two known times: σ_γ = 0.30").
+AMBIGUITY_LOG_GAMMA_SIGMA = 0.30
 #: What the band's σ_g is computed for: the solver's defaults.
 _SOLVER = SolverOptions()
 _CODE_NOISE = 1.0 / 255.0
+#: Floor of f⁻¹ before the log in :func:`ambiguity_sigma` (the basis' log floor).
+_LOG_FLOOR = 1e-5
 #: Precision of a log exposure held as the additive gauge (no time given).
 _GAUGE_PRECISION = 1e10
 #: The body of the curve, for the verdict and ``selfcal show``: normalised codes 0.1 … 0.9.
@@ -78,6 +95,7 @@ class BandSettings:
     exposure_log_sigma: float = EXPOSURE_LOG_SIGMA
     seed: int = 0
     top_log_sigma: float | None = None      # None: TOP_LOG_SIGMA (read at call time)
+    ambiguity_log_sigma: float | None = None    # None: AMBIGUITY_LOG_GAMMA_SIGMA (ditto)
 
 
 def _top_sigma(values, valid, grid, sigma) -> np.ndarray:
@@ -231,6 +249,35 @@ def _perturb_prior_means(q, priors, N, rng) -> None:
         q[term.channel * N:(term.channel + 1) * N] += term.a * rng.standard_normal() / sigma
 
 
+def ambiguity_sigma(inverse, sigma_gamma: float | None = None) -> np.ndarray:
+    """σ of log f⁻¹ that the exponential ambiguity leaves (ours; issue 35).
+
+    With fewer than two different known exposure times, Eq. 8 of [Lin2011] is blind to
+    f⁻¹ → (f⁻¹)^γ with every exposure raised to γ (§5), and the prior chooses γ.  Then
+    log f⁻¹ → γ · log f⁻¹: a relative error ε = log γ of γ moves log f⁻¹ by
+    ε · log f⁻¹ to first order, so a spread σ_γ of log γ gives ``|log f⁻¹(I)| · σ_γ`` at
+    each I -- 0 at I = 1 (f⁻¹(1) = 1, the normalisation of Eq. 7 and of the scores), and
+    largest in the shadows.  The data cannot narrow it (for power-law-like curves γ is not
+    in the data at all: docs/decisions.md, "γ with unknown times is not read from the
+    noise"), so σ_γ is a constant of the curves cameras have, measured on the tuning split
+    (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`).
+
+    Parameters
+    ----------
+    inverse : ndarray, shape (K, 3)
+        The fitted f⁻¹ on its grid (floored at 1e-5 before the log, as the basis' own
+        floor, so the term stays finite at I = 0).
+    sigma_gamma : float, optional
+        σ_γ; default :data:`AMBIGUITY_LOG_GAMMA_SIGMA`.
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+    """
+    s = AMBIGUITY_LOG_GAMMA_SIGMA if sigma_gamma is None else float(sigma_gamma)
+    return s * np.abs(np.log(np.maximum(np.asarray(inverse, dtype=float), _LOG_FLOOR)))
+
+
 def band_from_sigma(inverse, log_sigma, level: float = 0.9):
     """``(lower, upper)`` of the two-sided band at ``level`` around ``inverse``.
 
@@ -276,14 +323,27 @@ def band_reason(intensity, inverse, log_sigma, max_code: int):
 
 def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
                  n_components: int, seed: int = 0,
-                 method: str = DEFAULT_BAND_METHOD) -> np.ndarray:
+                 method: str = DEFAULT_BAND_METHOD,
+                 settings: BandSettings | None = None) -> np.ndarray:
     """:func:`curve_band` of a :class:`.solver.SolveResult`, judged (:func:`judge_band`):
-    the hook of the calibration.  Returns σ_g, (K, 3)."""
+    the hook of the calibration.  Returns σ_g, (K, 3).
+
+    When the solve left the exponential ambiguity to the prior
+    (``result.ambiguity_prior``: fewer than two different known times),
+    :func:`ambiguity_sigma` of the fitted curve is added in quadrature *after* the band is
+    judged: the verdict's band reason says what the stack does not pin down, and the
+    ambiguity has its own warning (:func:`.solver._ambiguity_warnings`), which a band
+    reason on every such calibration would only repeat.  ``settings`` (default
+    ``BandSettings(method=method, seed=seed)``) overrides ``method`` and ``seed``.
+    """
+    settings = BandSettings(method=method, seed=seed) if settings is None else settings
     known = np.isfinite(np.asarray(log_times, dtype=float))
     log_sigma = curve_band(samples, masks, basis, result.coefficients, result.log_exposures,
-                           known, n_components=n_components,
-                           settings=BandSettings(method=method, seed=seed))
+                           known, n_components=n_components, settings=settings)
     judge_band(fit, log_sigma, samples.max_code, warnings)
+    if getattr(result, "ambiguity_prior", False):
+        amb = ambiguity_sigma(fit["inverse"], settings.ambiguity_log_sigma)
+        log_sigma = np.sqrt(log_sigma ** 2 + amb ** 2)
     return log_sigma
 
 
