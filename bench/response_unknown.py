@@ -26,8 +26,8 @@ share a 90 % band should bring to 0.90), and *width*, the median relative half-w
 then the issue 35 acceptance: with one known time and with none, median coverage ≥ 0.80.
 ``--dump FILE`` (with ``--band``) also writes each stack's true and fitted f⁻¹ and σ of
 log f⁻¹ at every code to an ``.npz`` (to study the band offline); ``--gamma-sigma S`` sets
-the band's σ_γ (``selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA``; the candidates it was
-tuned among, on the tuning split).
+σ₀ of the band's σ_γ = σ₀ √(1 + E) (``selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA``;
+the candidates it was tuned among, on the tuning split).
 
     python3 -m bench.response_unknown [--split tuning|held-out|all] [--step 20]
         [--known all,two,one,none] [--centre none] [--band [--dump FILE] [--gamma-sigma S]]
@@ -70,7 +70,7 @@ def one_stack(args):
     from selfcal.response import ResponseOptions
 
     options = ResponseOptions()
-    if gamma_sigma is not None:     # --gamma-sigma: the band's σ_γ (the tuning of issue 35)
+    if gamma_sigma is not None:     # --gamma-sigma: σ₀ of the band's σ_γ (issue 35's tuning)
         from selfcal.response import bands
 
         bands.AMBIGUITY_LOG_GAMMA_SIGMA = gamma_sigma
@@ -200,9 +200,9 @@ def main():
     parser.add_argument("--dump", default="",
                         help="with --band: write the true and fitted curves and σ to this .npz")
     parser.add_argument("--gamma-sigma", type=float, default=None,
-                        help="with --band: σ_γ of the band with < 2 known times "
-                        "(selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA; default the "
-                        "library's)")
+                        help="with --band: σ₀ of the band's σ_γ = σ₀ √(1 + E) with < 2 "
+                        "known times (selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA; "
+                        "default the library's)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     args = parser.parse_args()
     tables.start("response_unknown", args.split)

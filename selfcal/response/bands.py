@@ -35,8 +35,9 @@ exposures → exposures^γ) and the prior chooses γ (:func:`.priors.ambiguity_c
 estimate above sees how wrong that choice can be -- the prior's precision pins γ to a
 percent or so, while camera curves stray from the prior's centre by far more -- so the band
 would describe the scatter around the prior's choice, not the ambiguity.  The term is the
-log-domain effect of γ, |log f⁻¹| · σ_γ, with σ_γ (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) the
-spread of log γ that the prior leaves on the tuning split.
+log-domain effect of γ, |log f⁻¹| · σ_γ, with σ_γ = σ₀ √(1 + E) (:func:`ambiguity_gamma_sigma`):
+E is how far the fitted curve lies from the prior's centre in the prior's own standard
+deviations, and σ₀ (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is measured on the tuning split.
 
 The threshold rows of the solve (:class:`.equations.ThresholdRows`) are left out of both:
 they are few and move the curve, not its spread.
@@ -64,12 +65,13 @@ EXPOSURE_LOG_SIGMA = 0.02
 #: Std of the shift of log f⁻¹ below the brightest valid sample (:func:`_top_sigma`),
 #: chosen on the tuning split.
 TOP_LOG_SIGMA = 0.03
-#: σ_γ of :func:`ambiguity_sigma`: the std of log γ (the exponent by which the fitted f⁻¹
-#: misses the true one) with fewer than two known times, chosen on the tuning split so that
-#: the 90 % band covers the true curve on 90 % of the (code, channel, stack) there
-#: (``python3 -m bench.response_unknown --split tuning --step 5 --band``; docs/decisions.md,
-#: "The band with fewer than two known times: σ_γ = 0.30").
-AMBIGUITY_LOG_GAMMA_SIGMA = 0.30
+#: σ₀ of :func:`ambiguity_gamma_sigma` (σ_γ, the std of log γ -- the exponent by which the
+#: fitted f⁻¹ misses the true one -- is σ₀ √(1 + E)), chosen on the tuning split: the
+#: smallest of the candidates whose 90 % band covers the true curve on ≥ 90 % of the (code,
+#: channel, stack) there, with one known time and with none (``python3 -m
+#: bench.response_unknown --split tuning --step 5 --known one,none --band --gamma-sigma S``;
+#: docs/decisions.md, "The band with fewer than two known times: σ_γ = 0.10 √(1 + E)").
+AMBIGUITY_LOG_GAMMA_SIGMA = 0.10
 #: What the band's σ_g is computed for: the solver's defaults.
 _SOLVER = SolverOptions()
 _CODE_NOISE = 1.0 / 255.0
@@ -95,7 +97,7 @@ class BandSettings:
     exposure_log_sigma: float = EXPOSURE_LOG_SIGMA
     seed: int = 0
     top_log_sigma: float | None = None      # None: TOP_LOG_SIGMA (read at call time)
-    ambiguity_log_sigma: float | None = None    # None: AMBIGUITY_LOG_GAMMA_SIGMA (ditto)
+    ambiguity_log_sigma: float | None = None    # σ₀; None: AMBIGUITY_LOG_GAMMA_SIGMA (ditto)
 
 
 def _top_sigma(values, valid, grid, sigma) -> np.ndarray:
@@ -249,7 +251,7 @@ def _perturb_prior_means(q, priors, N, rng) -> None:
         q[term.channel * N:(term.channel + 1) * N] += term.a * rng.standard_normal() / sigma
 
 
-def ambiguity_sigma(inverse, sigma_gamma: float | None = None) -> np.ndarray:
+def ambiguity_sigma(inverse, sigma_gamma: float) -> np.ndarray:
     """σ of log f⁻¹ that the exponential ambiguity leaves (ours; issue 35).
 
     With fewer than two different known exposure times, Eq. 8 of [Lin2011] is blind to
@@ -257,25 +259,63 @@ def ambiguity_sigma(inverse, sigma_gamma: float | None = None) -> np.ndarray:
     log f⁻¹ → γ · log f⁻¹: a relative error ε = log γ of γ moves log f⁻¹ by
     ε · log f⁻¹ to first order, so a spread σ_γ of log γ gives ``|log f⁻¹(I)| · σ_γ`` at
     each I -- 0 at I = 1 (f⁻¹(1) = 1, the normalisation of Eq. 7 and of the scores), and
-    largest in the shadows.  The data cannot narrow it (for power-law-like curves γ is not
-    in the data at all: docs/decisions.md, "γ with unknown times is not read from the
-    noise"), so σ_γ is a constant of the curves cameras have, measured on the tuning split
-    (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`).
+    largest in the shadows.
 
     Parameters
     ----------
     inverse : ndarray, shape (K, 3)
         The fitted f⁻¹ on its grid (floored at 1e-5 before the log, as the basis' own
         floor, so the term stays finite at I = 0).
-    sigma_gamma : float, optional
-        σ_γ; default :data:`AMBIGUITY_LOG_GAMMA_SIGMA`.
+    sigma_gamma : float
+        σ_γ, the std of log γ (:func:`ambiguity_gamma_sigma`).
 
     Returns
     -------
     ndarray, shape (K, 3)
     """
-    s = AMBIGUITY_LOG_GAMMA_SIGMA if sigma_gamma is None else float(sigma_gamma)
-    return s * np.abs(np.log(np.maximum(np.asarray(inverse, dtype=float), _LOG_FLOOR)))
+    logs = np.log(np.maximum(np.asarray(inverse, dtype=float), _LOG_FLOOR))
+    return float(sigma_gamma) * np.abs(logs)
+
+
+def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
+                          sigma0: float | None = None) -> float:
+    """σ_γ, the std of log γ the prior's choice of γ leaves: σ₀ √(1 + E) (ours; issue 35).
+
+    The data cannot narrow γ (for power-law-like curves it is not in the data at all:
+    docs/decisions.md, "γ with unknown times is not read from the noise"); how far the
+    prior's choice can be off is a matter of the curves cameras have.  It is small for a
+    camera whose curve is shaped like the prior's centre (:func:`.priors.ambiguity_centre`:
+    the least-costly γ is then about right) and grows with how unlike it the curve is.  E
+    measures that: the squared distance of the fitted coefficients from the centre in the
+    PCA variances of the basis (``Σ_n (c_n − μ_n)² / λ_n``, the prior's own energy at unit
+    weight, mean over the channels; λ estimated for a basis without variances, as
+    :func:`.priors.pca_variance_precision`).  On the tuning split the curves the prior
+    misses by γ ≈ 2 lie at E ≈ 6 … 17, the encodings it matches at E < 4.  σ₀
+    (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is the one constant, measured there.
+
+    Parameters
+    ----------
+    basis : ResponseBasis
+    coefficients : ndarray, shape (3, N)
+        The fitted Eq. 7 coefficients.
+    n_components : int
+    sigma0 : float, optional
+        σ₀; default :data:`AMBIGUITY_LOG_GAMMA_SIGMA` (read at call time).
+
+    Returns
+    -------
+    float
+    """
+    from .priors import ambiguity_centre, estimated_coefficient_variance
+
+    N = int(n_components)
+    s0 = AMBIGUITY_LOG_GAMMA_SIGMA if sigma0 is None else float(sigma0)
+    ev = getattr(basis, "explained_variance", None)
+    lam = (np.asarray(ev[:N], dtype=float) if ev is not None and len(ev) >= N
+           else estimated_coefficient_variance(basis, N))
+    c = np.asarray(coefficients, dtype=float)[:, :N]
+    energy = float(np.mean(np.sum((c - ambiguity_centre(basis, N)) ** 2 / lam, axis=1)))
+    return s0 * float(np.sqrt(1.0 + energy))
 
 
 def band_from_sigma(inverse, log_sigma, level: float = 0.9):
@@ -333,8 +373,10 @@ def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
     :func:`ambiguity_sigma` of the fitted curve is added in quadrature *after* the band is
     judged: the verdict's band reason says what the stack does not pin down, and the
     ambiguity has its own warning (:func:`.solver._ambiguity_warnings`), which a band
-    reason on every such calibration would only repeat.  ``settings`` (default
-    ``BandSettings(method=method, seed=seed)``) overrides ``method`` and ``seed``.
+    reason on every such calibration would only repeat.  σ_γ
+    (:func:`ambiguity_gamma_sigma`) joins the verdict's evidence as
+    ``ambiguity_gamma_sigma``.  ``settings`` (default ``BandSettings(method=method,
+    seed=seed)``) overrides ``method`` and ``seed``.
     """
     settings = BandSettings(method=method, seed=seed) if settings is None else settings
     known = np.isfinite(np.asarray(log_times, dtype=float))
@@ -342,8 +384,10 @@ def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
                            known, n_components=n_components, settings=settings)
     judge_band(fit, log_sigma, samples.max_code, warnings)
     if getattr(result, "ambiguity_prior", False):
-        amb = ambiguity_sigma(fit["inverse"], settings.ambiguity_log_sigma)
-        log_sigma = np.sqrt(log_sigma ** 2 + amb ** 2)
+        sigma_gamma = ambiguity_gamma_sigma(basis, result.coefficients, n_components,
+                                            settings.ambiguity_log_sigma)
+        fit["evidence"]["ambiguity_gamma_sigma"] = round(sigma_gamma, 5)
+        log_sigma = np.sqrt(log_sigma ** 2 + ambiguity_sigma(fit["inverse"], sigma_gamma) ** 2)
     return log_sigma
 
 
