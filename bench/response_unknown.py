@@ -222,9 +222,13 @@ def main():
     print(table(["curves", "times known", "stacks", "median RMSE", "p90 RMSE", "max RMSE",
                  "γ range", f"γ in {WINDOW[0]} … {WINDOW[1]}"],
                 summary_rows(results, keys)))
-    per_curve = [[r[0], r[1], *(f"{r[2][k][0]:.4f} (γ {r[2][k][1]:.2f})" for k in keys)]
-                 for r in results]
-    print("\nStack by stack:\n")
+    def cell(v):
+        band = (f", band {v[3]['coverage']:.2f} ±{v[3]['width']:.2f}" if args.band else "")
+        return f"{v[0]:.4f} (γ {v[1]:.2f}{band})"
+
+    per_curve = [[r[0], r[1], *(cell(r[2][k]) for k in keys)] for r in results]
+    print("\nStack by stack" + (" (with --band: coverage and half-width of the band)"
+                                if args.band else "") + ":\n")
     print(table(["group", "curve", *(f"{k} known" for k in keys)], per_curve))
     print("\nAcceptance (issue 25): one known time, or none: median ≤ 0.02, γ within "
           "0.9 … 1.1 on ≥ 80 % of stacks")

@@ -72,6 +72,10 @@ TOP_LOG_SIGMA = 0.03
 #: bench.response_unknown --split tuning --step 5 --known one,none --band --gamma-sigma S``;
 #: docs/decisions.md, "The band with fewer than two known times: σ_γ = 0.10 √(1 + E)").
 AMBIGUITY_LOG_GAMMA_SIGMA = 0.10
+#: The most σ_γ can be: the largest |log γ| on the tuning split (≈ 1.0, a DoRF curve the
+#: prior missed by γ ≈ 2.7) over the 90 % quantile 1.645.  Without it a curve unlike any
+#: camera's (E in the hundreds) got a band a hundred times f⁻¹ wide, far beyond any γ seen.
+AMBIGUITY_LOG_GAMMA_SIGMA_MAX = 0.6
 #: What the band's σ_g is computed for: the solver's defaults.
 _SOLVER = SolverOptions()
 _CODE_NOISE = 1.0 / 255.0
@@ -291,7 +295,8 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
     weight, mean over the channels; λ estimated for a basis without variances, as
     :func:`.priors.pca_variance_precision`).  On the tuning split the curves the prior
     misses by γ ≈ 2 lie at E ≈ 6 … 17, the encodings it matches at E < 4.  σ₀
-    (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is the one constant, measured there.
+    (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is the one constant tuned there; σ_γ is capped at
+    :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`, the largest γ error seen there.
 
     Parameters
     ----------
@@ -305,6 +310,7 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
     Returns
     -------
     float
+        At most :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`.
     """
     from .priors import ambiguity_centre, estimated_coefficient_variance
 
@@ -315,7 +321,7 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
            else estimated_coefficient_variance(basis, N))
     c = np.asarray(coefficients, dtype=float)[:, :N]
     energy = float(np.mean(np.sum((c - ambiguity_centre(basis, N)) ** 2 / lam, axis=1)))
-    return s0 * float(np.sqrt(1.0 + energy))
+    return min(s0 * float(np.sqrt(1.0 + energy)), AMBIGUITY_LOG_GAMMA_SIGMA_MAX)
 
 
 def band_from_sigma(inverse, log_sigma, level: float = 0.9):
