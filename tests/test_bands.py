@@ -203,3 +203,20 @@ def test_ambiguity_term_is_the_log_effect_of_gamma(small_stacks):
     wide = bands.widest_band(model.intensity, model.inverse, data)
     assert evidence["band_width_90"]["width"] == pytest.approx(wide["width"], abs=1e-3)
     assert model.diagnostics["verdict"] == "ok"
+
+
+def test_ambiguity_gamma_sigma_grows_with_the_distance_from_the_prior_centre():
+    from selfcal.response import bands
+    from selfcal.response.basis import builtin_basis
+    from selfcal.response.priors import ambiguity_centre
+
+    basis, N = builtin_basis(), 5
+    centre = np.tile(ambiguity_centre(basis, N), (3, 1))
+    s0 = bands.AMBIGUITY_LOG_GAMMA_SIGMA
+    assert bands.ambiguity_gamma_sigma(basis, centre, N) == pytest.approx(s0)
+    lam = np.asarray(basis.explained_variance[:N])
+    off = centre.copy()
+    off[:, 0] += 2.0 * np.sqrt(lam[0])                       # E = 4 in every channel
+    assert bands.ambiguity_gamma_sigma(basis, off, N) == pytest.approx(s0 * np.sqrt(5.0))
+    off[:, 0] += 100.0 * np.sqrt(lam[0])                     # far beyond any camera: capped
+    assert bands.ambiguity_gamma_sigma(basis, off, N) == bands.AMBIGUITY_LOG_GAMMA_SIGMA_MAX
