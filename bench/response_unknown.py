@@ -25,9 +25,11 @@ share a 90 % band should bring to 0.90), and *width*, the median relative half-w
 ``(upper − lower) / (2 f⁻¹)`` over codes 26 … 229 and channels (as ``bench.uncertainty``);
 then the issue 35 acceptance: with one known time and with none, median coverage ≥ 0.80.
 ``--dump FILE`` (with ``--band``) also writes each stack's true and fitted f⁻¹ and σ of
-log f⁻¹ at every code to an ``.npz`` (to study the band offline); ``--gamma-sigma S`` sets
-σ₀ of the band's σ_γ = σ₀ √(1 + E) (``selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA``;
-the candidates it was tuned among, on the tuning split).
+log f⁻¹ at every code to an ``.npz`` (to study the band offline); ``--gamma-sigma S`` scores
+the band with σ₀ = S in its σ_γ = σ₀ √(1 + E) instead of the library's
+(``selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA``; the candidates it was tuned among,
+on the tuning split): the ambiguity term is redone from σ_γ and E in each calibration's
+verdict evidence (:func:`band_sigma`).
 
     python3 -m bench.response_unknown [--split tuning|held-out|all] [--step 20]
         [--known all,two,one,none] [--centre none] [--band [--dump FILE] [--gamma-sigma S]]
@@ -70,10 +72,6 @@ def one_stack(args):
     from selfcal.response import ResponseOptions
 
     options = ResponseOptions()
-    if gamma_sigma is not None:     # --gamma-sigma: σ₀ of the band's σ_γ (issue 35's tuning)
-        from selfcal.response import bands
-
-        bands.AMBIGUITY_LOG_GAMMA_SIGMA = gamma_sigma
     if centre == "none":            # the prior at the basis mean, as before issue 25
         from dataclasses import replace
 
@@ -94,18 +92,40 @@ def one_stack(args):
         gamma = float(np.polyfit(true_log, np.log(model.exposures), 1)[0])
         out[key] = (rmse(model.inverse_response()[1:255], truth), gamma, seconds)
         if band:
-            out[key] += (band_scores(model, stack.inverse_response()),)
+            out[key] += (band_scores(model, stack.inverse_response(), gamma_sigma),)
     return group, label, out
 
 
-def band_scores(model, truth) -> dict:
+def band_sigma(model, gamma_sigma=None):
+    """The model's σ of log f⁻¹; with ``gamma_sigma`` (--gamma-sigma), its ambiguity term
+    redone with that σ₀: the term the calibration added (``selfcal.response.bands``,
+    σ_γ and E in the verdict's evidence) taken out in quadrature and σ₀'s put in."""
+    from selfcal.response import bands
+
+    sigma = np.asarray(model.inverse_log_sigma, dtype=float)
+    evidence = model.diagnostics["verdict_evidence"]
+    if gamma_sigma is None or "ambiguity_energy" not in evidence:
+        return sigma
+    log_inverse = bands.ambiguity_sigma(model.inverse, 1.0)          # |log f⁻¹|
+    old = evidence["ambiguity_gamma_sigma"]
+    new = bands.gamma_sigma_of_energy(evidence["ambiguity_energy"], gamma_sigma)
+    return np.sqrt(np.maximum(sigma ** 2 - (old * log_inverse) ** 2, 0.0)
+                   + (new * log_inverse) ** 2)
+
+
+def band_scores(model, truth, gamma_sigma=None) -> dict:
     """Coverage and width of the model's 90 % band against the true f⁻¹ (module docstring),
     and the curves at every code (for ``--dump``)."""
-    lower, upper = model.band_at_codes(np.arange(256), 0.9)
+    from selfcal.response.bands import band_from_sigma
+
+    x = np.arange(256) / model.max_code
+    grid_sigma = band_sigma(model, gamma_sigma)
+    lower, upper, sigma = (np.stack([np.interp(x, model.intensity, t[:, c]) for c in range(3)],
+                                    axis=-1)
+                           for t in (*band_from_sigma(model.inverse, grid_sigma, 0.9),
+                                     grid_sigma))
     est = model.inverse_response()
     inside = (truth[INNER] >= lower[INNER]) & (truth[INNER] <= upper[INNER])
-    sigma = np.stack([np.interp(np.arange(256) / model.max_code, model.intensity,
-                                model.inverse_log_sigma[:, c]) for c in range(3)], axis=-1)
     return {"coverage": float(inside.mean()),
             "width": float(np.median((upper - lower)[BODY] / (2 * est[BODY]))),
             "truth": truth, "estimate": est, "log_sigma": sigma}
@@ -200,9 +220,9 @@ def main():
     parser.add_argument("--dump", default="",
                         help="with --band: write the true and fitted curves and σ to this .npz")
     parser.add_argument("--gamma-sigma", type=float, default=None,
-                        help="with --band: σ₀ of the band's σ_γ = σ₀ √(1 + E) with < 2 "
-                        "known times (selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA; "
-                        "default the library's)")
+                        help="with --band: score the band with this σ₀ in σ_γ = σ₀ √(1 + E) "
+                        "(< 2 known times; default the library's, "
+                        "selfcal.response.bands.AMBIGUITY_LOG_GAMMA_SIGMA)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
     args = parser.parse_args()
     tables.start("response_unknown", args.split)

@@ -138,10 +138,20 @@ def small_stacks():
     return out
 
 
-@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
-def test_band_with_no_time_known_carries_the_ambiguity(small_stacks, monkeypatch):
-    # with no time (or one) the prior chooses γ; the band must cover the truth anyway
+def _data_band(model):
+    """The band without the ambiguity term: that term (σ_γ in the evidence) taken out."""
     from selfcal.response import bands
+
+    sigma_gamma = model.diagnostics["verdict_evidence"]["ambiguity_gamma_sigma"]
+    amb = bands.ambiguity_sigma(model.inverse, sigma_gamma)
+    assert np.all(model.inverse_log_sigma >= amb - 1e-9)
+    return np.sqrt(np.maximum(model.inverse_log_sigma ** 2 - amb ** 2, 0.0))
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_band_with_no_time_known_carries_the_ambiguity(small_stacks):
+    # with no time (or one) the prior chooses γ; the band must cover the truth anyway
+    from dataclasses import replace
 
     one = [TIMES[0]] + [None] * (len(TIMES) - 1)
     covered = []
@@ -154,28 +164,25 @@ def test_band_with_no_time_known_carries_the_ambiguity(small_stacks, monkeypatch
     assert min(covered) >= 0.8, covered
     # without the ambiguity term the band is the scatter around the prior's choice, which
     # misses the flatter curve (this is what the term is for)
-    monkeypatch.setattr(bands, "AMBIGUITY_LOG_GAMMA_SIGMA", 0.0)
     flat = small_stacks[1]
-    bare = selfcal.calibrate_response(flat.images, [None] * len(TIMES))
+    model = selfcal.calibrate_response(flat.images, [None] * len(TIMES))
+    bare = replace(model, inverse_log_sigma=_data_band(model))
     assert _coverage(bare, flat.inverse_response()) < 0.5
 
 
 @pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
-def test_band_with_all_times_known_is_unchanged_by_the_ambiguity_term(small_stacks,
-                                                                      monkeypatch):
-    from selfcal.response import bands
-
+def test_band_with_two_times_known_has_no_ambiguity_term(small_stacks):
+    # the term is there only when the solve left γ to the prior: with all times known and
+    # with two, the band is the data's (narrow), and no σ_γ is reported
     stack = small_stacks[0]
-    before = selfcal.calibrate_response(stack.images, TIMES)
     two = [TIMES[0]] + [None] * (len(TIMES) - 2) + [TIMES[-1]]
-    before_two = selfcal.calibrate_response(stack.images, two)
-    monkeypatch.setattr(bands, "AMBIGUITY_LOG_GAMMA_SIGMA", 5.0)
-    np.testing.assert_array_equal(
-        selfcal.calibrate_response(stack.images, TIMES).inverse_log_sigma,
-        before.inverse_log_sigma)
-    np.testing.assert_array_equal(
-        selfcal.calibrate_response(stack.images, two).inverse_log_sigma,
-        before_two.inverse_log_sigma)
+    for known in (TIMES, two):
+        model = selfcal.calibrate_response(stack.images, known)
+        assert "ambiguity_gamma_sigma" not in model.diagnostics["verdict_evidence"]
+        lower, upper = model.band_at_codes(np.arange(256))
+        body = slice(26, 230)
+        half = np.median((upper - lower)[body] / (2 * model.inverse_response()[body]))
+        assert half < 0.15
 
 
 @pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
@@ -196,11 +203,10 @@ def test_ambiguity_term_is_the_log_effect_of_gamma(small_stacks):
     evidence = model.diagnostics["verdict_evidence"]
     sigma_gamma = evidence["ambiguity_gamma_sigma"]
     # σ_γ = σ₀ √(1 + E): at least σ₀, and sRGB (half of the prior's centre) lies near it
+    assert sigma_gamma == pytest.approx(bands.gamma_sigma_of_energy(
+        evidence["ambiguity_energy"]))
     assert bands.AMBIGUITY_LOG_GAMMA_SIGMA <= sigma_gamma < 2 * bands.AMBIGUITY_LOG_GAMMA_SIGMA
-    amb = bands.ambiguity_sigma(model.inverse, sigma_gamma)
-    assert np.all(model.inverse_log_sigma >= amb - 1e-4)
-    data = np.sqrt(np.maximum(model.inverse_log_sigma ** 2 - amb ** 2, 0.0))
-    wide = bands.widest_band(model.intensity, model.inverse, data)
+    wide = bands.widest_band(model.intensity, model.inverse, _data_band(model))
     assert evidence["band_width_90"]["width"] == pytest.approx(wide["width"], abs=1e-3)
     assert model.diagnostics["verdict"] == "ok"
 
@@ -213,10 +219,11 @@ def test_ambiguity_gamma_sigma_grows_with_the_distance_from_the_prior_centre():
     basis, N = builtin_basis(), 5
     centre = np.tile(ambiguity_centre(basis, N), (3, 1))
     s0 = bands.AMBIGUITY_LOG_GAMMA_SIGMA
-    assert bands.ambiguity_gamma_sigma(basis, centre, N) == pytest.approx(s0)
+    assert bands.ambiguity_gamma_sigma(basis, centre, N) == pytest.approx((s0, 0.0))
     lam = np.asarray(basis.explained_variance[:N])
     off = centre.copy()
     off[:, 0] += 2.0 * np.sqrt(lam[0])                       # E = 4 in every channel
-    assert bands.ambiguity_gamma_sigma(basis, off, N) == pytest.approx(s0 * np.sqrt(5.0))
+    assert bands.ambiguity_gamma_sigma(basis, off, N) == pytest.approx((s0 * np.sqrt(5.0), 4.0))
     off[:, 0] += 100.0 * np.sqrt(lam[0])                     # far beyond any camera: capped
-    assert bands.ambiguity_gamma_sigma(basis, off, N) == bands.AMBIGUITY_LOG_GAMMA_SIGMA_MAX
+    assert bands.ambiguity_gamma_sigma(basis, off, N)[0] == bands.AMBIGUITY_LOG_GAMMA_SIGMA_MAX
+    assert bands.gamma_sigma_of_energy(4.0, 0.2) == pytest.approx(0.2 * np.sqrt(5.0))

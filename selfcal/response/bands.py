@@ -101,7 +101,6 @@ class BandSettings:
     exposure_log_sigma: float = EXPOSURE_LOG_SIGMA
     seed: int = 0
     top_log_sigma: float | None = None      # None: TOP_LOG_SIGMA (read at call time)
-    ambiguity_log_sigma: float | None = None    # σ₀; None: AMBIGUITY_LOG_GAMMA_SIGMA (ditto)
 
 
 def _top_sigma(values, valid, grid, sigma) -> np.ndarray:
@@ -282,7 +281,7 @@ def ambiguity_sigma(inverse, sigma_gamma: float) -> np.ndarray:
 
 
 def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
-                          sigma0: float | None = None) -> float:
+                          sigma0: float | None = None) -> tuple[float, float]:
     """σ_γ, the std of log γ the prior's choice of γ leaves: σ₀ √(1 + E) (ours; issue 35).
 
     The data cannot narrow γ (for power-law-like curves it is not in the data at all:
@@ -296,7 +295,8 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
     :func:`.priors.pca_variance_precision`).  On the tuning split the curves the prior
     misses by γ ≈ 2 lie at E ≈ 6 … 17, the encodings it matches at E < 4.  σ₀
     (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is the one constant tuned there; σ_γ is capped at
-    :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`, the largest γ error seen there.
+    :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`, the largest γ error seen there
+    (:func:`gamma_sigma_of_energy`).
 
     Parameters
     ----------
@@ -309,19 +309,31 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
 
     Returns
     -------
-    float
+    sigma_gamma : float
         At most :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`.
+    energy : float
+        E.
     """
     from .priors import ambiguity_centre, estimated_coefficient_variance
 
     N = int(n_components)
-    s0 = AMBIGUITY_LOG_GAMMA_SIGMA if sigma0 is None else float(sigma0)
     ev = getattr(basis, "explained_variance", None)
     lam = (np.asarray(ev[:N], dtype=float) if ev is not None and len(ev) >= N
            else estimated_coefficient_variance(basis, N))
     c = np.asarray(coefficients, dtype=float)[:, :N]
     energy = float(np.mean(np.sum((c - ambiguity_centre(basis, N)) ** 2 / lam, axis=1)))
-    return min(s0 * float(np.sqrt(1.0 + energy)), AMBIGUITY_LOG_GAMMA_SIGMA_MAX)
+    return gamma_sigma_of_energy(energy, sigma0), energy
+
+
+def gamma_sigma_of_energy(energy: float, sigma0: float | None = None) -> float:
+    """σ_γ = min(σ₀ √(1 + E), :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`) (ours; issue 35).
+
+    ``sigma0`` default :data:`AMBIGUITY_LOG_GAMMA_SIGMA` (read at call time); the
+    candidates it was chosen among are given here by ``bench.response_unknown
+    --gamma-sigma``, from the E of each calibration's evidence.
+    """
+    s0 = AMBIGUITY_LOG_GAMMA_SIGMA if sigma0 is None else float(sigma0)
+    return min(s0 * float(np.sqrt(1.0 + float(energy))), AMBIGUITY_LOG_GAMMA_SIGMA_MAX)
 
 
 def band_from_sigma(inverse, log_sigma, level: float = 0.9):
@@ -369,8 +381,7 @@ def band_reason(intensity, inverse, log_sigma, max_code: int):
 
 def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
                  n_components: int, seed: int = 0,
-                 method: str = DEFAULT_BAND_METHOD,
-                 settings: BandSettings | None = None) -> np.ndarray:
+                 method: str = DEFAULT_BAND_METHOD) -> np.ndarray:
     """:func:`curve_band` of a :class:`.solver.SolveResult`, judged (:func:`judge_band`):
     the hook of the calibration.  Returns σ_g, (K, 3).
 
@@ -379,20 +390,19 @@ def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
     :func:`ambiguity_sigma` of the fitted curve is added in quadrature *after* the band is
     judged: the verdict's band reason says what the stack does not pin down, and the
     ambiguity has its own warning (:func:`.solver._ambiguity_warnings`), which a band
-    reason on every such calibration would only repeat.  σ_γ
-    (:func:`ambiguity_gamma_sigma`) joins the verdict's evidence as
-    ``ambiguity_gamma_sigma``.  ``settings`` (default ``BandSettings(method=method,
-    seed=seed)``) overrides ``method`` and ``seed``.
+    reason on every such calibration would only repeat.  σ_γ and E
+    (:func:`ambiguity_gamma_sigma`) join the verdict's evidence as
+    ``ambiguity_gamma_sigma`` and ``ambiguity_energy``.
     """
-    settings = BandSettings(method=method, seed=seed) if settings is None else settings
     known = np.isfinite(np.asarray(log_times, dtype=float))
     log_sigma = curve_band(samples, masks, basis, result.coefficients, result.log_exposures,
-                           known, n_components=n_components, settings=settings)
+                           known, n_components=n_components,
+                           settings=BandSettings(method=method, seed=seed))
     judge_band(fit, log_sigma, samples.max_code, warnings)
     if getattr(result, "ambiguity_prior", False):
-        sigma_gamma = ambiguity_gamma_sigma(basis, result.coefficients, n_components,
-                                            settings.ambiguity_log_sigma)
-        fit["evidence"]["ambiguity_gamma_sigma"] = round(sigma_gamma, 5)
+        sigma_gamma, energy = ambiguity_gamma_sigma(basis, result.coefficients, n_components)
+        fit["evidence"]["ambiguity_gamma_sigma"] = sigma_gamma
+        fit["evidence"]["ambiguity_energy"] = energy
         log_sigma = np.sqrt(log_sigma ** 2 + ambiguity_sigma(fit["inverse"], sigma_gamma) ** 2)
     return log_sigma
 
