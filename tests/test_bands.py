@@ -115,3 +115,115 @@ def test_show_prints_the_widest_band_and_the_plot_shades_it(model, tmp_path):
     assert "90 % band of f⁻¹" in text and "widest ±" in text
     png = plot_response(model, tmp_path / "curve.png")
     assert (tmp_path / "curve.png").stat().st_size > 1000 or png
+
+
+# ------------------------------------------------------------------ issue 35: unknown times
+
+def _coverage(model, truth) -> float:
+    lower, upper = model.band_at_codes(np.arange(256))
+    inner = slice(1, 255)
+    return float(np.mean((truth[inner] >= lower[inner]) & (truth[inner] <= upper[inner])))
+
+
+@pytest.fixture(scope="module")
+def small_stacks():
+    """Small stacks of three curves the prior's centre (sRGB, Rec.709) does not match
+    exactly: sRGB itself, a flatter power law, a film curve."""
+    out = []
+    for curve in (sim.ToneCurve.srgb(), sim.ToneCurve.gamma(1.8), sim.ToneCurve.film()):
+        pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=3)
+        scene = sim.make_scene(96, 144, saturation=0.5, seed=3)
+        out.append(sim.simulate_stack(scene, pipe, TIMES, jitter=0.03, jpeg_quality=90,
+                                      seed=3))
+    return out
+
+
+def _data_band(model):
+    """The band without the ambiguity term: that term (σ_γ in the evidence) taken out."""
+    from selfcal.response import bands
+
+    sigma_gamma = model.diagnostics["verdict_evidence"]["ambiguity_gamma_sigma"]
+    amb = bands.ambiguity_sigma(model.inverse, sigma_gamma)
+    assert np.all(model.inverse_log_sigma >= amb - 1e-9)
+    return np.sqrt(np.maximum(model.inverse_log_sigma ** 2 - amb ** 2, 0.0))
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_band_with_no_time_known_carries_the_ambiguity(small_stacks):
+    # with no time (or one) the prior chooses γ; the band must cover the truth anyway
+    from dataclasses import replace
+
+    one = [TIMES[0]] + [None] * (len(TIMES) - 1)
+    covered = []
+    for stack in small_stacks:
+        truth = stack.inverse_response()
+        for known in ([None] * len(TIMES), one):
+            model = selfcal.calibrate_response(stack.images, known)
+            assert model.diagnostics["ambiguity_resolved_by_prior"]
+            covered.append(_coverage(model, truth))
+    assert min(covered) >= 0.8, covered
+    # without the ambiguity term the band is the scatter around the prior's choice, which
+    # misses the flatter curve (this is what the term is for)
+    flat = small_stacks[1]
+    model = selfcal.calibrate_response(flat.images, [None] * len(TIMES))
+    bare = replace(model, inverse_log_sigma=_data_band(model))
+    assert _coverage(bare, flat.inverse_response()) < 0.5
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_band_with_two_times_known_has_no_ambiguity_term(small_stacks):
+    # the term is there only when the solve left γ to the prior: with all times known and
+    # with two, the band is the data's (narrow), and no σ_γ is reported
+    stack = small_stacks[0]
+    two = [TIMES[0]] + [None] * (len(TIMES) - 2) + [TIMES[-1]]
+    for known in (TIMES, two):
+        model = selfcal.calibrate_response(stack.images, known)
+        assert "ambiguity_gamma_sigma" not in model.diagnostics["verdict_evidence"]
+        lower, upper = model.band_at_codes(np.arange(256))
+        body = slice(26, 230)
+        half = np.median((upper - lower)[body] / (2 * model.inverse_response()[body]))
+        assert half < 0.15
+
+
+@pytest.mark.filterwarnings("ignore:fewer than two different exposure times")
+def test_ambiguity_term_is_the_log_effect_of_gamma(small_stacks):
+    from selfcal.response import bands
+
+    grid = np.linspace(0.0, 1.0, 11)
+    inverse = np.tile(grid[:, None] ** 2.2, (1, 3))
+    amb = bands.ambiguity_sigma(inverse, 0.3)
+    assert np.all(np.isfinite(amb)) and np.all(amb[-1] == 0.0)      # f⁻¹(1) = 1
+    np.testing.assert_allclose(amb[1:], 0.3 * 2.2 * np.abs(np.log(grid[1:, None]))
+                               * np.ones((1, 3)))
+    # in the model: the band with no time known is the data's band and this term in
+    # quadrature; the verdict is judged on the data's band alone (the ambiguity has its
+    # own warning)
+    stack = small_stacks[0]
+    model = selfcal.calibrate_response(stack.images, [None] * len(TIMES))
+    evidence = model.diagnostics["verdict_evidence"]
+    sigma_gamma = evidence["ambiguity_gamma_sigma"]
+    # σ_γ = σ₀ √(1 + E): at least σ₀, and sRGB (half of the prior's centre) lies near it
+    assert sigma_gamma == pytest.approx(bands.gamma_sigma_of_energy(
+        evidence["ambiguity_energy"]))
+    assert bands.AMBIGUITY_LOG_GAMMA_SIGMA <= sigma_gamma < 2 * bands.AMBIGUITY_LOG_GAMMA_SIGMA
+    wide = bands.widest_band(model.intensity, model.inverse, _data_band(model))
+    assert evidence["band_width_90"]["width"] == pytest.approx(wide["width"], abs=1e-3)
+    assert model.diagnostics["verdict"] == "ok"
+
+
+def test_ambiguity_gamma_sigma_grows_with_the_distance_from_the_prior_centre():
+    from selfcal.response import bands
+    from selfcal.response.basis import builtin_basis
+    from selfcal.response.priors import ambiguity_centre
+
+    basis, N = builtin_basis(), 5
+    centre = np.tile(ambiguity_centre(basis, N), (3, 1))
+    s0 = bands.AMBIGUITY_LOG_GAMMA_SIGMA
+    assert bands.ambiguity_gamma_sigma(basis, centre, N) == pytest.approx((s0, 0.0))
+    lam = np.asarray(basis.explained_variance[:N])
+    off = centre.copy()
+    off[:, 0] += 2.0 * np.sqrt(lam[0])                       # E = 4 in every channel
+    assert bands.ambiguity_gamma_sigma(basis, off, N) == pytest.approx((s0 * np.sqrt(5.0), 4.0))
+    off[:, 0] += 100.0 * np.sqrt(lam[0])                     # far beyond any camera: capped
+    assert bands.ambiguity_gamma_sigma(basis, off, N)[0] == bands.AMBIGUITY_LOG_GAMMA_SIGMA_MAX
+    assert bands.gamma_sigma_of_energy(4.0, 0.2) == pytest.approx(0.2 * np.sqrt(5.0))

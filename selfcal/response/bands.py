@@ -29,6 +29,16 @@ docs/decisions.md, "Curve bands: the covariance, σ_t = 0.02, σ_top = 0.03"):
 To both, an extrapolation term is added in quadrature (:func:`_top_sigma`): the shift of the
 curve below the brightest valid sample, which the data do not see.
 
+With fewer than two different known times, a third term (:func:`ambiguity_sigma`, issue 35):
+Eq. 8 then fixes f⁻¹ only up to the exponential ambiguity of [Lin2011] §5 (f⁻¹ → (f⁻¹)^γ,
+exposures → exposures^γ) and the prior chooses γ (:func:`.priors.ambiguity_centre`).  Neither
+estimate above sees how wrong that choice can be -- the prior's precision pins γ to a
+percent or so, while camera curves stray from the prior's centre by far more -- so the band
+would describe the scatter around the prior's choice, not the ambiguity.  The term is the
+log-domain effect of γ, |log f⁻¹| · σ_γ, with σ_γ = σ₀ √(1 + E) (:func:`ambiguity_gamma_sigma`):
+E is how far the fitted curve lies from the prior's centre in the prior's own standard
+deviations, and σ₀ (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is measured on the tuning split.
+
 The threshold rows of the solve (:class:`.equations.ThresholdRows`) are left out of both:
 they are few and move the curve, not its spread.
 """
@@ -55,9 +65,22 @@ EXPOSURE_LOG_SIGMA = 0.02
 #: Std of the shift of log f⁻¹ below the brightest valid sample (:func:`_top_sigma`),
 #: chosen on the tuning split.
 TOP_LOG_SIGMA = 0.03
+#: σ₀ of :func:`ambiguity_gamma_sigma` (σ_γ, the std of log γ -- the exponent by which the
+#: fitted f⁻¹ misses the true one -- is σ₀ √(1 + E)), chosen on the tuning split: the
+#: smallest of the candidates whose 90 % band covers the true curve on ≥ 90 % of the (code,
+#: channel, stack) there, with one known time and with none (``python3 -m
+#: bench.response_unknown --split tuning --step 5 --known one,none --band --gamma-sigma S``;
+#: docs/decisions.md, "The band with fewer than two known times: σ_γ = 0.10 √(1 + E)").
+AMBIGUITY_LOG_GAMMA_SIGMA = 0.10
+#: The most σ_γ can be: the largest |log γ| on the tuning split (≈ 1.0, a DoRF curve the
+#: prior missed by γ ≈ 2.7) over the 90 % quantile 1.645.  Without it a curve unlike any
+#: camera's (E in the hundreds) got a band a hundred times f⁻¹ wide, far beyond any γ seen.
+AMBIGUITY_LOG_GAMMA_SIGMA_MAX = 0.6
 #: What the band's σ_g is computed for: the solver's defaults.
 _SOLVER = SolverOptions()
 _CODE_NOISE = 1.0 / 255.0
+#: Floor of f⁻¹ before the log in :func:`ambiguity_sigma` (the basis' log floor).
+_LOG_FLOOR = 1e-5
 #: Precision of a log exposure held as the additive gauge (no time given).
 _GAUGE_PRECISION = 1e10
 #: The body of the curve, for the verdict and ``selfcal show``: normalised codes 0.1 … 0.9.
@@ -231,6 +254,88 @@ def _perturb_prior_means(q, priors, N, rng) -> None:
         q[term.channel * N:(term.channel + 1) * N] += term.a * rng.standard_normal() / sigma
 
 
+def ambiguity_sigma(inverse, sigma_gamma: float) -> np.ndarray:
+    """σ of log f⁻¹ that the exponential ambiguity leaves (ours; issue 35).
+
+    With fewer than two different known exposure times, Eq. 8 of [Lin2011] is blind to
+    f⁻¹ → (f⁻¹)^γ with every exposure raised to γ (§5), and the prior chooses γ.  Then
+    log f⁻¹ → γ · log f⁻¹: a relative error ε = log γ of γ moves log f⁻¹ by
+    ε · log f⁻¹ to first order, so a spread σ_γ of log γ gives ``|log f⁻¹(I)| · σ_γ`` at
+    each I -- 0 at I = 1 (f⁻¹(1) = 1, the normalisation of Eq. 7 and of the scores), and
+    largest in the shadows.
+
+    Parameters
+    ----------
+    inverse : ndarray, shape (K, 3)
+        The fitted f⁻¹ on its grid (floored at 1e-5 before the log, as the basis' own
+        floor, so the term stays finite at I = 0).
+    sigma_gamma : float
+        σ_γ, the std of log γ (:func:`ambiguity_gamma_sigma`).
+
+    Returns
+    -------
+    ndarray, shape (K, 3)
+    """
+    logs = np.log(np.maximum(np.asarray(inverse, dtype=float), _LOG_FLOOR))
+    return float(sigma_gamma) * np.abs(logs)
+
+
+def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
+                          sigma0: float | None = None) -> tuple[float, float]:
+    """σ_γ, the std of log γ the prior's choice of γ leaves: σ₀ √(1 + E) (ours; issue 35).
+
+    The data cannot narrow γ (for power-law-like curves it is not in the data at all:
+    docs/decisions.md, "γ with unknown times is not read from the noise"); how far the
+    prior's choice can be off is a matter of the curves cameras have.  It is small for a
+    camera whose curve is shaped like the prior's centre (:func:`.priors.ambiguity_centre`:
+    the least-costly γ is then about right) and grows with how unlike it the curve is.  E
+    measures that: the squared distance of the fitted coefficients from the centre in the
+    PCA variances of the basis (``Σ_n (c_n − μ_n)² / λ_n``, the prior's own energy at unit
+    weight, mean over the channels; λ estimated for a basis without variances, as
+    :func:`.priors.pca_variance_precision`).  On the tuning split the curves the prior
+    misses by γ ≈ 2 lie at E ≈ 6 … 17, the encodings it matches at E < 4.  σ₀
+    (:data:`AMBIGUITY_LOG_GAMMA_SIGMA`) is the one constant tuned there; σ_γ is capped at
+    :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`, the largest γ error seen there
+    (:func:`gamma_sigma_of_energy`).
+
+    Parameters
+    ----------
+    basis : ResponseBasis
+    coefficients : ndarray, shape (3, N)
+        The fitted Eq. 7 coefficients.
+    n_components : int
+    sigma0 : float, optional
+        σ₀; default :data:`AMBIGUITY_LOG_GAMMA_SIGMA` (read at call time).
+
+    Returns
+    -------
+    sigma_gamma : float
+        At most :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`.
+    energy : float
+        E.
+    """
+    from .priors import ambiguity_centre, estimated_coefficient_variance
+
+    N = int(n_components)
+    ev = getattr(basis, "explained_variance", None)
+    lam = (np.asarray(ev[:N], dtype=float) if ev is not None and len(ev) >= N
+           else estimated_coefficient_variance(basis, N))
+    c = np.asarray(coefficients, dtype=float)[:, :N]
+    energy = float(np.mean(np.sum((c - ambiguity_centre(basis, N)) ** 2 / lam, axis=1)))
+    return gamma_sigma_of_energy(energy, sigma0), energy
+
+
+def gamma_sigma_of_energy(energy: float, sigma0: float | None = None) -> float:
+    """σ_γ = min(σ₀ √(1 + E), :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`) (ours; issue 35).
+
+    ``sigma0`` default :data:`AMBIGUITY_LOG_GAMMA_SIGMA` (read at call time); the
+    candidates it was chosen among are given here by ``bench.response_unknown
+    --gamma-sigma``, from the E of each calibration's evidence.
+    """
+    s0 = AMBIGUITY_LOG_GAMMA_SIGMA if sigma0 is None else float(sigma0)
+    return min(s0 * float(np.sqrt(1.0 + float(energy))), AMBIGUITY_LOG_GAMMA_SIGMA_MAX)
+
+
 def band_from_sigma(inverse, log_sigma, level: float = 0.9):
     """``(lower, upper)`` of the two-sided band at ``level`` around ``inverse``.
 
@@ -278,12 +383,27 @@ def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
                  n_components: int, seed: int = 0,
                  method: str = DEFAULT_BAND_METHOD) -> np.ndarray:
     """:func:`curve_band` of a :class:`.solver.SolveResult`, judged (:func:`judge_band`):
-    the hook of the calibration.  Returns σ_g, (K, 3)."""
+    the hook of the calibration.  Returns σ_g, (K, 3).
+
+    When the solve left the exponential ambiguity to the prior
+    (``result.ambiguity_prior``: fewer than two different known times),
+    :func:`ambiguity_sigma` of the fitted curve is added in quadrature *after* the band is
+    judged: the verdict's band reason says what the stack does not pin down, and the
+    ambiguity has its own warning (:func:`.solver._ambiguity_warnings`), which a band
+    reason on every such calibration would only repeat.  σ_γ and E
+    (:func:`ambiguity_gamma_sigma`) join the verdict's evidence as
+    ``ambiguity_gamma_sigma`` and ``ambiguity_energy``.
+    """
     known = np.isfinite(np.asarray(log_times, dtype=float))
     log_sigma = curve_band(samples, masks, basis, result.coefficients, result.log_exposures,
                            known, n_components=n_components,
                            settings=BandSettings(method=method, seed=seed))
     judge_band(fit, log_sigma, samples.max_code, warnings)
+    if getattr(result, "ambiguity_prior", False):
+        sigma_gamma, energy = ambiguity_gamma_sigma(basis, result.coefficients, n_components)
+        fit["evidence"]["ambiguity_gamma_sigma"] = sigma_gamma
+        fit["evidence"]["ambiguity_energy"] = energy
+        log_sigma = np.sqrt(log_sigma ** 2 + ambiguity_sigma(fit["inverse"], sigma_gamma) ** 2)
     return log_sigma
 
 
