@@ -43,10 +43,18 @@ SECTIONS = (
      ("python3 -m bench.response_real",)),
     ("response_unknown", "Response with unknown times", "Missing exposure times: how far the curve and its exponent γ go "
      "with all, two, one or no known times.",
-     ("python3 -m bench.response_unknown --split held-out",)),
+     ("python3 -m bench.response_unknown --split held-out",
+      "python3 -m bench.response_unknown --split held-out --step 5 --known all,two,one,none "
+      "--band --jobs 2",
+      "python3 -m bench.response_unknown --split held-out --step 5 --known all,one,none --band "
+      "--gamma-sigma 0 --jobs 2")),
     ("response_matrix", "Response on the condition matrix", "The response on the condition matrix (`selfcal.sim.conditions`, "
      "`selfcal.sim.exact`) and the D7000 in-camera model, against every peer.",
      ("python3 -m bench.response_matrix",)),
+    ("response_top", "Response at the top of the curve", "The response's error per code range "
+     "(codes 245-255 apart), with and without the hidden white samples.",
+     ("python3 -m bench.response_top --curves 2",
+      "python3 -m bench.response_top --curves 2 --no-hidden-white")),
     ("response_brackets", "Response across scenes", "A camera's curve across its scenes (real_brackets): the spread "
      "of each method's curves.",
      ("python3 -m bench.response_brackets",)),
@@ -63,7 +71,7 @@ SECTIONS = (
      "curve and exposures) on exact, ±3 % and ±8 % shutters: the radiance error ratio, what "
      "the curve and the exposures each cost, σ and the exposures used.",
      ("python3 -m bench.merge_oracle --split held-out",
-      "python3 -m bench.merge_oracle --split held-out --options measure_exposures=true")),
+      "python3 -m bench.merge_oracle --split held-out --options measure_exposures=false")),
     ("hdr_oddeven", "HDR merge on real stacks", "HDR merges on real stacks: odd/even agreement, per pixel and on "
      "block means.",
      ("python3 -m bench.hdr_oddeven",)),
