@@ -49,6 +49,14 @@ clipping, colour in gamut, channel ≥ 2⁻⁸ of white and code ≥ 3).  Per st
   flag unmeasured (``bench.uncertainty``'s "after global scale", with the scale of the
   error above; 0.674 for a perfect Gaussian σ; target 0.6–0.8), selfcal's and the
   oracle's;
+* the exponential ambiguity ([Lin2011] §4: ``f⁻¹ → (f⁻¹)^γ`` and ``e → e^γ`` fit the
+  pixels equally, so no self-calibration sees the exposures' trend over the bracket; the
+  times set it): "oracle at the times' trend" scores the oracle's radiance raised to
+  ``1/b``, ``b`` the slope of the true exposures against the nominal times in log -- what
+  the oracle itself would give with the trend the times say, the floor of any method that
+  takes the trend from the times -- as a ratio to the oracle; and "after scale and power"
+  scores selfcal and the oracle after a global scale *and* power
+  (``bench.metrics.power_scale_error``), the error left once the ambiguity is out;
 * exposures: ``HDRResult.exposures`` (what the merge used) against the true exposures, the
   median over the frames of ``|log(e_used/e_true) − mean|`` (one global scale); beside it
   the same for the nominal times (what the times miss).  Target on exact shutters:
