@@ -89,3 +89,60 @@ def test_times_that_are_right_are_barely_moved(stack):
     meas = selfcal.merge_hdr(stack.images, list(true), true_model(stack),
                              options=MergeOptions(measure_exposures=True))
     assert np.abs(meas.exposures / true - 1).max() < 0.015
+
+
+def test_times_trend_keeps_exact_times_and_follows_jittered_ones():
+    from selfcal.exposure.measured import _times_trend
+
+    rng = np.random.default_rng(3)
+    times = 2.0 ** np.arange(8) / 250
+    # deviations no larger than the measurement's scatter: the times stay as they are
+    noise = np.exp(rng.normal(0, 0.002, times.size))
+    out, fit = _times_trend(times * noise, times, 0.004)
+    np.testing.assert_allclose(out, times, rtol=1e-12)
+    assert fit["shrink"] == 0.0 and fit["log_sigma"] >= 0.002
+    # a shutter off by ±8 %: the pixels' deviations are kept almost whole
+    jitter = np.exp(rng.uniform(-0.08, 0.08, times.size))
+    out, fit = _times_trend(times * jitter, times, 0.004)
+    # ... beyond the jitter's own trend over the bracket, which the times keep
+    x = np.log(times)
+    dev = np.log(out / times) - np.log(jitter)
+    dev -= np.polyval(np.polyfit(x, dev, 1), x)
+    assert fit["shrink"] > 0.9
+    assert np.abs(dev).max() < 0.01
+    assert fit["trend_log_sigma"] > 0.005          # the trend's own uncertainty is said
+
+
+def test_times_trend_is_not_pulled_by_one_frame():
+    from selfcal.exposure.measured import _times_trend
+
+    times = 2.0 ** np.arange(6) / 250
+    measured = times.copy()
+    measured[0] *= 1.6                             # one frame's time is far off
+    out, fit = _times_trend(measured, times, 0.002)
+    # Theil-Sen keeps the others on their times; the odd frame follows its pixels
+    np.testing.assert_allclose(out[1:], times[1:], rtol=1e-9)
+    assert out[0] / times[0] == pytest.approx(1.6, rel=1e-3)
+
+
+def test_the_merge_takes_the_calibrations_own_numbers(stack, tmp_path):
+    jittered = np.asarray(stack.true_exposures, float) * OFF
+    model = selfcal.calibrate_response(stack.images, list(jittered))
+    assert model.diagnostics["measured_exposures"]["trend"] == "times"
+    # arrays: recognised by their content, nothing measured again
+    r = selfcal.merge_hdr(stack.images, list(jittered), model)
+    assert r.diagnostics["measured_exposures"]["by"] == "calibration"
+    np.testing.assert_allclose(r.exposures, model.exposures, rtol=1e-12)
+    # other frames (one changed): measured by the merge's own pre-pass
+    other = [im.copy() for im in stack.images]
+    other[0][0, 0] ^= 1
+    r = selfcal.merge_hdr(other, list(jittered), model)
+    assert r.diagnostics["measured_exposures"]["by"] == "merge"
+    # files, after the model went through its file
+    paths = stack.write(tmp_path / "files", fmt="png")
+    model = selfcal.calibrate_response(paths, list(jittered))
+    model.save(tmp_path / "model.json")
+    loaded = selfcal.load_model(tmp_path / "model.json")
+    r = selfcal.merge_hdr(paths, list(jittered), loaded)
+    assert r.diagnostics["measured_exposures"]["by"] == "calibration"
+    np.testing.assert_allclose(r.exposures, model.exposures, rtol=1e-9)

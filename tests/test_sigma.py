@@ -185,3 +185,22 @@ def test_sigma_sums_against_an_independent_float64_sum(model):
     measured = np.isfinite(want)
     assert np.all(np.isinf(den[:3])) and not measured[:3].any() and measured[3:].all()
     np.testing.assert_allclose(den[measured], want[measured], rtol=1e-5)
+
+
+def test_trend_term_against_an_independent_float64_sum():
+    from selfcal.hdr.sigma import add_trend_term
+
+    rng = np.random.default_rng(7)
+    radiance = rng.uniform(0.01, 50.0, (70, 40, 3)).astype(np.float32)
+    sigma = (0.03 * radiance).astype(np.float32)
+    sigma[:2] = np.inf                              # unmeasured stays so
+    before = sigma.astype(np.float64)
+    centre = add_trend_term(sigma, radiance, 0.02, rows=16)
+    sample = radiance[::8, ::8][np.isfinite(before[::8, ::8])]
+    assert centre == pytest.approx(np.median(np.log(sample)), rel=1e-6)
+    e = radiance.astype(np.float64)
+    want = np.sqrt(before ** 2 + (e * 0.02 * (np.log(e) - centre)) ** 2)
+    np.testing.assert_allclose(sigma[2:], want[2:], rtol=1e-5)
+    assert np.all(np.isinf(sigma[:2]))
+    # far from the scale's centre σ grows; at it, it is unchanged
+    assert np.all(sigma >= before.astype(np.float32) * (1 - 1e-6))

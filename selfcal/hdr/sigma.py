@@ -232,7 +232,7 @@ class SigmaSums:
 
 
 def add_trend_term(sigma: np.ndarray, radiance: np.ndarray, trend_log_sigma: float,
-                   *, rows: int = 256) -> float:
+                   *, rows: int = 32) -> float:
     """Add, in place and in quadrature, the error the exposures' trend leaves (ours).
 
     Measured exposures keep the times' trend over the bracket (the pixels cannot see it:
@@ -251,12 +251,19 @@ def add_trend_term(sigma: np.ndarray, radiance: np.ndarray, trend_log_sigma: flo
         return 0.0
     centre = float(np.median(np.log(sample[ok])))
     for r0 in range(0, radiance.shape[0], rows):
-        e = radiance[r0:r0 + rows].astype(np.float32)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            bend = e * np.float32(beta) * (np.log(np.maximum(e, np.float32(1e-30)))
-                                           - np.float32(centre))
+        e = radiance[r0:r0 + rows]
         out = sigma[r0:r0 + rows]
-        np.sqrt(out * out + bend * bend, out=out)
+        # one temporary per strip, the rest in place: σ costs a pass over the map here
+        bend = np.maximum(e, np.float32(1e-30), dtype=np.float32)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            np.log(bend, out=bend)
+            bend -= np.float32(centre)
+            bend *= e
+            bend *= np.float32(beta)
+            np.multiply(bend, bend, out=bend)
+            np.multiply(out, out, out=out)
+            out += bend
+            np.sqrt(out, out=out)
     return centre
 
 
