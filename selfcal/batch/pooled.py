@@ -268,9 +268,7 @@ def fit_shared_response(sessions: Sequence[SessionSamples], *,
         samples, basis, log_times, refine_exposures=False, masks=masks,
         options=SolverOptions(n_components=N, saturation_threshold=saturation_threshold,
                               clip_margin=clip_margin, max_rank_gap=max_rank_gap))
-    g = basis.mean[None, :] + result.coefficients @ basis.components[:N]
-    # as calibrate_response: f⁻¹ = exp(g), made non-decreasing (f⁻¹(1) = 1 by the basis)
-    inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
+    inverse = basis.channel_inverses(result.coefficients, N)   # as calibrate_response
     return SharedFit(intensity=basis.intensity.copy(), inverse=inverse,
                      coefficients=result.coefficients, basis_name=basis.name,
                      residual_rms=float(result.residual_rms),

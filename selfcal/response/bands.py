@@ -281,7 +281,7 @@ def ambiguity_sigma(inverse, sigma_gamma: float) -> np.ndarray:
 
 
 def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
-                          sigma0: float | None = None) -> tuple[float, float]:
+                          sigma0: float = AMBIGUITY_LOG_GAMMA_SIGMA) -> tuple[float, float]:
     """σ_γ, the std of log γ the prior's choice of γ leaves: σ₀ √(1 + E) (ours; issue 35).
 
     The data cannot narrow γ (for power-law-like curves it is not in the data at all:
@@ -305,7 +305,7 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
         The fitted Eq. 7 coefficients.
     n_components : int
     sigma0 : float, optional
-        σ₀; default :data:`AMBIGUITY_LOG_GAMMA_SIGMA` (read at call time).
+        σ₀; default :data:`AMBIGUITY_LOG_GAMMA_SIGMA`.
 
     Returns
     -------
@@ -325,15 +325,15 @@ def ambiguity_gamma_sigma(basis, coefficients, n_components: int,
     return gamma_sigma_of_energy(energy, sigma0), energy
 
 
-def gamma_sigma_of_energy(energy: float, sigma0: float | None = None) -> float:
+def gamma_sigma_of_energy(energy: float, sigma0: float = AMBIGUITY_LOG_GAMMA_SIGMA) -> float:
     """σ_γ = min(σ₀ √(1 + E), :data:`AMBIGUITY_LOG_GAMMA_SIGMA_MAX`) (ours; issue 35).
 
-    ``sigma0`` default :data:`AMBIGUITY_LOG_GAMMA_SIGMA` (read at call time); the
+    ``sigma0`` default :data:`AMBIGUITY_LOG_GAMMA_SIGMA`; the
     candidates it was chosen among are given here by ``bench.response_unknown
     --gamma-sigma``, from the E of each calibration's evidence.
     """
-    s0 = AMBIGUITY_LOG_GAMMA_SIGMA if sigma0 is None else float(sigma0)
-    return min(s0 * float(np.sqrt(1.0 + float(energy))), AMBIGUITY_LOG_GAMMA_SIGMA_MAX)
+    return min(float(sigma0) * float(np.sqrt(1.0 + float(energy))),
+               AMBIGUITY_LOG_GAMMA_SIGMA_MAX)
 
 
 def band_from_sigma(inverse, log_sigma, level: float = 0.9):

@@ -260,6 +260,24 @@ class ResponseBasis:
             return np.exp(np.minimum(v, 50.0))
         return v
 
+    def channel_inverses(self, coefficients, n: int) -> np.ndarray:
+        """f⁻¹ of a log-domain basis on its grid for each channel's Eq. 7 coefficients,
+        made non-decreasing (ours: a fit's f⁻¹ as the calibration keeps it; ``f⁻¹(1) = 1``
+        is built into the basis).
+
+        Parameters
+        ----------
+        coefficients : array_like, shape (3, >= n)
+        n : int
+            The components used.
+
+        Returns
+        -------
+        ndarray, shape (grid size, 3)
+        """
+        g = self.mean[None, :] + np.asarray(coefficients)[:, :n] @ self.components[:n]
+        return np.maximum.accumulate(np.exp(g).T, axis=0)
+
     def to_log_domain(self, log_floor: float = 1e-5) -> "ResponseBasis":
         """A log-domain basis (Eq. 7) from a linear-domain one, by linearising at the mean.
 

@@ -654,11 +654,7 @@ def _inverse_response(basis, coefficients, n_components):
 
     Returns the grid and f⁻¹ as (grid size, 3).
     """
-    grid = basis.intensity
-    g = basis.mean[None, :] + coefficients @ basis.components[:n_components]
-    # f⁻¹(1) = 1 is built into the basis (Eq. 7 normalisation)
-    inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
-    return grid, inverse
+    return basis.intensity, basis.channel_inverses(coefficients, n_components)
 
 
 def _btf_data(samples, masks, result, names):

@@ -101,10 +101,8 @@ def white_end_masks(samples, masks: dict, basis, result, options) -> tuple[int, 
     """
     from .white_end import mask_near_clip
 
-    N = options.n_components
     grid = basis.intensity
-    g = basis.mean[None, :] + result.coefficients @ basis.components[:N]
-    inverse = np.maximum.accumulate(np.exp(g).T, axis=0)
+    inverse = basis.channel_inverses(result.coefficients, options.n_components)
     reach = (mask_near_clip(samples, masks, result, grid, inverse)
              if options.measure_ringing else 0)
     hidden = 0
