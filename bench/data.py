@@ -58,6 +58,33 @@ def dorf_curve(index: int):
     return sim.ToneCurve.from_table(mat["I"][index], mat["B"][index], name=f"dorf{index}")
 
 
+def dorf_stack_arguments(parser) -> None:
+    """``--step``, ``--size``, ``--jobs`` and ``--split`` of the benches that simulate one
+    stack per DoRF curve (:func:`dorf_stacks`)."""
+    parser.add_argument("--step", type=int, default=10,
+                        help="every K-th DoRF curve, an even and an odd one (default %(default)s)")
+    parser.add_argument("--size", default="256x384", help="scene HxW (default %(default)s)")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
+    parser.add_argument("--split", choices=("both", "tuning", "held-out"), default="both")
+
+
+def dorf_stacks(parser, args) -> tuple[list, tuple]:
+    """``(curve index, seed)`` of the stacks :func:`dorf_stack_arguments` chose, and the
+    scene size ``(h, w)``: even curves ``0, K, 2K, …`` with seed = index (tuning), the odd
+    curve after each with seed = 1000 + index (held out)."""
+    if args.step < 1:
+        parser.error("--step must be >= 1")
+    h, w = (int(v) for v in args.size.lower().split("x"))
+    n_curves = 201
+    even = sorted({i - i % 2 for i in range(0, n_curves, args.step)})
+    stacks = []
+    if args.split in ("both", "tuning"):
+        stacks += [(i, i) for i in even]
+    if args.split in ("both", "held-out"):
+        stacks += [(i + 1, 1000 + i + 1) for i in even if i + 1 < n_curves]
+    return stacks, (h, w)
+
+
 def real_stacks():
     """The real stacks of issue 3: name -> (paths, nominal times in seconds)."""
     from selfcal.io import read_exposure_info

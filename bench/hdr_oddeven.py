@@ -48,7 +48,7 @@ pixels some frame measured.
     python3 -m bench.hdr_oddeven                 # every stack (6 min, 6 GB peak)
     python3 -m bench.hdr_oddeven --only memorial --only sony_ilce6400/scene3
     python3 -m bench.hdr_oddeven --reduce 4      # every JPEG at 1/4 (quick)
-    python3 -m bench.hdr_oddeven --measured-exposures   # + the "selfcal measured" columns
+    python3 -m bench.hdr_oddeven --exposure-variants    # + the exposures' variant columns
 
 The ntu frames (6000×4000) are always decoded at 1/4 or less (libjpeg DCT scaling,
 ``read_image(..., reduce=4)``); the "size" column gives the size merged.  Colour-hdri runs
@@ -72,11 +72,12 @@ METHODS = ("selfcal default", "selfcal noise", "selfcal hat", "OpenCV",
            "colour-hdri")
 #: Not a candidate for the "lowest" column: the default before issue 26's change.
 BEFORE = "selfcal before"
-#: With --measured-exposures: the default merge with the exposures measured from the
-#: pixels through the curve (``MergeOptions(measure_exposures=True)``), their trend over
-#: the bracket the pixels' or the times' (``MergeOptions.exposure_trend``);
-#: not candidates of the "lowest" column either.
-MEASURED = {"selfcal measured": "pixels", "selfcal measured, times' trend": "times"}
+#: With --exposure-variants: the default merge with the measured exposures' trend over the
+#: bracket the pixels' (``MergeOptions(exposure_trend="pixels")``), and with the times as
+#: they are (``measure_exposures=False``, the default before issue 35); not candidates of
+#: the "lowest" column either.
+MEASURED = {"selfcal, pixels' trend": {"exposure_trend": "pixels"},
+            "selfcal before 35": {"measure_exposures": False}}
 NOT_CANDIDATES = (BEFORE, *MEASURED)
 #: Block size of the block-averaged score (every method) and the sizes of the scaling table.
 BLOCK = 8
@@ -100,8 +101,6 @@ def selfcal_merges(frames, times, halves, methods=METHODS):
     issue 26's options off (``MergeOptions(code_error=False, merge_unchecked=False)``: no
     code-error term in the weights, frames the calibration ignored as too far from the
     bracket left out): the default of b8a2705."""
-    from dataclasses import replace
-
     import selfcal
     from selfcal.hdr import MergeOptions
 
@@ -112,9 +111,8 @@ def selfcal_merges(frames, times, halves, methods=METHODS):
                                                           merge_unchecked=False)}),
                 ("selfcal default", dict), ("selfcal noise", lambda: {"weighting": "noise"}),
                 ("selfcal hat", lambda: {"weighting": "hat"})]
-    variants += [(m, lambda trend=trend: {"options": replace(
-        MergeOptions(measure_exposures=True), exposure_trend=trend)})
-        for m, trend in MEASURED.items()]
+    variants += [(m, lambda fields=fields: {"options": MergeOptions(**fields)})
+                 for m, fields in MEASURED.items()]
     for label, make in variants:
         if label not in methods:
             continue
@@ -231,7 +229,7 @@ def main(argv=None):
     parser.add_argument("--reduce", type=int, default=1, choices=(1, 2, 4, 8),
                         help="decode every JPEG at 1/K (DCT scaling; ntu at 1/max(K, 4)); "
                         "memorial's PNGs are used as they are")
-    parser.add_argument("--measured-exposures", action="store_true",
+    parser.add_argument("--exposure-variants", action="store_true",
                         help="add the columns " + ", ".join(f'"{m}"' for m in MEASURED))
     parser.add_argument("--before-26", action="store_true",
                         help=f'add the column "{BEFORE}": MergeOptions(code_error=False, '
@@ -239,9 +237,9 @@ def main(argv=None):
     args = parser.parse_args(argv)
     start("hdr_oddeven", "both")
     methods = ((BEFORE,) if args.before_26 else ()) + METHODS + (
-        tuple(MEASURED) if args.measured_exposures else ())
-    # the measured exposures move the scores in the fourth digit
-    digits = 4 if args.measured_exposures else 3
+        tuple(MEASURED) if args.exposure_variants else ())
+    # the exposures move the scores in the fourth digit
+    digits = 4 if args.exposure_variants else 3
 
     import warnings
 

@@ -73,7 +73,6 @@ other pixel's error with it):
 from __future__ import annotations
 
 import argparse
-import os
 import time
 import warnings
 from multiprocessing import Pool
@@ -83,7 +82,7 @@ import numpy as np
 from .metrics import radiance_scores as scores
 from .peers import colour_hdri_merge
 from selfcal.sim.scoring import truth_masks
-from .data import data_dir
+from .data import data_dir, dorf_stack_arguments, dorf_stacks
 from .tables import finish, start, table
 
 TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15, 1 / 8]
@@ -97,7 +96,7 @@ READABLE = 0.02            # shortest-only pixels the shortest frame gives to wi
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 ALL = ("selfcal", "opencv", "colour", "oracle")
 LABELS = {"selfcal": "selfcal", "opencv": "OpenCV", "colour": "colour-hdri",
-          "oracle": "true f⁻¹, t", "measured_e": "selfcal, measured exposures"}
+          "oracle": "true f⁻¹, t", "measured_e": "selfcal, another exposure trend"}
 
 
 def _init_worker():
@@ -142,7 +141,7 @@ def one_stack(task):
 
         from selfcal.hdr import MergeOptions
 
-        options = replace(MergeOptions(measure_exposures=True), exposure_trend=with_measured)
+        options = replace(MergeOptions(), exposure_trend=with_measured)
         r = selfcal.merge_hdr(images, TIMES, model, options=options)
         out["measured_e"] = scores(r.radiance, e_true, scored, readable, r.unmeasured)
     unflagged = clipped_all & ~result.unmeasured
@@ -232,29 +231,15 @@ def split_table(results, title):
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--step", type=int, default=10,
-                        help="every K-th DoRF curve, an even and an odd one (default %(default)s)")
-    parser.add_argument("--size", default="256x384", help="scene HxW (default %(default)s)")
-    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
-    parser.add_argument("--split", choices=("both", "tuning", "held-out"), default="both")
-    parser.add_argument("--measured-exposures", nargs="?", const="pixels",
-                        choices=("pixels", "times"),
-                        help="add selfcal's merge with MergeOptions(measure_exposures=True); "
-                        "the exposures' trend over the bracket the pixels' (default) or the "
-                        "times' (MergeOptions.exposure_trend)")
+    dorf_stack_arguments(parser)
+    parser.add_argument("--exposure-trend", choices=("pixels", "times"),
+                        help="add selfcal's merge with MergeOptions(exposure_trend=...): the "
+                        "measured exposures' trend over the bracket the pixels' or the "
+                        "times' (the default merge's)")
     args = parser.parse_args()
+    stacks, (h, w) = dorf_stacks(parser, args)
     start("hdr_synthetic", args.split)
-    if args.step < 1:
-        parser.error("--step must be >= 1")
-    h, w = (int(v) for v in args.size.lower().split("x"))
-    n_curves = 201
-    even = sorted({i - i % 2 for i in range(0, n_curves, args.step)})
-    tasks = []
-    if args.split in ("both", "tuning"):
-        tasks += [(i, i, (h, w), args.measured_exposures) for i in even]
-    if args.split in ("both", "held-out"):
-        tasks += [(i + 1, 1000 + i + 1, (h, w), args.measured_exposures)
-                  for i in even if i + 1 < n_curves]
+    tasks = [(i, seed, (h, w), args.exposure_trend) for i, seed in stacks]
     t0 = time.perf_counter()
     with Pool(args.jobs, initializer=_init_worker) as pool:
         results = sorted(pool.imap_unordered(one_stack, tasks), key=lambda r: r["index"])

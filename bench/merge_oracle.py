@@ -73,14 +73,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import time
 import warnings
 from multiprocessing import Pool
 
 import numpy as np
 
-from .data import dorf_curve
+from .data import dorf_curve, dorf_stack_arguments, dorf_stacks
 from .hdr_synthetic import QUALITIES, SATURATION, TIMES
 from .metrics import global_scale, power_scale_error, radiance_scores
 from .tables import finish, start, table
@@ -279,14 +278,7 @@ def detail(results) -> str:
                   "frames: log(e_used/e_true) − mean, %", "exposure source", "seconds"], rows)
 
 
-def tasks_for(split, step, size, options, calibrate) -> list:
-    n_curves = 201
-    even = sorted({i - i % 2 for i in range(0, n_curves, step)})
-    stacks = []
-    if split in ("both", "tuning"):
-        stacks += [(i, i) for i in even]
-    if split in ("both", "held-out"):
-        stacks += [(i + 1, 1000 + i + 1) for i in even if i + 1 < n_curves]
+def tasks_for(stacks, size, options, calibrate) -> list:
     # the slow ±8 % stacks are not left to the end: conditions interleaved per stack
     return [(index, seed, size, label, jitter, options, calibrate)
             for index, seed in stacks for label, jitter in CONDITIONS]
@@ -294,11 +286,7 @@ def tasks_for(split, step, size, options, calibrate) -> list:
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--step", type=int, default=10,
-                        help="every K-th DoRF curve, an even and an odd one (default %(default)s)")
-    parser.add_argument("--size", default="256x384", help="scene HxW (default %(default)s)")
-    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1))
-    parser.add_argument("--split", choices=("both", "tuning", "held-out"), default="both")
+    dorf_stack_arguments(parser)
     parser.add_argument("--options", action="append", metavar="KEY=VALUE",
                         help="a MergeOptions field for selfcal's merge (repeatable), e.g. "
                         "measure_exposures=true")
@@ -307,13 +295,11 @@ def main():
                         f"(repeatable; one of {', '.join(CALIBRATE_KEYS)}), e.g. "
                         "refine_exposures=true")
     args = parser.parse_args()
-    if args.step < 1:
-        parser.error("--step must be >= 1")
+    stacks, (h, w) = dorf_stacks(parser, args)
     options = parse_options(args.options)
     calibrate = parse_options(args.calibrate, set(CALIBRATE_KEYS), "--calibrate")
     start("merge_oracle", args.split)
-    h, w = (int(v) for v in args.size.lower().split("x"))
-    tasks = tasks_for(args.split, args.step, (h, w), options, calibrate)
+    tasks = tasks_for(stacks, (h, w), options, calibrate)
     t0 = time.perf_counter()
     with Pool(args.jobs, initializer=_init_worker) as pool:
         results = list(pool.imap_unordered(one_stack, tasks))

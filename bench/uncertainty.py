@@ -214,11 +214,11 @@ def sim_report(results) -> list:
 # σ on real odd/even halves
 # --------------------------------------------------------------------------------------
 
-#: --measured-exposures: the merges with ``MergeOptions(measure_exposures=True)``; σ's
-#: exposure term the measurement's fit (``MergeOptions.sigma_exposure_from_fit``) or the
-#: fixed 0.02.
-MEASURED = (("noise measured", False, True), ("full measured", True, True),
-            ("full measured, σ_t 0.02", True, False))
+#: --exposure-variants: the full σ with the times as they are (``MergeOptions(
+#: measure_exposures=False)``, the default before issue 35) and with the measured
+#: exposures but the fixed σ_t = 0.02 (``sigma_exposure_from_fit=False``).
+MEASURED = (("full, times as given", {"measure_exposures": False}),
+            ("full, σ_t 0.02", {"sigma_exposure_from_fit": False}))
 
 
 def real_task(task):
@@ -257,15 +257,13 @@ def real_task(task):
         if "before" not in label:
             out["kappa"] = [r.diagnostics["sigma_noise_scale"] for r in res]
             out["pixels"] = float(keep.mean())
-    for label, full, from_fit in (MEASURED if with_measured else ()):
-        options = MergeOptions(sigma=True, measure_exposures=True)
-        if not from_fit:
-            options = replace(options, sigma_exposure_from_fit=False)
-        res = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h],
-                                 model if full else bare, options=options)
+        if label == "full":     # the default measures the exposures: its σ_t
+            out["σ_t fit"] = [r.diagnostics["measured_exposures"]["log_sigma"] for r in res]
+    for label, fields in (MEASURED if with_measured else ()):
+        res = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h], model,
+                                 options=MergeOptions(sigma=True, **fields))
                for h in halves]
         out[label] = _median_abs_z(res, mask)
-        out["σ_t fit"] = [r.diagnostics["measured_exposures"]["log_sigma"] for r in res]
     return out
 
 
@@ -356,8 +354,9 @@ def main(argv=None):
     parser.add_argument("--compare", action="store_true",
                         help="bands: the location bootstrap beside the covariance")
     parser.add_argument("--only", action="append", help="real: only these stacks")
-    parser.add_argument("--measured-exposures", action="store_true",
-                        help="real: add the merges with exposures measured from the pixels")
+    parser.add_argument("--exposure-variants", action="store_true",
+                        help="real: add the merges with the times as given, and with the "
+                        "fixed exposure term σ_t = 0.02")
     parser.add_argument("--before-26", action="store_true",
                         help="real: add the merges without the code-error term and the "
                         "unchecked frames (MergeOptions(code_error=False, "
@@ -395,7 +394,7 @@ def main(argv=None):
             names = [n for n in stacks if (n in TUNING) != heldout]
             if args.only:
                 names = [n for n in names if n in args.only]
-            tasks = [(n, *stacks[n], args.reduce, args.measured_exposures, args.before_26)
+            tasks = [(n, *stacks[n], args.reduce, args.exposure_variants, args.before_26)
                      for n in names]
             results = pool.map(real_task, tasks, chunksize=1)
             print(f"## Radiance σ on real odd/even halves (JPEGs decoded at 1/{args.reduce}; "
@@ -403,7 +402,7 @@ def main(argv=None):
             print("\n".join(real_report(results, TUNING)) + "\n")
     if "cost" in parts:
         _init_worker()
-        print(f"## What the band and the σ cost (best of 3, one process, one thread)\n")
+        print("## What the band and the σ cost (best of 3, one process, one thread)\n")
         print("\n".join(cost_report()) + "\n")
     print(f"wall {time.perf_counter() - t0:.0f} s with {args.jobs} jobs")
 
