@@ -113,7 +113,8 @@ DETAIL_TABLES = {
     "uncertainty": {1},            # σ curve by curve (bands and σ summed up below them)
     "response_real": {1},          # the metric by saturation band
     "response_synthetic": {1},     # the real-stack metric on the same stacks (a proxy)
-    "hdr_speed": {2},              # what the merge holds at once, array by array
+    # the from-files seconds and peaks (the runs table repeats them); what a merge holds
+    "hdr_speed": {1, 2},
     "response_speed": {1},         # where selfcal's seconds go (the ratio is shown)
     "merge_oracle": {1},           # stack by stack (the summary per shutter condition is shown)
     "response_top": {1, 2},        # cell by cell; the brightest kept codes (the per-code-range table is shown)
