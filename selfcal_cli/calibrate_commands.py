@@ -160,7 +160,8 @@ def cmd_demo(args) -> int:
          + ", ".join(f"{c} {v:.4f}" for c, v in zip("RGB", rmse)))
     exp_err = np.abs(model.exposures / stack.true_exposures - 1)
     say(f"exposures: largest error against the true (jittered) exposures {100 * exp_err.max():.1f}% "
-         "(EXIF times the pixels contradict are refined; --no-refine-exposures holds them)")
+         "(measured from the pixels through the curve, the EXIF times keeping their scale and "
+         "trend; calibrate --no-measure-exposures keeps the solve's)")
     return EXIT_OK
 
 
