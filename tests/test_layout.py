@@ -23,7 +23,7 @@ MAX_PARAMETERS = 10
 FLOORS = (
     ("selfcal.errors", "selfcal.version", "selfcal.typing"),
     ("selfcal.io",),
-    ("selfcal.stack", "selfcal.exposure"),
+    ("selfcal.stack", "selfcal.exposure", "selfcal.lens"),
     ("selfcal.response", "selfcal.pipeline"),
     ("selfcal.hdr", "selfcal.export"),
     ("selfcal.choose", "selfcal.report"),

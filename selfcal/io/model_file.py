@@ -9,7 +9,9 @@ band, :mod:`selfcal.response.bands`); version 1 files still load (without a band
 Version 3 adds a response model's ``frames_ignored``: the frames its calibration left
 out, each ``{"source", "reason", "detail"}`` with a reason of
 :data:`IGNORED_FRAME_REASONS`; for files of versions 1 and 2 the loader derives them from
-the warnings (``ResponseModel.from_dict``, the one place that reads those words).  Loading validates the envelope (:func:`read_model_dict`) and
+the warnings (``ResponseModel.from_dict``, the one place that reads those words).
+Version 4 adds a response model's optional ``vignetting`` (:class:`selfcal.lens.Vignetting`:
+``coefficients`` 3×3, ``centre`` 2, ``source``, ``covariance`` 11×11 or null).  Loading validates the envelope (:func:`read_model_dict`) and
 the content (:func:`check_response_content`, :func:`check_pipeline_content`: every field's
 type, shape and range, so that a model that loads can be used), and raises
 :class:`selfcal.errors.ModelFileError` naming the file and the field on anything wrong.
@@ -32,7 +34,7 @@ from .images import write_bytes_atomic
 
 FORMAT = "selfcal-model"
 #: Written; every version from 1 up to it is read.
-VERSION = 3
+VERSION = 4
 #: Why a response calibration ignored a frame (``frames_ignored[].reason`` of a response
 #: model, :class:`selfcal.response.model.IgnoredFrame`).
 IGNORED_FRAME_REASONS = ("clipped", "duplicate", "unchecked")
@@ -321,9 +323,24 @@ def check_response_content(doc: dict, path=None) -> None:
         entry.string("detail", optional=True)
     if sigma is not None and np.any(sigma < 0):
         raise c.error("holds negative values (a standard deviation)", "inverse_log_sigma")
+    vignetting = c.sub("vignetting", optional=True, nullable=True)        # version 4
+    if vignetting is not None:
+        _check_vignetting(vignetting)
     diag = c.sub("diagnostics", optional=True)
     if diag is not None:
         _check_response_diagnostics(diag)
+
+
+def _check_vignetting(v: "_Checker") -> None:
+    """A model's vignetting (:class:`selfcal.lens.Vignetting`), as its users rely on it."""
+    v.require("coefficients", "centre", "source")
+    v.array("coefficients", (3, 3), bound=None)
+    v.array("centre", (2,), bound=None)
+    v.string("source", choices=("self", "lens", "flat"))
+    v.string("description", optional=True)
+    v.array("covariance", (11, 11), optional=True, nullable=True, bound=None)
+    v.number("log_sigma_floor", optional=True, low=0)
+    v.number("aspect", optional=True, nullable=True, low=0)
 
 
 def _check_response_diagnostics(diag: _Checker) -> None:

@@ -18,6 +18,7 @@ import numpy.typing as npt
 from ..errors import InputError, ModelFileError
 from ..typing import PathLike
 from ..io.model_file import IGNORED_FRAME_REASONS, jsonable, save_model_dict
+from ..lens.vignetting import Vignetting
 
 MODEL_KIND = "response"
 
@@ -128,6 +129,11 @@ class ResponseModel:
         which frames to leave out or to merge unchecked.  Saved with the model (file
         format version 3); for files of versions 1 and 2 derived once, on loading, from
         their warnings (:func:`_ignored_from_warnings`).
+    vignetting : Vignetting or None
+        The lens's falloff (:class:`selfcal.lens.Vignetting`, ``.map(height, width)``), when
+        the calibration observed it (frames that moved, ``align="homography"``,
+        :mod:`selfcal.response.vignetting_fit`) or it was attached from a lens profile or a
+        flat field; None otherwise.  Saved with the model (file format version 4).
     """
 
     intensity: np.ndarray
@@ -141,6 +147,7 @@ class ResponseModel:
     diagnostics: dict = field(default_factory=dict)
     inverse_log_sigma: np.ndarray | None = None
     frames_ignored: tuple[IgnoredFrame, ...] = ()
+    vignetting: Vignetting | None = None
     #: samples of one frame pair with rejection reasons (for plots); not saved
     fit_data: dict | None = field(default=None, repr=False, compare=False)
 
@@ -248,6 +255,8 @@ class ResponseModel:
             "sources": list(self.sources),
             "diagnostics": jsonable(self.diagnostics),
             "frames_ignored": [f.to_dict() for f in self.frames_ignored],
+            **({} if self.vignetting is None else
+               {"vignetting": jsonable(self.vignetting.to_dict())}),
             **({} if self.inverse_log_sigma is None else
                {"inverse_log_sigma": np.round(np.asarray(self.inverse_log_sigma).T,
                                               7).tolist()}),
@@ -278,7 +287,9 @@ class ResponseModel:
                             _ignored_from_warnings(d) if d.get("frames_ignored") is None
                             else tuple(IgnoredFrame(source=f["source"], reason=f["reason"],
                                                     detail=f.get("detail", ""))
-                                       for f in d["frames_ignored"])))
+                                       for f in d["frames_ignored"])),
+                        vignetting=(None if d.get("vignetting") is None
+                                    else Vignetting.from_dict(d["vignetting"])))
         except KeyError as exc:
             raise bad(f"response model lacks the field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
