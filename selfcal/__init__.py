@@ -18,6 +18,7 @@ floors below):
 * :mod:`selfcal.io` -- image files and EXIF, linear raws, model files; atomic writes;
 * :mod:`selfcal.stack` -- a bracket before any model: frames, alignment, correspondences;
 * :mod:`selfcal.exposure` -- a bracket's exposures: given, EXIF, raw ratios, measured, the plan;
+* :mod:`selfcal.lens` -- the lens and the scale: vignetting, lens profiles, flat fields, cd/m²;
 * :mod:`selfcal.response` -- the JPEG-only path: the response from an exposure stack;
 * :mod:`selfcal.pipeline` -- the RAW path: a camera pipeline from RAW+JPEG pairs;
 * :mod:`selfcal.hdr` -- HDR radiance maps, their σ, and the files they are written to;

@@ -1,6 +1,10 @@
-"""The lens: vignetting (:mod:`.vignetting`), its sources other than a fit (the lens
-database, :mod:`.database`; a flat field, :mod:`.flat_field`) and the absolute scale
-(:mod:`.luminance`).
+"""The lens and the scale: what lies between the scene's luminance and the sensor.
+
+* :mod:`selfcal.lens.vignetting` -- the radial falloff model ([Goldman2010] Eq. 4);
+* :mod:`selfcal.lens.database` -- vignetting from lensfun's lens profiles (lensfunpy);
+* :mod:`selfcal.lens.flat_field` -- vignetting from a flat-field frame;
+* :mod:`selfcal.lens.luminance` -- the absolute scale (cd/m²): an EXIF convention or a
+  reference reading.
 
 The self-calibrated vignetting is fitted beside the response solver it extends
 (:mod:`selfcal.response.vignetting_fit`).
