@@ -207,3 +207,61 @@ def warn(msg: str) -> None:
 def reset_warnings() -> None:
     """Forget the warnings said (one command per call of the front end)."""
     _said_warnings.clear()
+
+
+class _VignettingAction(argparse.Action):
+    """``--vignetting auto|self|lens|none`` or ``--vignetting flat FILE`` (exit 2 otherwise)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        kind, rest = values[0], values[1:]
+        if kind not in VIGNETTING_WORDS:
+            parser.error(f"{option_string}: {kind!r} is not one of "
+                         f"{', '.join(VIGNETTING_WORDS)}")
+        if kind == "flat" and len(rest) != 1:
+            parser.error(f"{option_string} flat takes one file: the flat-field frame")
+        if kind != "flat" and rest:
+            parser.error(f"{option_string} {kind} takes no file (got {' '.join(rest)}); "
+                         "put the frames before the options")
+        setattr(namespace, self.dest, values)
+
+
+#: The words of ``--vignetting`` (``flat`` takes a file).
+VIGNETTING_WORDS = ("auto", "self", "lens", "flat", "none")
+
+
+def add_vignetting_argument(parser) -> None:
+    """``--vignetting`` of ``selfcal merge`` and ``selfcal linearize``."""
+    parser.add_argument(
+        "--vignetting", nargs="+", action=_VignettingAction, default=["auto"],
+        metavar="SOURCE",
+        help="the lens's falloff to divide out: auto (default: self-calibrated when the "
+             "model holds one, else the lens database's profile for the EXIF lens, else "
+             "none), self, lens, flat FILE (a frame of a uniform surface), or none")
+
+
+def vignetting_argument(values):
+    """``MergeOptions.vignetting`` from ``--vignetting``: a word, or the flat frame's Path."""
+    import selfcal
+
+    if values[0] != "flat":
+        return values[0]
+    flat = Path(values[1])
+    if not flat.is_file():
+        raise selfcal.InputError("no such file" if not flat.exists() else "not a file", flat)
+    return flat
+
+
+def say_vignetting(record, *, frame: str | None = None) -> None:
+    """One line: which vignetting was divided out, and why the others were not."""
+    if not record:
+        return
+    where = f"{frame}: " if frame else ""
+    if record.get("source") is None:
+        if record.get("chosen_by") == "none":
+            return
+        why = "; ".join(record.get("reasons", [])) or "none found"
+        say(f"{where}vignetting: none divided out ({why})")
+        return
+    passed = "; ".join(record.get("reasons", []))
+    say(f"{where}vignetting: {record['source']} ({record.get('description') or 'no description'})"
+        + (f" -- passed over: {passed}" if passed else ""))

@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, parse_time,
+from .common import (EPILOG, EXIT_OK, add_vignetting_argument, say_vignetting,
+                     vignetting_argument, check_output_folder, check_outputs, parse_time,
                      progress_bar, say, say_verdict, warn)
 
 RADIANCE_FORMATS = ".exr (OpenEXR), .hdr (Radiance RGBE), .tif (float32 TIFF)"
@@ -34,7 +35,9 @@ def cmd_merge(args) -> int:
     if args.times is not None and len(args.times) != len(images):
         raise selfcal.InputError(f"--times gives {len(args.times)} values for "
                                  f"{len(images)} images")
-    inputs = images + ([Path(args.model)] if args.model else [])
+    vignetting = vignetting_argument(args.vignetting)
+    inputs = images + ([Path(args.model)] if args.model else []) + (
+        [vignetting] if isinstance(vignetting, Path) else [])
     sig_out = (sigma_path(out) if args.sigma and out.suffix.lower() != ".exr" else None)
     check_outputs([out, args.preview, sig_out], inputs, args.force)
     for p in images:
@@ -55,7 +58,8 @@ def cmd_merge(args) -> int:
                        options=MergeOptions(reference=args.reference,
                                             linear_exposures=args.linear_exposures,
                                             sigma=args.sigma,
-                                            measure_exposures=args.measure_exposures),
+                                            measure_exposures=args.measure_exposures,
+                                            vignetting=vignetting),
                        progress=progress_bar("merge"))
     args.linear = args.linear or "linear_evidence" in result.diagnostics
     if model is None and not args.linear:
@@ -69,6 +73,7 @@ def cmd_merge(args) -> int:
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
 
     _say_merge_summary(result, images, args)
+    say_vignetting(result.diagnostics.get("vignetting"))
     for w in result.warnings:
         warn(w)
     _say_written(result, written, out, sig_out, args)
@@ -152,7 +157,9 @@ def cmd_linearize(args) -> int:
             raise selfcal.InputError(f"{p}: would be written to the same file as {names[o.name]}"
                                      f" ({o})")
         names[o.name] = p
-    inputs = images + [Path(args.model)]
+    vignetting = vignetting_argument(args.vignetting)
+    inputs = images + [Path(args.model)] + ([vignetting] if isinstance(vignetting, Path)
+                                            else [])
     check_outputs(outputs, inputs, args.force, create_folder=True)
     for p in images:
         if not p.is_file():
@@ -160,7 +167,10 @@ def cmd_linearize(args) -> int:
     model = selfcal.load_model(args.model)
     bar = progress_bar("linearize")
     with StagedOutputs(force=args.force, inputs=inputs) as staged:
-        for (src, linear), o in zip(linearize_images(images, model, progress=bar), outputs):
+        records: list = []
+        for (src, linear), o in zip(linearize_images(images, model, vignetting=vignetting,
+                                                     records=records, progress=bar),
+                                    outputs):
             info = read_exposure_info(src)
             staged.write(o, lambda tmp, linear=linear: write_linear(
                 tmp, linear, float32=args.float, force=True,
@@ -170,6 +180,8 @@ def cmd_linearize(args) -> int:
     kind = "float32" if args.float else "16-bit"
     say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "
          "f⁻¹(max code) = 1, EXIF exposure tags kept) -> " + f"{folder}/")
+    for record in {r["source"]: r for r in records}.values():
+        say_vignetting(record, frame=Path(record["source"]).name)
     for o in written:
         say(f"wrote {o}")
     return EXIT_OK
@@ -249,6 +261,7 @@ def register(subparsers) -> None:
                         "curve, the times keeping their scale and trend)")
     p.add_argument("--reference", type=int, metavar="K",
                    help="index of the reference frame (default: the middle exposure)")
+    add_vignetting_argument(p)
     p.add_argument("--half", action="store_true",
                    help="16-bit half floats (EXR, TIFF); values beyond half range are "
                         "stored divided by a power of two, recorded in the file "
@@ -273,6 +286,7 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DIR",
                    help="folder for the linear TIFFs (created if missing)")
     p.add_argument("--float", action="store_true", help="float32 TIFF instead of 16-bit")
+    add_vignetting_argument(p)
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
     p.set_defaults(func=cmd_linearize)
 

@@ -28,6 +28,7 @@ from ..io.images import import_cv2
 from ..stack.align import negligible_motion, warp_to_reference
 from ..stack.frames import Lineariser, StackFrames, apply_lut, frame_limits, max_code_of
 from .deghost import ghost_mask, neighbour_residual, small_log_luma
+from .vignetting import FrameFalloff
 from .weights import NoiseModel, FrameTables, packed_lookup
 
 if TYPE_CHECKING:
@@ -147,6 +148,10 @@ class MergeSums:
         self.unchecked_den: np.ndarray | None = None
         self.unchecked_codes: list[tuple] = []   # (tables, codes) in merge order
         self.unchecked_mask: np.ndarray | None = None
+        #: the lens's vignetting, divided out of each frame at its own pixels (frames
+        #: that moved: :class:`.vignetting.FrameFalloff`); None when there is none or it
+        #: is divided out of the finished radiance (:func:`.vignetting.divide_out`)
+        self.falloff = None
 
     def keep_unchecked(self, tab: FrameTables, shape, dtype, max_code) -> None:
         """Where an unchecked frame's weights will be kept (call before its strips)."""
@@ -200,6 +205,7 @@ class MergeSums:
         n_valid = cv2.countNonZero(valid)
         if n_valid == 0:
             return 0, excluded
+        falloff = getattr(tab, "falloff", None)    # the lens's V(H_j x) (.vignetting)
         num, den = self.num, self.den
         assert den is not None      # until divide_and_fill
         if tab.lut:
@@ -224,10 +230,15 @@ class MergeSums:
             aw = packed_lookup(codes, tab.aw_table, bufs["aw"][:rows_s])
             aw = aw.view(np.float32).reshape(aw.shape + (2,))
             a, w = aw[..., 0], aw[..., 1]
+            if falloff is not None:
+                v = falloff.scale_sums(s, a, w)
             np.add(num[s], a, out=num[s])
             np.add(den[s], w, out=den[s])
         else:
             a, w, _, _ = tab.evaluate(codes, need_x=False)
+            if falloff is not None:
+                a, w = a.astype(np.float32), w.astype(np.float32)
+                v = falloff.scale_sums(s, a, w)
             cv2.add(num[s], a, dst=num[s], mask=valid)
             cv2.add(den[s], w, dst=den[s], mask=valid)
         np.add(self.count[s], valid >> 7, out=self.count[s])
@@ -242,7 +253,8 @@ class MergeSums:
         if self.sigma is not None:
             # (a and w are done with: σ's lookup reuses their buffer)
             self.sigma.add(s, codes, tab, valid,
-                           buffer=bufs["aw"][:rows_s] if tab.lut else None)
+                           buffer=bufs["aw"][:rows_s] if tab.lut else None,
+                           factors=None if falloff is None else falloff.sigma_factors(v))
         return n_valid, excluded
 
     def unchecked_pixels(self, unmeasured: np.ndarray) -> np.ndarray | None:
@@ -364,6 +376,9 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
             tab.unchecked = k in sums.unchecked
+            tab.falloff = None if sums.falloff is None else FrameFalloff(
+                sums.falloff, None if transforms is None else transforms[k], frames.shape,
+                noise_weights=weighting == "noise")
             if tab.unchecked:
                 sums.keep_unchecked(tab, img.shape, img.dtype, lin.max_code)
             sums.tables[k] = tab

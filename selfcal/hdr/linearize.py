@@ -2,7 +2,8 @@
 
 :func:`linearize_images` is what ``selfcal linearize`` and ``selfcal batch --linearize``
 write: ``f⁻¹(I)`` per channel ([Lin2011] §5), or a RAW-path model's ``to_raw``; the frames'
-exposures are not divided out (the merge, :mod:`selfcal.hdr.merge`, does that).
+exposures are not divided out (the merge, :mod:`selfcal.hdr.merge`, does that); the lens's
+vignetting is, when there is one (:mod:`.vignetting`).
 """
 
 from __future__ import annotations
@@ -15,11 +16,13 @@ from ..errors import InputError
 from ..io.images import is_path, read_image
 from ..stack.frames import STRIP_PIXELS, Lineariser, apply_lut, max_code_of
 from ..typing import ImageInput, Progress
+from .vignetting import divide_out, resolve_vignetting
 
 __all__ = ["linearize_images"]
 
 
 def linearize_images(images: Sequence[ImageInput], model: object, *,
+                     vignetting: object = "auto", records: list | None = None,
                      progress: Progress | None = None) -> Iterator[tuple[str, np.ndarray]]:
     """Linearise frames one at a time: ``f⁻¹(I)`` per channel (Lin et al., ICCV 2011, §5).
 
@@ -33,6 +36,12 @@ def linearize_images(images: Sequence[ImageInput], model: object, *,
     images : sequence
         uint8/uint16 RGB arrays or paths.
     model : ResponseModel or object with ``to_raw``
+    vignetting : {"auto", "self", "lens", "none"}, Vignetting or path
+        The lens's falloff divided out of each image
+        (:func:`selfcal.hdr.vignetting.resolve_vignetting`: ``"auto"``, the default, is
+        the model's, else the lens database's profile for the file's EXIF, else none).
+    records : list, optional
+        Receives, per image, the record of the vignetting chosen (source, reasons).
     progress : callable, optional
         ``progress("linearize", done, total, source)``.
 
@@ -60,6 +69,12 @@ def linearize_images(images: Sequence[ImageInput], model: object, *,
                 out[y:y + rows] = apply_lut(img[y:y + rows], table)
         else:
             out = lin.values(img)
+        falloff, record = resolve_vignetting(vignetting, model, path=item if is_path(item)
+                                             else None, shape=out.shape[:2])
+        if falloff is not None:
+            divide_out(out, None, falloff)
+        if records is not None:
+            records.append({"source": sources[k], **record})
         del img
         if progress is not None:
             progress("linearize", k + 1, len(items), sources[k])

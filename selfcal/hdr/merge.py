@@ -84,7 +84,7 @@ from ..errors import CalibrationError, InputError, SelfcalWarning
 from ..io.images import JPEG_SUFFIXES
 from ..response.calibrate import (DEFAULT_MAX_SAMPLES, ResponseOptions, calibrate_aligned,
                                   calibrate_response)
-from ..stack.align import estimate_alignment
+from ..stack.align import estimate_alignment, negligible_motion
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
     StackFrames,
@@ -102,6 +102,7 @@ from ..exposure.linear import USES, resolve_linear_exposures, stack_frames
 from ..exposure.measured import TRENDS, measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums, add_trend_term
+from .vignetting import apply_vignetting, check_vignetting_option, resolve_vignetting
 
 __all__ = ["HDRResult", "MergeOptions", "merge_hdr"]
 
@@ -170,6 +171,16 @@ class MergeOptions:
     sigma_exposure_from_fit : bool
         With ``measure_exposures`` and ``sigma``: σ's exposure term is the measurement's
         (:func:`selfcal.exposure.linear.fit_log_sigma`) or, False, the fixed one of given times.
+    vignetting : {"auto", "self", "lens", "none"} or selfcal.lens.Vignetting
+        The lens's falloff to divide out (:mod:`.vignetting`, [Goldman2010] Eq. 1):
+        ``"auto"`` (default) the model's own (self-calibrated from frames that moved, or
+        attached), else the lens database's profile for the frames' EXIF, else none;
+        ``"self"`` or ``"lens"`` insist on that source (InputError without it); a
+        flat-field frame's path: its falloff
+        (:func:`selfcal.lens.flat_field.flat_field_vignetting`, linearised by the model); a
+        :class:`~selfcal.lens.Vignetting` is used as given; ``"none"``: none.  What was
+        chosen, and why the others were not: ``diagnostics["vignetting"]``; with ``sigma``,
+        the vignetting's uncertainty joins σ.
     """
 
     reference: int | None = None
@@ -188,6 +199,7 @@ class MergeOptions:
     code_error: bool = True
     exposure_trend: str = "times"
     sigma_exposure_from_fit: bool = True
+    vignetting: object = "auto"
 
 
 @dataclass
@@ -372,6 +384,9 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
         frames, exposure_times, opts.linear_exposures, opts.clip_margin, warnings,
         diagnostics, progress) if linear else resolve_exposures(
             frames, exposure_times, model, fresh, warnings, measured=opts.measure_exposures)
+    vignetting, diagnostics["vignetting"] = resolve_vignetting(
+        opts.vignetting, model, path=next((p for p in frames.paths if p), None),
+        shape=frames.shape)
     ref = _reference_frame(exposures, opts.reference, len(frames))
     if transforms is not None:
         assert ref0 is not None     # an aligned calibration says its reference
@@ -402,6 +417,9 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     if opts.sigma:
         sums.sigma = SigmaSums(frames.shape, model, exposure_log_sigma=sigma_t)
         diagnostics["sigma_curve_band"] = sums.sigma.has_band
+    moved = transforms is not None and any(not negligible_motion(t, frames.shape)
+                                           for t in transforms)
+    sums.falloff = vignetting if moved else None
     need_x = deghost and len(used) > 1
     weighing = FrameWeighing(weighting, noise, opts.clip_margin, linear, stuck, radius, need_x,
                              opts.deghost_threshold, opts.deghost_tolerance, opts.code_error)
@@ -409,6 +427,9 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     unmeasured = _finish(sums, frames, need_x, transforms is None, exposure_source,
                          warnings, diagnostics)
     sigma = None if sums.sigma is None else _sigma_result(sums, diagnostics)
+    if vignetting is not None:
+        apply_vignetting(sums.num, sigma, vignetting, moved=moved,
+                         record=diagnostics["vignetting"])
     if sigma is not None and trend_sigma > 0:
         add_trend_term(sigma, sums.num, trend_sigma)
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
@@ -621,6 +642,7 @@ def _check_options(weighting, align, linear: bool, model, opts: MergeOptions):
     if opts.exposure_trend not in TRENDS:
         raise InputError(f"exposure_trend must be one of {', '.join(TRENDS)}, not "
                          f"{opts.exposure_trend!r}")
+    check_vignetting_option(opts.vignetting)
     return align, (DEFAULT_NOISE if opts.noise is None else opts.noise)
 
 

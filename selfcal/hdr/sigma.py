@@ -175,11 +175,13 @@ class SigmaSums:
             self.kappa = float(np.clip(np.median(z) / 0.6745, 0.25, 4.0))
         return self.kappa
 
-    def add(self, s: slice, codes, tab, valid=None, buffer=None) -> None:
+    def add(self, s: slice, codes, tab, valid=None, buffer=None, factors=None) -> None:
         """One strip of one frame: ``codes`` already masked as the merge masked them (table
         path: invalid pixels at the maximum code, where the weights are zero); on the
         functional path ``valid`` (uint8) says which pixels count.  ``buffer``: optional
-        scratch space of 24 bytes per pixel for the lookup (default: a new array)."""
+        scratch space of 24 bytes per pixel for the lookup (default: a new array).
+        ``factors``: per-pixel factors of the two terms, ``(rows, W, 3)`` each (the lens's
+        falloff of a frame that moved, :class:`.vignetting.FrameFalloff`), or None."""
         assert self.sums is not None    # until result()
         sums = self.sums[s]
         if tab.lut:
@@ -187,13 +189,20 @@ class SigmaSums:
             # the merge's reused strip buffer (fresh large arrays cost page faults)
             out = self._buffer(codes.shape, tab.sigma_table.dtype, buffer)
             terms = packed_lookup(codes, tab.sigma_table, out)
-            np.add(sums, terms.view(np.float32).reshape(sums.shape), out=sums)
+            terms = terms.view(np.float32).reshape(sums.shape)
+            if factors is not None:
+                for t in range(self.terms):
+                    np.multiply(terms[..., t], factors[t], out=terms[..., t])
+            np.add(sums, terms, out=sums)
             return
         _, w, X, v = tab.evaluate(codes, need_x=True)
         # the functional path's variance carries the relative term: take it out
         v = np.maximum(v - (tab.noise.relative * np.maximum(X, 0)) ** 2, 0.0)
         keep = (valid > 0)[..., None]
-        sums[..., 0] += np.where(keep, w * w * (v + (X * self.sigma_t) ** 2), 0.0)
+        term = w * w * (v + (X * self.sigma_t) ** 2)
+        if factors is not None:
+            term = term * factors[0]
+        sums[..., 0] += np.where(keep, term, 0.0)
 
     @staticmethod
     def _buffer(shape, dtype, buffer=None) -> np.ndarray:

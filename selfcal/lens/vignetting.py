@@ -124,7 +124,7 @@ class Vignetting:
 
     def map(self, height: int, width: int) -> np.ndarray:
         """``V`` at every pixel of a ``height × width`` frame: float32 ``HxWx3``, 1 at the centre."""
-        self._check_aspect(height, width)
+        self.check_size(height, width)
         r = normalised_radius(height, width, self.centre)
         return self.falloff(r).astype(np.float32)
 
@@ -139,7 +139,7 @@ class Vignetting:
         The delta method on :attr:`covariance` (the Jacobian of ``log V`` in the parameters
         taken analytically), plus :attr:`log_sigma_floor` · r² in quadrature.
         """
-        self._check_aspect(height, width)
+        self.check_size(height, width)
         ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
         return self.log_sigma_at(height, width, xs, ys).astype(np.float32)
 
@@ -177,7 +177,8 @@ class Vignetting:
                      sy * _half_height(self.aspect) - self.centre[1]) for sx, sy in corners)
         return -np.log2(np.maximum(self.falloff(worst), 1e-6))
 
-    def _check_aspect(self, height: int, width: int) -> None:
+    def check_size(self, height: int, width: int) -> None:
+        """InputError unless frames of ``height × width`` have the aspect it was made for."""
         if self.aspect is None:
             return
         if abs(np.log((width / height) / self.aspect)) > 0.02:

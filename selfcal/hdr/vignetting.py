@@ -1,0 +1,229 @@
+"""The lens's falloff divided out of a merge: which vignetting, and how it enters the sums.
+
+A frame ``j`` records ``I_j(p) = f(e_j · V(p) · L(p))`` at its own pixel ``p``
+([Goldman2010], Eq. 1), so its radiance estimate at a reference pixel ``x`` seen at
+``p = H_j x`` is ``X_j / V(H_j x)``.  Under the merge's noise weights (the inverse variance
+of that estimate) the weight becomes ``w_j · V²``: the frame's terms of the merge's sums
+are ``a_j · V`` and ``w_j · V²`` (the hat and callable weightings leave ``w_j`` alone:
+``a_j / V`` and ``w_j``), and σ's two sums scale by the same powers
+(:class:`FrameFalloff`).  Where no frame moved, ``V`` is the same for every frame of a
+pixel, the weighted mean is unchanged but for one factor, and dividing the finished
+radiance and its σ by ``V(x)`` is exact and cheaper (:func:`divide_out`).  Either way
+the vignetting's own uncertainty (:meth:`selfcal.lens.Vignetting.log_sigma_map`) joins σ
+in quadrature, taken at the reference pixel (ours).
+
+Which vignetting (:func:`resolve_vignetting`): the ``MergeOptions.vignetting`` choice,
+``"auto"`` by default -- the model's own (self-calibrated from frames that moved, or one
+attached from a flat field or a lens profile), else the lens database's profile for the
+frames' EXIF, else none -- and what was chosen and why goes to the merge's diagnostics.
+
+References
+----------
+[Goldman2010] See ``docs/references.md``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..lens.vignetting import Vignetting
+
+__all__ = ["VIGNETTING_CHOICES", "resolve_vignetting", "FrameFalloff", "apply_vignetting",
+           "divide_out", "add_vignetting_sigma"]
+
+#: The string choices of ``MergeOptions.vignetting`` (a :class:`Vignetting` is also taken).
+VIGNETTING_CHOICES = ("auto", "self", "lens", "none")
+
+
+def check_vignetting_option(option) -> None:
+    """InputError unless ``option`` is one of :data:`VIGNETTING_CHOICES`, a Vignetting, a
+    flat-field frame's path or None."""
+    if option is None or isinstance(option, (Vignetting, os.PathLike)):
+        return
+    if isinstance(option, str) and (option in VIGNETTING_CHOICES or Path(option).suffix):
+        return
+    raise InputError(f"vignetting must be one of {', '.join(VIGNETTING_CHOICES)}, a "
+                     f"selfcal.lens.Vignetting or a flat-field frame's path, not {option!r}")
+
+
+def resolve_vignetting(option, model, *, path, shape) -> tuple[Vignetting | None, dict]:
+    """The vignetting a merge (or a linearisation) divides out, and a record of the choice.
+
+    Parameters
+    ----------
+    option : {"auto", "self", "lens", "none"}, Vignetting, path or None
+        ``"self"``: the model's (an error when it has none); ``"lens"``: the lens
+        database's profile for ``path``'s EXIF (an error when none matches); ``"auto"``:
+        the model's, else the lens database's, else none; a :class:`Vignetting`: that
+        one; a path: a flat-field frame's (:func:`selfcal.lens.flat_field.flat_field_vignetting`,
+        linearised by the model); None or ``"none"``: none.
+    model : object
+        The model (its ``vignetting``, ``diagnostics["vignetting"]``, ``linearize``), or
+        None for linear frames.
+    path : path or None
+        A frame whose EXIF names the lens (None: the frames are arrays).
+    shape : (H, W)
+        The frames' size (the vignetting must have been made for their aspect).
+
+    Returns
+    -------
+    (Vignetting or None, dict)
+        The record: ``source`` (``"self"``, ``"lens"``, ``"flat"`` or None), ``chosen_by``
+        (the option), ``description``, and ``reasons``: one sentence for each source
+        passed over.
+    """
+    check_vignetting_option(option)
+    chosen_by = (option if isinstance(option, str) and option in VIGNETTING_CHOICES
+                 else "none" if option is None else
+                 "given" if isinstance(option, Vignetting) else "flat")
+    record: dict = {"chosen_by": chosen_by, "source": None, "description": "", "reasons": []}
+    if chosen_by == "none":
+        return None, record
+    if chosen_by == "given":
+        return _chosen(option, record, shape)
+    if chosen_by == "flat":
+        return _chosen(_flat_field(option, model), record, shape)
+    own = getattr(model, "vignetting", None)
+    if own is not None and option in ("auto", "self"):
+        return _chosen(own, record, shape)
+    if option in ("auto", "self"):
+        record["reasons"].append(_why_no_self(model))
+        if option == "self":
+            raise InputError(f"no self-calibrated vignetting: {record['reasons'][-1]}")
+    lens, why = _lens_profile(path, shape)
+    if lens is not None:
+        return _chosen(lens, record, shape)
+    record["reasons"].append(why)
+    if option == "lens":
+        raise InputError(f"no lens profile: {why}", None if path is None else str(path))
+    return None, record
+
+
+def _chosen(vignetting: Vignetting, record: dict, shape):
+    vignetting.check_size(*shape)
+    record.update(source=vignetting.source, description=vignetting.description)
+    return vignetting, record
+
+
+def _flat_field(path, model) -> Vignetting:
+    from ..lens.flat_field import flat_field_vignetting
+
+    linearize = getattr(model, "linearize", None)
+    return flat_field_vignetting(path, linearize=linearize)
+
+
+def _why_no_self(model) -> str:
+    """The model's own account of why it holds no vignetting."""
+    diag = getattr(model, "diagnostics", None) or {}
+    said = diag.get("vignetting") if isinstance(diag, dict) else None
+    if isinstance(said, dict) and said.get("reason"):
+        return f"self-calibration: {said['reason']}"
+    return ("self-calibration: the model was not calibrated on aligned frames that moved "
+            "(align=\"homography\")")
+
+
+def _lens_profile(path, shape) -> tuple[Vignetting | None, str]:
+    """The lens database's vignetting for ``path``'s EXIF, or None and why not."""
+    if path is None:
+        return None, "lens database: the frames are arrays (no EXIF names a lens)"
+    from ..lens import database
+
+    return database.vignetting_for_file(path, height=shape[0], width=shape[1])
+
+
+class FrameFalloff:
+    """``V(H_j x)`` of one frame on the reference grid, strip by strip, and the powers
+    by which it scales the frame's terms of the merge's sums (module docstring).
+
+    Parameters
+    ----------
+    vignetting : Vignetting
+    transform : numpy.ndarray or None
+        3×3 reference → frame pixel coordinates (None: the identity).
+    shape : (H, W)
+        The frames' size.
+    noise_weights : bool
+        The merge's weights are inverse variances (``"noise"``): ``w·V²``; else ``w``.
+    """
+
+    def __init__(self, vignetting: Vignetting, transform, shape, *, noise_weights: bool):
+        self.vignetting = vignetting
+        self.transform = None if transform is None else np.asarray(transform, np.float64)
+        self.height, self.width = shape
+        self.power = 2 if noise_weights else 0
+
+    def strip(self, s: slice) -> np.ndarray:
+        """``V`` at the reference pixels of rows ``s`` as seen by the frame: float32 (rows, W, 3)."""
+        ys, xs = np.mgrid[s.start:s.stop, 0:self.width].astype(np.float64)
+        if self.transform is not None:
+            t = self.transform
+            d = t[2, 0] * xs + t[2, 1] * ys + t[2, 2]
+            xs, ys = ((t[0, 0] * xs + t[0, 1] * ys + t[0, 2]) / d,
+                      (t[1, 0] * xs + t[1, 1] * ys + t[1, 2]) / d)
+        v = self.vignetting.at(self.height, self.width, xs, ys)
+        return np.maximum(v, 1e-3).astype(np.float32)
+
+    def scale_sums(self, s: slice, a: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """``a``, ``w`` (the frame's weighted values and weights on strip ``s``) scaled in
+        place (``a·V^(p−1)``, ``w·V^p``); returns ``V`` for σ's sums."""
+        v = self.strip(s)
+        p = self.power
+        if p == 2:
+            np.multiply(a, v, out=a)
+            np.multiply(w, v * v, out=w)
+        else:
+            np.divide(a, v, out=a)
+        return v
+
+    def sigma_factors(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Factors of σ's two sums, ``Σ w²(V + X²σ_t²)`` and ``Σ w X σ_g``: ``V^(2p−2)``
+        and ``V^(p−1)``."""
+        if self.power == 2:
+            return v * v, v
+        return 1.0 / (v * v), 1.0 / v
+
+
+def apply_vignetting(radiance: np.ndarray, sigma: np.ndarray | None, vignetting: Vignetting,
+                     *, moved: bool, record: dict) -> None:
+    """The lens's falloff out of a finished merge, in place: divided out of the radiance
+    and σ unless it left each moved frame already (:class:`FrameFalloff`), and its
+    uncertainty added to σ; ``record`` (the merge's ``diagnostics["vignetting"]``) says how."""
+    if not moved:
+        divide_out(radiance, sigma, vignetting)
+    record["divided"] = "per frame" if moved else "after the merge"
+    if sigma is not None:
+        record["log_sigma_median"] = add_vignetting_sigma(sigma, radiance, vignetting)
+
+
+def divide_out(radiance: np.ndarray, sigma: np.ndarray | None, vignetting: Vignetting,
+               *, rows: int = 256) -> None:
+    """Divide a merged radiance (and its σ) by ``V(x)`` in place, strip by strip: exact
+    when no frame moved (module docstring)."""
+    hh, ww = radiance.shape[:2]
+    whole = FrameFalloff(vignetting, None, (hh, ww), noise_weights=True)
+    for y in range(0, hh, rows):
+        s = slice(y, min(y + rows, hh))
+        v = whole.strip(s)
+        np.divide(radiance[s], v, out=radiance[s])
+        if sigma is not None:
+            np.divide(sigma[s], v, out=sigma[s])
+
+
+def add_vignetting_sigma(sigma: np.ndarray, radiance: np.ndarray, vignetting: Vignetting,
+                         *, rows: int = 256) -> float:
+    """Add ``E · σ_logV(x)`` to σ in quadrature, in place; returns its median over the
+    frame (log units, for the diagnostics)."""
+    hh, ww = radiance.shape[:2]
+    medians = []
+    for y in range(0, hh, rows):
+        s = slice(y, min(y + rows, hh))
+        ys, xs = np.mgrid[s.start:s.stop, 0:ww].astype(np.float64)
+        lv = vignetting.log_sigma_at(hh, ww, xs, ys).astype(np.float32)
+        medians.append(float(np.median(lv)))
+        term = radiance[s] * lv
+        np.sqrt(sigma[s] ** 2 + term * term, out=sigma[s])
+    return float(np.median(medians)) if medians else 0.0
