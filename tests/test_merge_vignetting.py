@@ -1,0 +1,127 @@
+"""The merge divides the lens's vignetting out: tripod stacks after the merge, moved frames
+per frame at their own pixels, and σ grows by the vignetting's uncertainty."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import selfcal
+from selfcal import sim
+from selfcal.hdr.merge import MergeOptions
+from selfcal.lens import Vignetting
+
+H, W = 128, 192
+TIMES = [1 / 250, 1 / 125, 1 / 60, 1 / 30, 1 / 15]
+
+
+def _vignetting(cov=1e-6) -> Vignetting:
+    k = np.array([[-0.55, 0.05, -0.02], [-0.5, 0.0, 0.0], [-0.45, 0.0, 0.0]])
+    return Vignetting(k, [0.06, -0.04], "flat", covariance=np.eye(11) * cov, aspect=W / H)
+
+
+def _radius():
+    yy, xx = np.mgrid[0:H, 0:W]
+    return np.hypot(xx - W / 2, yy - H / 2) / np.hypot(W / 2, H / 2)
+
+
+@pytest.fixture(scope="module")
+def scene_and_pipeline():
+    pad = 16
+    big = sim.make_scene(H + 2 * pad, W + 2 * pad, dynamic_range_stops=9.0, saturation=0.3,
+                         seed=7)
+    return big, pad, sim.default_pipeline(seed=7)
+
+
+def _frames(big, pad, pipe, shifts, vignetting):
+    """One frame per time, each cropped at its shift (the camera moved), the lens's
+    falloff applied in the frame's own pixels, then rendered."""
+    centre = big[pad:pad + H, pad:pad + W]
+    scale = 0.18 / (np.median(centre.mean(-1)) * np.sqrt(TIMES[0] * TIMES[-1]))
+    fall = np.ones((H, W, 3), np.float32) if vignetting is None else vignetting.map(H, W)
+    out = []
+    for k, (t, (dx, dy)) in enumerate(zip(TIMES, shifts)):
+        crop = big[pad + dy:pad + dy + H, pad + dx:pad + dx + W]
+        out.append(sim.simulate_stack(crop * fall, pipe, [t], jitter=0.0, exposure_scale=scale,
+                                      seed=k).images[0])
+    return out
+
+
+@pytest.fixture(scope="module")
+def tripod(scene_and_pipeline):
+    big, pad, pipe = scene_and_pipeline
+    still = [(0, 0)] * len(TIMES)
+    plain = _frames(big, pad, pipe, still, None)
+    model = selfcal.calibrate_response(plain, TIMES)
+    base = selfcal.merge_hdr(plain, TIMES, model, options=MergeOptions(vignetting="none"))
+    return model, base, _frames(big, pad, pipe, still, _vignetting())
+
+
+def _error(result, base, where):
+    ok = ~result.unmeasured & ~base.unmeasured & where
+    return float(np.median(np.log(result.radiance[ok] / base.radiance[ok])))
+
+
+def test_tripod_merge_divides_the_falloff_out(tripod):
+    model, base, frames = tripod
+    r = _radius()
+    kept = selfcal.merge_hdr(frames, TIMES, model, options=MergeOptions(vignetting="none"))
+    divided = selfcal.merge_hdr(frames, TIMES, model,
+                                options=MergeOptions(vignetting=_vignetting()))
+    assert _error(kept, base, r > 0.85) < -0.25       # the corners are dark without
+    assert abs(_error(divided, base, r > 0.85)) < 0.03
+    assert abs(_error(divided, base, r < 0.2)) < 0.02
+    assert divided.diagnostics["vignetting"]["divided"] == "after the merge"
+    assert divided.diagnostics["vignetting"]["source"] == "flat"
+
+
+def test_moved_frames_divide_it_per_frame(scene_and_pipeline, tripod):
+    big, pad, pipe = scene_and_pipeline
+    model, base, _ = tripod
+    shifts = [(-10, -6), (8, -5), (0, 0), (-6, 9), (10, 7)]
+    frames = _frames(big, pad, pipe, shifts, _vignetting())
+    r = _radius()
+    divided = selfcal.merge_hdr(frames, TIMES, model, align="mtb",
+                                options=MergeOptions(vignetting=_vignetting()))
+    assert divided.diagnostics["vignetting"]["divided"] == "per frame"
+    # the reference frame's corners hold other frames' brighter middles: still right
+    assert abs(_error(divided, base, (r > 0.8) & (r < 0.95))) < 0.04
+    assert abs(_error(divided, base, r < 0.2)) < 0.03
+
+
+def test_sigma_grows_with_the_vignetting_band(tripod):
+    model, _, frames = tripod
+    narrow = selfcal.merge_hdr(frames, TIMES, model,
+                               options=MergeOptions(vignetting=_vignetting(1e-8), sigma=True))
+    wide = selfcal.merge_hdr(frames, TIMES, model,
+                             options=MergeOptions(vignetting=_vignetting(1e-2), sigma=True))
+    r = _radius()
+    ok = ~narrow.unmeasured & (r > 0.8)
+    rel_narrow = np.median((narrow.sigma / narrow.radiance)[ok])
+    rel_wide = np.median((wide.sigma / wide.radiance)[ok])
+    assert rel_wide > rel_narrow + 0.05
+    # at the optical centre the falloff is 1 by definition: its σ is nothing there
+    assert wide.diagnostics["vignetting"]["log_sigma_median"] > 0
+
+
+def test_self_without_a_fitted_vignetting_says_why(tripod):
+    model, _, frames = tripod
+    with pytest.raises(selfcal.InputError, match="self-calibration"):
+        selfcal.merge_hdr(frames, TIMES, model, options=MergeOptions(vignetting="self"))
+    with pytest.raises(selfcal.InputError, match="vignetting must be one of"):
+        selfcal.merge_hdr(frames, TIMES, model, options=MergeOptions(vignetting="sometimes"))
+
+
+def test_auto_on_arrays_finds_none_and_records_why(tripod):
+    model, base, frames = tripod
+    result = selfcal.merge_hdr(frames, TIMES, model)
+    record = result.diagnostics["vignetting"]
+    assert record["source"] is None and record["chosen_by"] == "auto"
+    assert any("arrays" in reason for reason in record["reasons"])
+
+
+def test_a_vignetting_for_another_aspect_is_refused(tripod):
+    model, _, frames = tripod
+    other = Vignetting(np.zeros((3, 3)), np.zeros(2), "flat", aspect=1.0)
+    with pytest.raises(selfcal.InputError, match="aspect"):
+        selfcal.merge_hdr(frames, TIMES, model, options=MergeOptions(vignetting=other))
