@@ -150,7 +150,7 @@ class MergeSums:
         self.unchecked_mask: np.ndarray | None = None
         #: the lens's vignetting, divided out of each frame at its own pixels (frames
         #: that moved: :class:`.vignetting.FrameFalloff`); None when there is none or it
-        #: is divided out of the finished radiance (:func:`.vignetting.divide_out`)
+        #: is divided out of the finished radiance (:func:`.vignetting.apply_vignetting`)
         self.falloff = None
 
     def keep_unchecked(self, tab: FrameTables, shape, dtype, max_code) -> None:

@@ -16,7 +16,7 @@ from ..errors import InputError
 from ..io.images import is_path, read_image
 from ..stack.frames import STRIP_PIXELS, Lineariser, apply_lut, max_code_of
 from ..typing import ImageInput, Progress
-from .vignetting import divide_out, resolve_vignetting
+from .vignetting import apply_vignetting, resolve_vignetting
 
 __all__ = ["linearize_images"]
 
@@ -72,7 +72,7 @@ def linearize_images(images: Sequence[ImageInput], model: object, *,
         falloff, record = resolve_vignetting(vignetting, model, path=item if is_path(item)
                                              else None, shape=out.shape[:2])
         if falloff is not None:
-            divide_out(out, None, falloff)
+            apply_vignetting(out, None, falloff, moved=False, record=record)
         if records is not None:
             records.append({"source": sources[k], **record})
         del img
