@@ -61,6 +61,41 @@ def radial_falloff(r, coefficients) -> np.ndarray:
     return 1.0 + r2 * (k[..., 0] + r2 * (k[..., 1] + r2 * k[..., 2]))
 
 
+def binned_points(r, log_ratio, *, bins: int = 24, r_max: float | None = None) -> dict:
+    """Measurements of ``log V`` binned in radius: the ``diagnostics["points"]`` record.
+
+    Parameters
+    ----------
+    r : array_like
+        ``(n,)`` radii about the optical centre, in units of half the image diagonal.
+    log_ratio : array_like
+        ``(n, 3)`` measured ``log V`` per channel (NaN where a channel has none).
+    bins : int
+        Equal-width bins over ``[0, r_max]`` (default: the largest radius).
+
+    Returns
+    -------
+    dict
+        ``{"r", "log_ratio", "count"}`` as JSON-ready lists (see :class:`Vignetting`).
+    """
+    r = np.asarray(r, np.float64).reshape(-1)
+    values = np.asarray(log_ratio, np.float64).reshape(r.size, 3)
+    top = float(r.max()) if r_max is None and r.size else float(r_max or 1.0)
+    edges = np.linspace(0.0, max(top, 1e-9), bins + 1)
+    which = np.clip(np.digitize(r, edges) - 1, 0, bins - 1)
+    means, counts = [], []
+    for b in range(bins):
+        column = values[which == b]
+        ok = np.isfinite(column)
+        n = ok.sum(axis=0)
+        means.append([float(column[ok[:, c], c].mean()) if n[c] else None for c in range(3)])
+        counts.append([int(v) for v in n])
+    keep = [i for i in range(bins) if any(counts[i])]
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    return {"r": [float(centres[i]) for i in keep], "log_ratio": [means[i] for i in keep],
+            "count": [counts[i] for i in keep]}
+
+
 @dataclass
 class Vignetting:
     """Per-channel radial vignetting ``V(r)`` about an optical centre ([Goldman2010], Eq. 4).
@@ -85,7 +120,13 @@ class Vignetting:
     aspect : float or None
         ``width / height`` of the frames it was made for; None for lens profiles (any).
     diagnostics : dict
-        How it was made (points used, residuals, motion observed), saved with it.
+        How it was made (points used, residuals, motion observed), saved with it.  The key
+        ``"points"``, when present, holds the measurements the fit saw, binned in radius
+        for plots (:func:`binned_points`): ``{"r": [n], "log_ratio": [n][3], "count":
+        [n][3]}`` -- bin centres in units of half the diagonal about the fitted centre, the
+        mean measured ``log V`` per channel there (None where a bin is empty) and how many
+        measurements each mean holds.  Any source may fill it (a flat field's blocks, the
+        self-calibration's pairs); :func:`selfcal.report.plots.plot_vignetting` draws it.
 
     Examples
     --------
