@@ -27,6 +27,7 @@ correction", IEEE TPAMI 30(4), 2008.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +62,8 @@ def radial_falloff(r, coefficients) -> np.ndarray:
     return 1.0 + r2 * (k[..., 0] + r2 * (k[..., 1] + r2 * k[..., 2]))
 
 
-def binned_points(r, log_ratio, *, bins: int = 24, r_max: float | None = None) -> dict:
+def binned_points(r: Any, log_ratio: Any, *, bins: int = 24,
+                  r_max: float | None = None) -> dict:
     """Measurements of ``log V`` binned in radius: the ``diagnostics["points"]`` record.
 
     Parameters
@@ -205,7 +207,7 @@ class Vignetting:
             # ∂ log V / ∂(cx, cy, k₁..k₃ of this channel); r² = u² + v², ∂r²/∂cx = −2u
             jac = [-2 * u * d_r2, -2 * v * d_r2, r2 / value, r2 ** 2 / value, r2 ** 3 / value]
             index = [0, 1, 2 + 3 * c, 3 + 3 * c, 4 + 3 * c]
-            cov = self.covariance[np.ix_(index, index)]
+            cov = np.asarray(self.covariance)[np.ix_(index, index)]
             out[..., c] = sum(jac[i] * jac[j] * cov[i, j] for i in range(5) for j in range(5))
         return np.maximum(out, 0.0)
 
@@ -217,6 +219,29 @@ class Vignetting:
             np.hypot(sx * _half_width(self.aspect) - self.centre[0],
                      sy * _half_height(self.aspect) - self.centre[1]) for sx, sy in corners)
         return -np.log2(np.maximum(self.falloff(worst), 1e-6))
+
+    def corner_profile(self, n: int = 33) -> dict:
+        """``V`` and its σ along the ray from the optical centre to the farthest corner.
+
+        On a frame of :attr:`aspect` (4:3 when None, as :meth:`corner_stops`), ``n``
+        points evenly spaced in radius: ``{"r": (n,), "falloff": (n, 3), "log_sigma":
+        (n, 3)}`` -- the radius in units of half the diagonal, ``V`` and the standard
+        deviation of ``log V`` (:meth:`log_sigma_at`).  What ``selfcal show`` prints and
+        plots.
+        """
+        aspect = 4.0 / 3.0 if self.aspect is None else float(self.aspect)
+        height = 3000
+        width = int(round(height * aspect))
+        half_diagonal = 0.5 * float(np.hypot(height, width))
+        cx = 0.5 * (width - 1) + self.centre[0] * half_diagonal
+        cy = 0.5 * (height - 1) + self.centre[1] * half_diagonal
+        corners = [(x, y) for x in (-0.5, width - 0.5) for y in (-0.5, height - 0.5)]
+        far_x, far_y = max(corners, key=lambda c: np.hypot(c[0] - cx, c[1] - cy))
+        t = np.linspace(0.0, 1.0, n)
+        xs, ys = cx + t * (far_x - cx), cy + t * (far_y - cy)
+        return {"r": normalised_radius(height, width, self.centre, xs=xs, ys=ys),
+                "falloff": self.at(height, width, xs, ys),
+                "log_sigma": self.log_sigma_at(height, width, xs, ys)}
 
     def _check_aspect(self, height: int, width: int) -> None:
         if self.aspect is None:
