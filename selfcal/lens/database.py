@@ -47,6 +47,7 @@ IEEE TPAMI 32(12), 2010.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -70,7 +71,7 @@ LOG_SIGMA_FLOOR = 0.03
 _DATABASE = None
 
 
-def open_database():
+def open_database() -> Any:
     """Lensfun's database as lensfunpy bundles it (loaded once, then kept)."""
     global _DATABASE
     if _DATABASE is None:
@@ -136,7 +137,7 @@ def _name(item) -> str:
     return model if not maker or model.lower().startswith(maker.lower()) else f"{maker} {model}"
 
 
-def match_lens(info: LensInfo, *, database=None) -> tuple[LensMatch, object, object]:
+def match_lens(info: LensInfo, *, database: Any = None) -> tuple[LensMatch, Any, Any]:
     """Find the camera and lens of ``info`` in lensfun's database (ours: the policy).
 
     The camera by EXIF make and model (``Database.find_cameras``); the lens by EXIF lens
@@ -210,7 +211,7 @@ def _calibrated_range(lens, record: LensMatch) -> None:
 
 
 def lens_vignetting(source: PathLike | LensInfo, *, distance: float | None = None,
-                    database=None) -> tuple[Vignetting | None, LensMatch]:
+                    database: Any = None) -> tuple[Vignetting | None, LensMatch]:
     """The vignetting of the lens a frame was taken with, from lensfun's profile.
 
     ``V(r) = 1 + k₁r² + k₂r⁴ + k₃r⁶`` ([Goldman2010] Eq. 4, lensfun's ``pa`` model),
@@ -245,7 +246,7 @@ def lens_vignetting(source: PathLike | LensInfo, *, distance: float | None = Non
         When ``source`` is a file that cannot be read.
     """
     info = source if isinstance(source, LensInfo) else read_lens_info(source)
-    record, _camera, lens = match_lens(info, database=database)
+    record, camera, lens = match_lens(info, database=database)
     if lens is None:
         return None, record
     if not info.focal_length or not info.f_number:
@@ -271,7 +272,7 @@ def lens_vignetting(source: PathLike | LensInfo, *, distance: float | None = Non
                          f"{record.focal_length:g} mm f/{record.f_number:g}")
         return None, record
     _calibrated_range(lens, record)
-    s2 = (record.lens_crop / record.camera_crop) ** 2
+    s2 = (float(lens.crop_factor) / float(camera.crop_factor)) ** 2
     k = np.asarray(calib.terms[:3], np.float64) * np.array([s2, s2 ** 2, s2 ** 3])
     description = (f"lensfun: {record.lens} at {record.focal_length:g} mm "
                    f"f/{record.f_number:g} (match score {record.score})")

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -142,7 +143,7 @@ def _residuals(p, u, v, logm):
     return np.concatenate(out)
 
 
-def flat_field_vignetting(frame, *, linearize: Callable | None = None,
+def flat_field_vignetting(frame: Any, *, linearize: Callable | None = None,
                           blocks: int = BLOCKS, description: str | None = None) -> Vignetting:
     """Fit the vignetting ``V`` ([Goldman2010], Eq. 4) to a flat-field frame.
 
