@@ -18,7 +18,7 @@ import json
 import numpy as np
 import pytest
 
-from selfcal.errors import CalibrationError, InputError
+from selfcal.errors import CalibrationError, InputError, SelfcalWarning
 from selfcal.io.images import (LensInfo, encode_image, exif_bytes, read_exposure_info,
                                read_lens_info)
 from selfcal.lens import Vignetting, flat_field_vignetting, lens_vignetting
@@ -183,6 +183,10 @@ def test_flat_field_from_a_file_and_bad_input(tmp_path):
     path.write_bytes(encode_image(_flat(), ".png"))
     v = flat_field_vignetting(path, linearize=_gamma)
     assert "flat.png" in v.description
+    assert v.diagnostics["warnings"] == []
+    checker = np.where((np.indices((300, 450)).sum(axis=0) // 40) % 2 == 0, 60, 200)
+    with pytest.warns(SelfcalWarning, match="does not look flat"):
+        flat_field_vignetting(np.repeat(checker[..., None], 3, axis=2).astype(np.uint8))
     with pytest.raises(InputError):
         flat_field_vignetting(np.zeros((10, 10), np.uint8))
     with pytest.raises(CalibrationError, match="unclipped"):
