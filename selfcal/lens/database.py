@@ -108,7 +108,8 @@ class LensMatch:
     focal_length, f_number, distance : float or None
         The settings the vignetting was interpolated at.
     distance_source : str
-        ``"exif"`` or ``"default"`` (:data:`DEFAULT_DISTANCE_M`).
+        ``"given"`` (the ``distance`` argument), ``"exif"`` or ``"default"``
+        (:data:`DEFAULT_DISTANCE_M`).
     extrapolated : list of str
         Settings outside the range the lens's vignetting was calibrated over.
     reason : str or None

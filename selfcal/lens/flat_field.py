@@ -154,10 +154,10 @@ def flat_field_vignetting(frame: Any, *, linearize: Callable | None = None,
     Parameters
     ----------
     frame : array_like or path
-        ``HxWx3`` RGB frame of a uniform surface (uint8, uint16, or float in [0, 1]), or a
-        file:
-        JPEG/PNG/TIFF (:func:`selfcal.io.images.read_image`) or a camera raw
-        (:func:`selfcal.io.raw.read_raw_linear`, linear already).
+        ``HxWx3`` RGB frame of a uniform surface (uint8, uint16, or float in [0, 1]), or
+        a file: JPEG/PNG/TIFF (:func:`selfcal.io.images.read_image`) or a camera raw
+        (:func:`selfcal.io.raw.read_raw_linear`, linear already).  A frame the camera
+        rendered (JPEG) must be linearised: pass ``linearize``.
     linearize : callable, optional
         Maps the frame's codes to linear values (a response model's ``linearize``).
         Default: none -- the data are linear (raw, linear TIFF); integer codes are
