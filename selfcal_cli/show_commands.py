@@ -1,5 +1,5 @@
 """``selfcal show MODEL [--plot FILE.png]``: what a model is, its fit, verdict, warnings and
-curves, for both kinds of model.
+curves, for both kinds of model, and a response model's vignetting when it has one.
 
 Nothing numerical lives here: the content is :func:`selfcal.report.describe.describe` and its text
 :func:`selfcal.report.describe.format_description`; the figure is
@@ -35,9 +35,12 @@ def register(sub) -> None:
         "show", help="describe a model: what it is, its fit, verdict, warnings and curves",
         description="Describe a model file (response or RAW-path pipeline): kind, frames and "
                     "exposures with their source, solver settings, fit residuals and δ "
-                    "(Eq. 12), verdict with reasons, warnings, and a table of its curves.",
+                    "(Eq. 12), verdict with reasons, warnings, a table of its curves, and "
+                    "its vignetting when it has one (source, optical centre, corner "
+                    "falloff per channel with its 90 % band).",
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("model", metavar="MODEL", help="a model file written by selfcal")
-    p.add_argument("--plot", metavar="FILE.png", help="also write a PNG of the curves")
+    p.add_argument("--plot", metavar="FILE.png",
+                   help="also write a PNG of the curves (and of the vignetting, if any)")
     p.add_argument("--force", action="store_true", help="overwrite an existing --plot file")
     p.set_defaults(func=cmd_show)

@@ -134,3 +134,41 @@ def test_show_damaged_model_is_a_clear_error(response_file, tmp_path, capsys):
     assert not (tmp_path / "p.png").exists()
     code, out, err = run(["show", tmp_path / "absent.json"], capsys)
     assert code == EXIT_INPUT and "absent.json" in err
+
+
+def test_show_prints_and_plots_the_vignetting(response_file, tmp_path, capsys):
+    from PIL import Image
+
+    from selfcal.lens import Vignetting, binned_points
+
+    model = selfcal.load_model(response_file)
+    cov = np.diag([1e-6, 1e-6] + [4e-4, 1e-4, 1e-5] * 3)
+    r = np.linspace(0.05, 1.0, 40)
+    k = np.array([[-0.45, 0.05, -0.02], [-0.40, 0.02, -0.01], [-0.35, 0.0, 0.0]])
+    points = binned_points(r, np.log(1 + k[:, 0] * r[:, None] ** 2), bins=10)
+    model.vignetting = Vignetting(k, [0.03, -0.02], source="flat", description="test card",
+                                  covariance=cov, log_sigma_floor=0.01, aspect=1.5,
+                                  diagnostics={"points": points})
+    path = tmp_path / "with_vignetting.json"
+    model.save(path)
+    png = tmp_path / "v.png"
+    code, out, err = run(["show", path, "--plot", png], capsys)
+    assert code == 0, err
+    loaded = selfcal.load_model(path).vignetting
+    assert re.search(r"^  source\s+flat \(flat field\)$", out, re.M)
+    assert re.search(r"^  description\s+test card$", out, re.M)
+    found = re.search(r"^  corner R G B\s+(\S+)±(\S+) (\S+)±(\S+) (\S+)±(\S+) stops", out, re.M)
+    stops = [float(found.group(i)) for i in (1, 3, 5)]
+    np.testing.assert_allclose(stops, loaded.corner_stops(), atol=6e-4)
+    band = [float(found.group(i)) for i in (2, 4, 6)]
+    expect = 1.645 * loaded.corner_profile(2)["log_sigma"][-1] / np.log(2)
+    np.testing.assert_allclose(band, expect, atol=6e-4)
+    assert all(b > 0 for b in band)
+    rows = _table(out, "vignetting V")
+    assert [float(v) for v in rows[0][1:4]] == [1.0, 1.0, 1.0]
+    with Image.open(png) as im:
+        assert im.format == "PNG" and im.size[0] > 900
+    json.dumps(describe(selfcal.load_model(path)))     # plain values
+    # a model without one says nothing about vignetting
+    code, out, err = run(["show", response_file], capsys)
+    assert "vignetting" not in out

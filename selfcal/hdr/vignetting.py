@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..lens.database import lens_vignetting
 from ..lens.vignetting import Vignetting
 
 __all__ = ["VIGNETTING_CHOICES", "resolve_vignetting", "FrameFalloff", "apply_vignetting",
@@ -94,7 +95,7 @@ def resolve_vignetting(option, model, *, path, shape) -> tuple[Vignetting | None
         record["reasons"].append(_why_no_self(model))
         if option == "self":
             raise InputError(f"no self-calibrated vignetting: {record['reasons'][-1]}")
-    lens, why = _lens_profile(path, shape)
+    lens, why = _lens_profile(path)
     if lens is not None:
         return _chosen(lens, record, shape)
     record["reasons"].append(why)
@@ -126,13 +127,14 @@ def _why_no_self(model) -> str:
             "(align=\"homography\")")
 
 
-def _lens_profile(path, shape) -> tuple[Vignetting | None, str]:
+def _lens_profile(path) -> tuple[Vignetting | None, str]:
     """The lens database's vignetting for ``path``'s EXIF, or None and why not."""
     if path is None:
         return None, "lens database: the frames are arrays (no EXIF names a lens)"
-    from ..lens import database
-
-    return database.vignetting_for_file(path, height=shape[0], width=shape[1])
+    vignetting, match = lens_vignetting(path)
+    if vignetting is None:
+        return None, f"lens database: {match.reason}"
+    return vignetting, ""
 
 
 class SmoothField:

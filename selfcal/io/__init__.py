@@ -13,11 +13,11 @@ from __future__ import annotations
 
 from .images import (IMAGE_SUFFIXES, JPEG_SUFFIXES, ExposureInfo, OutputWriteError,
                      StagedOutputs, atomic_output, check_output_path,
-                     effective_exposure_times, encode_image, exif_rational, format_exposure_time,
-                     read_exposure_info, read_image,
+                     LensInfo, effective_exposure_times, encode_image, exif_rational,
+                     format_exposure_time, read_exposure_info, read_image, read_lens_info,
                      read_image_size, write_bytes_atomic, write_image)
 
 __all__ = ["IMAGE_SUFFIXES", "JPEG_SUFFIXES", "read_image", "read_image_size", "ExposureInfo",
            "effective_exposure_times", "format_exposure_time", "read_exposure_info", "OutputWriteError",
            "check_output_path", "atomic_output", "StagedOutputs", "write_bytes_atomic",
-           "encode_image", "write_image", "exif_rational"]
+           "encode_image", "write_image", "exif_rational", "LensInfo", "read_lens_info"]

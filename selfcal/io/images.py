@@ -271,6 +271,64 @@ def read_exposure_info(path: PathLike) -> ExposureInfo:
     )
 
 
+_TAG_MAKE, _TAG_MODEL, _TAG_LENS_MAKE, _TAG_LENS_MODEL = 0x010F, 0x0110, 0xA433, 0xA434
+_TAG_FOCAL, _TAG_FOCAL_35MM, _TAG_SUBJECT_DISTANCE = 0x920A, 0xA405, 0x9206
+
+
+@dataclass(frozen=True)
+class LensInfo:
+    """Camera and lens as a file's EXIF names them; ``None`` where a tag is absent.
+
+    ``focus_distance`` is SubjectDistance (m); ``focal_length_35mm`` FocalLengthIn35mmFilm.
+    """
+
+    make: str | None
+    model: str | None
+    lens_make: str | None
+    lens_model: str | None
+    focal_length: float | None
+    f_number: float | None
+    focus_distance: float | None
+    focal_length_35mm: float | None = None
+
+
+def read_lens_info(path: PathLike) -> LensInfo:
+    """Read camera make and model, lens make and model, focal length, f-number and focus
+    distance from a file's EXIF (IFD0 and the Exif IFD 0x8769: LensMake 0xA433, LensModel
+    0xA434, FocalLength 0x920A, SubjectDistance 0x9206).
+
+    Never raises for missing tags (a lens named only in a maker note reads as None);
+    raises InputError only when the file cannot be opened.
+    """
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            sub = dict(exif.get_ifd(_EXIF_IFD))
+            exif = dict(exif)
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except Exception as exc:
+        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
+
+    def text(code):
+        value = sub.get(code, exif.get(code))
+        if isinstance(value, bytes):
+            value = value.decode("utf-8", "replace")
+        return (str(value).replace("\x00", " ").strip() or None) if value is not None else None
+
+    def positive(code):
+        value = rational_value(sub.get(code, exif.get(code)))
+        return value if value is not None and value > 0 else None
+
+    return LensInfo(make=text(_TAG_MAKE), model=text(_TAG_MODEL),
+                    lens_make=text(_TAG_LENS_MAKE), lens_model=text(_TAG_LENS_MODEL),
+                    focal_length=positive(_TAG_FOCAL), f_number=positive(_TAG_FNUMBER),
+                    focus_distance=positive(_TAG_SUBJECT_DISTANCE),
+                    focal_length_35mm=positive(_TAG_FOCAL_35MM))
+
+
 def exif_rational(x: float, max_den: int = 1_000_000) -> tuple[int, int]:
     """``x`` as an EXIF/TIFF RATIONAL ``(numerator, denominator)``, as cameras write it.
 
@@ -284,10 +342,22 @@ def exif_rational(x: float, max_den: int = 1_000_000) -> tuple[int, int]:
     return fr.numerator, fr.denominator
 
 
-def exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth"):
+def exif_bytes(exposure_time=None, f_number=None, iso=None, make="selfcal", model="synth", *,
+               lens_make=None, lens_model=None, focal_length=None, focus_distance=None):
+    """An EXIF block (bytes, piexif) with the exposure tags, the camera and, when given, the
+    lens: LensMake, LensModel, FocalLength (mm), SubjectDistance (m); see
+    :func:`read_lens_info`."""
     import piexif
 
-    exif_ifd: dict[int, tuple[int, int] | int] = {}
+    exif_ifd: dict[int, Any] = {}
+    for tag, value in ((piexif.ExifIFD.LensMake, lens_make),
+                       (piexif.ExifIFD.LensModel, lens_model)):
+        if value is not None:
+            exif_ifd[tag] = str(value).encode()
+    for tag, value in ((piexif.ExifIFD.FocalLength, focal_length),
+                       (piexif.ExifIFD.SubjectDistance, focus_distance)):
+        if value is not None:
+            exif_ifd[tag] = exif_rational(value, 1000)
     if exposure_time is not None:
         exif_ifd[piexif.ExifIFD.ExposureTime] = exif_rational(exposure_time)
     if f_number is not None:

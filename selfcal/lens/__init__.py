@@ -12,6 +12,11 @@ The self-calibrated vignetting is fitted beside the response solver it extends
 
 from __future__ import annotations
 
-from .vignetting import PARAMETER_NAMES, Vignetting, normalised_radius, radial_falloff
+from .database import LensMatch, lens_vignetting
+from .flat_field import flat_field_vignetting
+from .vignetting import (PARAMETER_NAMES, Vignetting, binned_points, normalised_radius,
+                         radial_falloff)
 
-__all__ = ["Vignetting", "PARAMETER_NAMES", "normalised_radius", "radial_falloff"]
+__all__ = ["Vignetting", "PARAMETER_NAMES", "normalised_radius", "radial_falloff",
+           "binned_points", "flat_field_vignetting", "lens_vignetting", "LensMatch"]
+

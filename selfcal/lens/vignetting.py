@@ -27,6 +27,7 @@ correction", IEEE TPAMI 30(4), 2008.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -61,6 +62,42 @@ def radial_falloff(r, coefficients) -> np.ndarray:
     return 1.0 + r2 * (k[..., 0] + r2 * (k[..., 1] + r2 * k[..., 2]))
 
 
+def binned_points(r: Any, log_ratio: Any, *, bins: int = 24,
+                  r_max: float | None = None) -> dict:
+    """Measurements of ``log V`` binned in radius: the ``diagnostics["points"]`` record.
+
+    Parameters
+    ----------
+    r : array_like
+        ``(n,)`` radii about the optical centre, in units of half the image diagonal.
+    log_ratio : array_like
+        ``(n, 3)`` measured ``log V`` per channel (NaN where a channel has none).
+    bins : int
+        Equal-width bins over ``[0, r_max]`` (default: the largest radius).
+
+    Returns
+    -------
+    dict
+        ``{"r", "log_ratio", "count"}`` as JSON-ready lists (see :class:`Vignetting`).
+    """
+    r = np.asarray(r, np.float64).reshape(-1)
+    values = np.asarray(log_ratio, np.float64).reshape(r.size, 3)
+    top = float(r.max()) if r_max is None and r.size else float(r_max or 1.0)
+    edges = np.linspace(0.0, max(top, 1e-9), bins + 1)
+    which = np.clip(np.digitize(r, edges) - 1, 0, bins - 1)
+    means, counts = [], []
+    for b in range(bins):
+        column = values[which == b]
+        ok = np.isfinite(column)
+        n = ok.sum(axis=0)
+        means.append([float(column[ok[:, c], c].mean()) if n[c] else None for c in range(3)])
+        counts.append([int(v) for v in n])
+    keep = [i for i in range(bins) if any(counts[i])]
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    return {"r": [float(centres[i]) for i in keep], "log_ratio": [means[i] for i in keep],
+            "count": [counts[i] for i in keep]}
+
+
 @dataclass
 class Vignetting:
     """Per-channel radial vignetting ``V(r)`` about an optical centre ([Goldman2010], Eq. 4).
@@ -85,7 +122,13 @@ class Vignetting:
     aspect : float or None
         ``width / height`` of the frames it was made for; None for lens profiles (any).
     diagnostics : dict
-        How it was made (points used, residuals, motion observed), saved with it.
+        How it was made (points used, residuals, motion observed), saved with it.  The key
+        ``"points"``, when present, holds the measurements the fit saw, binned in radius
+        for plots (:func:`binned_points`): ``{"r": [n], "log_ratio": [n][3], "count":
+        [n][3]}`` -- bin centres in units of half the diagonal about the fitted centre, the
+        mean measured ``log V`` per channel there (None where a bin is empty) and how many
+        measurements each mean holds.  Any source may fill it (a flat field's blocks, the
+        self-calibration's pairs); :func:`selfcal.report.plots.plot_vignetting` draws it.
 
     Examples
     --------
@@ -164,7 +207,7 @@ class Vignetting:
             # ∂ log V / ∂(cx, cy, k₁..k₃ of this channel); r² = u² + v², ∂r²/∂cx = −2u
             jac = [-2 * u * d_r2, -2 * v * d_r2, r2 / value, r2 ** 2 / value, r2 ** 3 / value]
             index = [0, 1, 2 + 3 * c, 3 + 3 * c, 4 + 3 * c]
-            cov = self.covariance[np.ix_(index, index)]
+            cov = np.asarray(self.covariance)[np.ix_(index, index)]
             out[..., c] = sum(jac[i] * jac[j] * cov[i, j] for i in range(5) for j in range(5))
         return np.maximum(out, 0.0)
 
@@ -176,6 +219,29 @@ class Vignetting:
             np.hypot(sx * _half_width(self.aspect) - self.centre[0],
                      sy * _half_height(self.aspect) - self.centre[1]) for sx, sy in corners)
         return -np.log2(np.maximum(self.falloff(worst), 1e-6))
+
+    def corner_profile(self, n: int = 33) -> dict:
+        """``V`` and its σ along the ray from the optical centre to the farthest corner.
+
+        On a frame of :attr:`aspect` (4:3 when None, as :meth:`corner_stops`), ``n``
+        points evenly spaced in radius: ``{"r": (n,), "falloff": (n, 3), "log_sigma":
+        (n, 3)}`` -- the radius in units of half the diagonal, ``V`` and the standard
+        deviation of ``log V`` (:meth:`log_sigma_at`).  What ``selfcal show`` prints and
+        plots.
+        """
+        aspect = 4.0 / 3.0 if self.aspect is None else float(self.aspect)
+        height = 3000
+        width = int(round(height * aspect))
+        half_diagonal = 0.5 * float(np.hypot(height, width))
+        cx = 0.5 * (width - 1) + self.centre[0] * half_diagonal
+        cy = 0.5 * (height - 1) + self.centre[1] * half_diagonal
+        corners = [(x, y) for x in (-0.5, width - 0.5) for y in (-0.5, height - 0.5)]
+        far_x, far_y = max(corners, key=lambda c: np.hypot(c[0] - cx, c[1] - cy))
+        t = np.linspace(0.0, 1.0, n)
+        xs, ys = cx + t * (far_x - cx), cy + t * (far_y - cy)
+        return {"r": normalised_radius(height, width, self.centre, xs=xs, ys=ys),
+                "falloff": self.at(height, width, xs, ys),
+                "log_sigma": self.log_sigma_at(height, width, xs, ys)}
 
     def check_size(self, height: int, width: int) -> None:
         """InputError unless frames of ``height × width`` have the aspect it was made for."""

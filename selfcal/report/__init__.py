@@ -5,8 +5,8 @@
 
 from __future__ import annotations
 
-from .plots import (CHANNEL_COLOURS, VERDICT_COLOURS, plot_model, plot_pipeline,
-                    plot_response, verdict_lines)
+from .plots import (CHANNEL_COLOURS, VERDICT_COLOURS, draw_vignetting, plot_model,
+                    plot_pipeline, plot_response, plot_vignetting, verdict_lines)
 
 __all__ = ["CHANNEL_COLOURS", "VERDICT_COLOURS", "verdict_lines", "plot_response",
-           "plot_pipeline", "plot_model"]
+           "plot_pipeline", "plot_model", "plot_vignetting", "draw_vignetting"]

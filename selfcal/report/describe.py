@@ -4,7 +4,9 @@
 what it is (kind, camera when recorded, frames, exposures and where they came from, the
 solver's settings), its fit (residuals; δ of Lin et al., ICCV 2011, Eq. 12, where
 present), its verdict (:mod:`selfcal.response.verdict`: ok / doubtful / unusable with
-reasons), its warnings and a compact table of its curves, as plain values (JSON-able).
+reasons), its warnings, a compact table of its curves and, when the model carries one, its
+vignetting ([Goldman2010] Eq. 4: source, centre, corner falloff with its band), as plain
+values (JSON-able).
 :func:`format_description` turns that into text.  The library never prints: the command
 line (``selfcal_cli/show_commands.py``) does.
 
@@ -23,12 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["describe", "format_description", "TABLE_FRACTIONS"]
+__all__ = ["describe", "format_description", "describe_vignetting", "TABLE_FRACTIONS",
+           "VIGNETTING_FRACTIONS"]
 
 #: Where the curve tables are read: fractions of the largest code (response models: the
 #: codes round(fraction · max_code); pipeline models: fractions of each curve's domain).
 TABLE_FRACTIONS = (0.0, 0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 1.0)
 from ..io.images import format_exposure_time  # noqa: E402
+from ..lens.vignetting import Vignetting  # noqa: E402
 from ..response.verdict import verdict_of  # noqa: E402
 
 
@@ -51,8 +55,9 @@ def describe(model) -> dict:
     -------
     dict
         ``kind``, ``what`` (a list of (label, value) pairs), ``fit`` (the same),
-        ``verdict`` (level or None), ``verdict_reasons``, ``warnings`` and ``curves``
-        (``{"title", "header", "rows"}`` tables).
+        ``verdict`` (level or None), ``verdict_reasons``, ``warnings``, ``curves``
+        (``{"title", "header", "rows"}`` tables) and, for a response model, ``vignetting``
+        (:func:`describe_vignetting`, None when the model has none).
     """
     if hasattr(model, "to_raw"):
         return _describe_pipeline(model)
@@ -110,7 +115,68 @@ def _describe_response(model) -> dict:
     return {"kind": "response", "what": what, "frames": frames, "fit": fit,
             "verdict": level, "verdict_reasons": reasons,
             "warnings": [str(w) for w in d.get("warnings") or [] if str(w) not in reasons],
-            "curves": curves}
+            "curves": curves, "vignetting": describe_vignetting(
+                getattr(model, "vignetting", None))}
+
+
+#: Where the vignetting table is read: fractions of the way from the optical centre to
+#: the farthest corner.
+VIGNETTING_FRACTIONS = (0.0, 0.25, 0.5, 0.75, 1.0)
+
+
+def describe_vignetting(vignetting: Vignetting | None) -> dict | None:
+    """What ``selfcal show`` says about a model's vignetting (None when it has none).
+
+    Returns
+    -------
+    dict or None
+        ``source``, ``description``, ``centre`` (offset from the image centre, half
+        diagonals), ``aspect``, ``corner_stops`` (falloff at the farthest corner,
+        −log₂ V per channel, :meth:`~selfcal.lens.vignetting.Vignetting.corner_stops`),
+        ``corner_band_stops`` (half-width of its 90 % band: 1.645 σ of log V from the
+        covariance and the floor, in stops) and ``table`` (V per channel and the band, at
+        :data:`VIGNETTING_FRACTIONS` of the way to that corner).
+    """
+    if vignetting is None:
+        return None
+    profile = vignetting.corner_profile(len(VIGNETTING_FRACTIONS))
+    band = 1.645 * profile["log_sigma"] / math.log(2.0)
+    rows = [[float(profile["r"][i]), *_floats(profile["falloff"][i]),
+             float(band[i].max())] for i in range(len(VIGNETTING_FRACTIONS))]
+    return {"source": vignetting.source, "description": vignetting.description,
+            "centre": _floats(vignetting.centre),
+            "aspect": None if vignetting.aspect is None else float(vignetting.aspect),
+            "corner_stops": _floats(vignetting.corner_stops()),
+            "corner_band_stops": _floats(band[-1]),
+            "covariance": vignetting.covariance is not None,
+            "log_sigma_floor": float(vignetting.log_sigma_floor),
+            "table": {"title": "vignetting V (r: half diagonals from the optical centre "
+                               "towards the farthest corner; ± stops: 90 % band, widest "
+                               "channel)",
+                      "header": ["r", "R", "G", "B", "± stops"], "rows": rows}}
+
+
+_SOURCES = {"self": "self-calibrated from the frames", "lens": "lens database profile",
+            "flat": "flat field"}
+
+
+def _vignetting_lines(v: dict) -> list[str]:
+    stops = " ".join(f"{s:.3f}±{b:.3f}" for s, b in zip(v["corner_stops"],
+                                                         v["corner_band_stops"]))
+    band_from = ("covariance" + (" and floor" if v["log_sigma_floor"] else "")
+                 if v["covariance"] else
+                 (f"floor {v['log_sigma_floor']:g} (log V at r = 1)"
+                  if v["log_sigma_floor"] else "none stated"))
+    aspect = "any (a lens profile)" if v["aspect"] is None else f"{v['aspect']:.4g} (w/h)"
+    lines = ["", "vignetting:",
+             f"  source       {v['source']} ({_SOURCES.get(v['source'], v['source'])})",
+             f"  description  {v['description'] or 'none'}",
+             f"  centre       {v['centre'][0]:+.4f} {v['centre'][1]:+.4f} (x y, half "
+             "diagonals from the image centre)",
+             f"  frames       aspect {aspect}",
+             f"  corner R G B {stops} stops (falloff at the farthest corner, 90 % band)",
+             f"  band from    {band_from}"]
+    return lines
 
 
 def _band_line(model) -> str:
@@ -233,7 +299,11 @@ def format_description(desc: dict, *, name: str | None = None) -> str:
     out.append("warnings: " + ("none" if not desc["warnings"] else ""))
     for w in desc["warnings"]:
         out.append(f"  - {w}")
-    for table in desc["curves"]:
+    vignetting = desc.get("vignetting")
+    if vignetting is not None:
+        out.extend(_vignetting_lines(vignetting))
+    tables = desc["curves"] + ([vignetting["table"]] if vignetting is not None else [])
+    for table in tables:
         out.append("")
         out.append(table["title"] + ":")
         cells = [[_cell(v) for v in row] for row in table["rows"]]

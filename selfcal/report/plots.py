@@ -2,7 +2,8 @@
 
 The response figure follows Lin et al., ICCV 2011, Fig. 3: the recovered inverse response
 curves, and a brightness transfer function scatter of one frame pair with the rejected
-samples marked by reason (clipped; highly saturated, HSV S > β).  The calibration's verdict
+samples marked by reason (clipped; highly saturated, HSV S > β); a model with a vignetting
+adds its falloff V(r) ([Goldman2010] Eq. 4) with its band and the measured points.  The calibration's verdict
 (:mod:`selfcal.response.verdict`) heads the figure, with its reasons.
 """
 
@@ -11,11 +12,12 @@ from __future__ import annotations
 import io as _io
 
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
 from ..io.images import write_bytes_atomic
+from ..lens.vignetting import Vignetting
 from ..pipeline.model import PipelineModel
 from ..response.model import ResponseModel
 from ..typing import PathLike
@@ -57,6 +59,8 @@ def plot_response(model: ResponseModel, path: PathLike, *, truth: np.ndarray | N
     The verdict (``model.diagnostics["verdict"]``) and its reasons head the figure, in
     green, orange or red for ok, doubtful and unusable.  A model with a confidence band
     (:meth:`selfcal.response.model.ResponseModel.inverse_band`) has its 90 % band shaded.
+    A model with a vignetting (``model.vignetting``) gets a third panel
+    (:func:`draw_vignetting`).
     """
     import matplotlib
 
@@ -64,7 +68,8 @@ def plot_response(model: ResponseModel, path: PathLike, *, truth: np.ndarray | N
     import matplotlib.pyplot as plt
 
     fit = getattr(model, "fit_data", None)
-    ncols = 2 if fit is not None else 1
+    vignetting = getattr(model, "vignetting", None)
+    ncols = 1 + (fit is not None) + (vignetting is not None)
     diagnostics = getattr(model, "diagnostics", {}) or {}
     header = verdict_lines(diagnostics, width=55 * ncols)
     top = 0.25 + 0.16 * len(header)          # inches above the axes for the verdict
@@ -113,6 +118,8 @@ def plot_response(model: ResponseModel, path: PathLike, *, truth: np.ndarray | N
         ax.set_ylim(0, 1)
         ax.grid(alpha=0.3)
         ax.legend(loc="lower right", fontsize=8)
+    if vignetting is not None:
+        draw_vignetting(axes[0, ncols - 1], vignetting)
     fig.tight_layout(rect=(0, 0, 1, 1 - top / (4.4 + top)))
     colour = VERDICT_COLOURS.get(diagnostics.get("verdict", ""), "black")
     fig.text(0.01, 0.995, header[0], ha="left", va="top", fontsize=10, weight="bold",
@@ -120,6 +127,61 @@ def plot_response(model: ResponseModel, path: PathLike, *, truth: np.ndarray | N
     if len(header) > 1:
         fig.text(0.01, 0.995 - 0.17 / (4.4 + top), "\n".join(header[1:]), ha="left",
                  va="top", fontsize=8, color=colour, linespacing=1.25)
+    buf = _io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    return write_bytes_atomic(path, buf.getvalue(), force=force)
+
+
+def draw_vignetting(ax: Any, vignetting: Vignetting) -> None:
+    """Draw a vignetting's falloff ``V(r)`` per channel ([Goldman2010] Eq. 4) on ``ax``.
+
+    The fitted curve from the optical centre to the farthest corner
+    (:meth:`~selfcal.lens.vignetting.Vignetting.corner_profile`), its 90 % band shaded
+    (1.645 σ of log V: covariance and floor), and the measurements the fit saw when
+    ``vignetting.diagnostics["points"]`` holds them (binned ``log V`` against r, see
+    :class:`~selfcal.lens.vignetting.Vignetting`) as dots.
+    """
+    profile = vignetting.corner_profile(65)
+    r = profile["r"]
+    points = (vignetting.diagnostics or {}).get("points")
+    for c, colour in enumerate(CHANNEL_COLOURS):
+        v, s = profile["falloff"][:, c], 1.645 * profile["log_sigma"][:, c]
+        ax.plot(r, v, color=colour, lw=1.6, label=f"{'RGB'[c]} V(r)")
+        if np.any(s > 0):
+            ax.fill_between(r, v * np.exp(-s), v * np.exp(s), color=colour, alpha=0.18,
+                            lw=0, label="90 % band" if c == 0 else None)
+        if points:
+            pr = np.asarray(points["r"], float)
+            lr = np.array([np.nan if row[c] is None else row[c]
+                           for row in points["log_ratio"]], float)
+            ax.plot(pr, np.exp(lr), ".", color=colour, ms=4, alpha=0.8,
+                    label="measured (binned)" if c == 0 else None)
+    stops = vignetting.corner_stops()
+    ax.set_title(f"Vignetting ({vignetting.source}): corner "
+                 + " ".join(f"{v:.2f}" for v in stops) + " stops", fontsize=10)
+    ax.set_xlabel("r (half diagonals from the optical centre)")
+    ax.set_ylabel("V (relative illumination)")
+    ax.set_xlim(0, float(r[-1]) * 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower left", fontsize=8)
+    if vignetting.description:
+        import textwrap
+
+        ax.text(0.98, 0.98, "\n".join(textwrap.wrap(vignetting.description, 40)),
+                transform=ax.transAxes, ha="right", va="top", fontsize=7)
+
+
+def plot_vignetting(vignetting: Vignetting, path: PathLike, *, force: bool = False) -> Path:
+    """Write a PNG of a vignetting alone (:func:`draw_vignetting`), atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.6, 4.4))
+    draw_vignetting(ax, vignetting)
+    fig.tight_layout()
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
