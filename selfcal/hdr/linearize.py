@@ -41,7 +41,8 @@ def linearize_images(images: Sequence[ImageInput], model: object, *,
         (:func:`selfcal.hdr.vignetting.resolve_vignetting`: ``"auto"``, the default, is
         the model's, else the lens database's profile for the file's EXIF, else none).
     records : list, optional
-        Receives, per image, the record of the vignetting chosen (source, reasons).
+        Receives, per image, the record of the vignetting chosen
+        (:func:`~selfcal.hdr.vignetting.resolve_vignetting`) with its ``frame``.
     progress : callable, optional
         ``progress("linearize", done, total, source)``.
 
@@ -74,7 +75,7 @@ def linearize_images(images: Sequence[ImageInput], model: object, *,
         if falloff is not None:
             apply_vignetting(out, None, falloff, moved=False, record=record)
         if records is not None:
-            records.append({"source": sources[k], **record})
+            records.append({**record, "frame": sources[k]})
         del img
         if progress is not None:
             progress("linearize", k + 1, len(items), sources[k])

@@ -131,7 +131,10 @@ def _lens_profile(path) -> tuple[Vignetting | None, str]:
     """The lens database's vignetting for ``path``'s EXIF, or None and why not."""
     if path is None:
         return None, "lens database: the frames are arrays (no EXIF names a lens)"
-    vignetting, match = lens_vignetting(path)
+    try:
+        vignetting, match = lens_vignetting(path)
+    except InputError as exc:     # a raw file Pillow cannot open: no lens named, no error
+        return None, f"lens database: the EXIF of {Path(path).name} cannot be read ({exc})"
     if vignetting is None:
         return None, f"lens database: {match.reason}"
     return vignetting, ""
