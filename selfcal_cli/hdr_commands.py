@@ -180,8 +180,8 @@ def cmd_linearize(args) -> int:
     kind = "float32" if args.float else "16-bit"
     say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "
          "f⁻¹(max code) = 1, EXIF exposure tags kept) -> " + f"{folder}/")
-    for record in {r["source"]: r for r in records}.values():
-        say_vignetting(record, frame=Path(record["source"]).name)
+    for record in records:
+        say_vignetting(record, frame=Path(record["frame"]).name)
     for o in written:
         say(f"wrote {o}")
     return EXIT_OK
