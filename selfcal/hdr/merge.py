@@ -102,6 +102,7 @@ from ..exposure.linear import USES, resolve_linear_exposures, stack_frames
 from ..exposure.measured import TRENDS, measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
 from .sigma import SigmaSums, add_trend_term
+from ..lens.luminance import absolute_radiance
 
 __all__ = ["HDRResult", "MergeOptions", "merge_hdr"]
 
@@ -170,6 +171,10 @@ class MergeOptions:
     sigma_exposure_from_fit : bool
         With ``measure_exposures`` and ``sigma``: σ's exposure term is the measurement's
         (:func:`selfcal.exposure.linear.fit_log_sigma`) or, False, the fixed one of given times.
+    luminance : {None, "exif", "model"}, LuminanceScale or ReferenceReading
+        Radiance and σ in cd/m² (:func:`selfcal.lens.luminance.absolute_radiance`: the EXIF
+        convention of [ISO12232], the model's stored scale, a scale, or a reading of a
+        region of this merge); None (default): relative.
     """
 
     reference: int | None = None
@@ -188,6 +193,7 @@ class MergeOptions:
     code_error: bool = True
     exposure_trend: str = "times"
     sigma_exposure_from_fit: bool = True
+    luminance: object = None
 
 
 @dataclass
@@ -238,6 +244,9 @@ class HDRResult:
         curve's confidence band (:mod:`selfcal.hdr.sigma`), relative to the radiance's
         scale (the scale's own σ, in log, is ``diagnostics["sigma_scale_log"]``); +inf
         where unmeasured.  None unless ``MergeOptions(sigma=True)``.
+    units : {"relative", "cd/m2"}
+        Of :attr:`radiance` and :attr:`sigma`: cd/m² with ``MergeOptions(luminance=...)``
+        (luminance ``0.2126 R + 0.7152 G + 0.0722 B``; the scale in ``diagnostics["luminance"]``).
     """
 
     radiance: np.ndarray
@@ -254,6 +263,7 @@ class HDRResult:
     model: object = field(default=None, repr=False)
     sigma: np.ndarray | None = field(default=None, repr=False)
     unchecked: np.ndarray | None = field(default=None, repr=False)
+    units: str = "relative"
 
 
 # --------------------------------------------------------------------------------------
@@ -411,12 +421,17 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     sigma = None if sums.sigma is None else _sigma_result(sums, diagnostics)
     if sigma is not None and trend_sigma > 0:
         add_trend_term(sigma, sums.num, trend_sigma)
+    if opts.luminance is not None:
+        sums.num, sigma, diagnostics["luminance"] = absolute_radiance(
+            opts.luminance, sums.num, sigma, model=model, unmeasured=unmeasured,
+            exposure_source=exposure_source, linear=linear)
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
                      sigma=sigma,
-                     unchecked=sums.unchecked_pixels(unmeasured))
+                     unchecked=sums.unchecked_pixels(unmeasured),
+                     units="relative" if opts.luminance is None else "cd/m2")
 
 
 def _own_measurement(model, frames: StackFrames, fresh: bool, used, unchecked):

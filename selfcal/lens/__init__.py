@@ -12,6 +12,10 @@ The self-calibrated vignetting is fitted beside the response solver it extends
 
 from __future__ import annotations
 
+from .luminance import (LuminanceScale, ReferenceReading, parse_reference,
+                        scale_from_exif, scale_from_reference)
 from .vignetting import PARAMETER_NAMES, Vignetting, normalised_radius, radial_falloff
 
-__all__ = ["Vignetting", "PARAMETER_NAMES", "normalised_radius", "radial_falloff"]
+__all__ = ["Vignetting", "PARAMETER_NAMES", "normalised_radius", "radial_falloff",
+           "LuminanceScale", "ReferenceReading", "parse_reference", "scale_from_exif",
+           "scale_from_reference"]
