@@ -1,7 +1,9 @@
 """What a person reads about a model.
 
 * :mod:`selfcal.report.plots` -- the response, band and transfer plots (re-exported here);
-* :mod:`selfcal.report.describe` -- the text of ``selfcal show``."""
+* :mod:`selfcal.report.describe` -- the text of ``selfcal show``;
+* :mod:`selfcal.report.falsecolor` -- a radiance map's luminance in false colour, a log
+  legend in cd/m² (``selfcal merge --falsecolor``)."""
 
 from __future__ import annotations
 
