@@ -85,7 +85,7 @@ def write_falsecolor(path: PathLike, radiance, *, units: str = "relative", mask=
     if not (0 < lo < hi):
         raise InputError(f"a false-colour range needs 0 < low < high, not {lo}, {hi}", path)
     shown = np.ma.masked_array(np.clip(y, lo, hi), mask=bad | ~(y > 0))
-    cmap = plt.get_cmap("turbo").copy()
+    cmap = matplotlib.colormaps["turbo"].copy()
     cmap.set_bad("0.5")
     h, w = y.shape
     fig, ax = plt.subplots(figsize=(min(10.0, 2.0 + 7.0 * w / max(h, w)) + 1.4,
