@@ -306,13 +306,13 @@ def _stage_luminance_outputs(staged, result, args) -> None:
         staged.write(args.falsecolor, lambda tmp: write_falsecolor(
             tmp, result.radiance, units=result.units, mask=result.unmeasured, force=True))
     if args.save_scale:
-        lum = result.diagnostics.get("luminance")
-        if lum is None or not dataclasses.is_dataclass(result.model) or not hasattr(
-                result.model, "luminance"):
-            from selfcal.errors import InputError
+        from selfcal.errors import InputError
+        from selfcal.response.model import ResponseModel
 
+        lum = result.diagnostics.get("luminance")
+        if lum is None or not isinstance(result.model, ResponseModel):
             raise InputError("--save-scale: this merge has no response model to hold "
-                             "the scale (linear frames)")
+                             "the scale (linear frames, or a RAW-path model)")
         model = dataclasses.replace(result.model, luminance=LuminanceScale.from_dict(lum))
         staged.write(args.save_scale, lambda tmp: model.save(tmp, force=True))
 

@@ -260,7 +260,7 @@ def units_metadata(units: str, scale: float = 1.0) -> dict:
     encoded in sRGB, so f⁻¹ gives scene-linear values in those primaries (approximate for
     raws, whose camera RGB has its own); and for ``"cd/m2"`` ``whiteLuminance``, the
     luminance of the stored RGB (1, 1, 1): ``scale`` cd/m² (the half-float scale, 1 when
-    the values are stored as they are).  [OpenEXR]_ standard attributes.
+    the values are stored as they are); both are standard OpenEXR attributes.
     """
     attrs: dict = {"chromaticities": SRGB_CHROMATICITIES}
     if units == "cd/m2":

@@ -7,10 +7,10 @@ turns it into luminance, ``L = C · Y(E)`` in cd/m², with the standard deviatio
 ``log C``.  It comes from one of two places.
 
 **The EXIF convention** (:func:`scale_from_exif`).  The standard output sensitivity of
-[ISO12232]_ (SOS, the rating most cameras report since CIPA DC-004, 2004): a camera set to
+[ISO12232] (SOS, the rating most cameras report since CIPA DC-004, 2004): a camera set to
 ISO ``S`` renders the focal-plane exposure ``H = 10/S`` lux·s at the 18 % grey output of
 its sRGB file, the code ``118/255`` (sRGB's encoding of 0.18, 0.461).  The focal-plane
-exposure of a scene luminance ``L`` is [ISO12232]_ (Eq. for the camera exposure)::
+exposure of a scene luminance ``L`` is [ISO12232] (Eq. for the camera exposure)::
 
     H = q · L · t / N²,   q = 0.65
 
@@ -27,7 +27,7 @@ grey code (its three channels; a grey renders at one code in each).  Using the m
 own ``f⁻¹`` there, not the sRGB curve's 0.18, takes the camera's tone curve and JPEG
 headroom out of the derivation: ``C · f⁻¹(118) / e`` is the convention's grey whatever
 the curve.  (An sRGB curve gives ``C = 0.855``.)  For linear frames, which have no
-rendered grey, the saturation-based speed of [ISO12232]_ is used instead: the exposure
+rendered grey, the saturation-based speed of [ISO12232] is used instead: the exposure
 ``H = 78/S`` reaches white, so ``C = 78 / (100 q) = 1.2``.
 
 Its uncertainty is the camera's, not the pixels': the SOS convention admits the 18 % grey
@@ -37,7 +37,7 @@ recommended exposure index (REI) the maker chooses, lenses transmit 80–95 % of
 includes (there q ≈ 0.71, +0.13 stop).  We state a log-σ of :data:`EXIF_LOG_SIGMA`,
 1/3 stop, for all of this (ours: an estimate from those tolerances, not a measurement).
 
-The reflected-light meter constant of [ISO2720]_, ``K = 12.5`` cd·s/m² (``N²/t = L S/K``),
+The reflected-light meter constant of [ISO2720], ``K = 12.5`` cd·s/m² (``N²/t = L S/K``),
 puts the metered average at ``H = q K / S = 8.1/S``, 0.3 stop below the SOS grey; it
 says which luminance a meter calls "correctly exposed", not which code the camera writes,
 so it is not the default (:data:`ISO2720_K` is here for comparison).
@@ -83,16 +83,16 @@ REC709_LUMA = (0.2126, 0.7152, 0.0722)
 #: The primaries and white point of sRGB / Rec. 709 (CIE 1931 xy): red, green, blue, D65,
 #: in the order of OpenEXR's ``chromaticities`` attribute.
 SRGB_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
-#: The 18 % grey output of [ISO12232]_'s standard output sensitivity, as a fraction of
+#: The 18 % grey output of [ISO12232]'s standard output sensitivity, as a fraction of
 #: the largest code: 118/255 (sRGB's encoding of 0.18).
 SOS_GREY_CODE = 118 / 255
 #: Focal-plane exposure times S at the SOS grey (lux·s): H = 10/S.
 SOS_EXPOSURE = 10.0
 #: Focal-plane exposure times S at saturation, the saturation-based speed (lux·s): 78/S.
 SATURATION_EXPOSURE = 78.0
-#: [ISO12232]_'s ``q`` of ``H = q L t / N²``.
+#: [ISO12232]'s ``q`` of ``H = q L t / N²``.
 CAMERA_Q = 0.65
-#: [ISO2720]_'s reflected-light meter constant K (cd·s/m²), for comparison.
+#: [ISO2720]'s reflected-light meter constant K (cd·s/m²), for comparison.
 ISO2720_K = 12.5
 #: Std of log C from EXIF alone: 1/3 stop (see the module docstring; ours).
 EXIF_LOG_SIGMA = math.log(2.0) / 3.0
@@ -216,7 +216,7 @@ def grey_inverse(model) -> float:
 
 
 def scale_from_exif(model=None, *, log_sigma: float | None = None) -> LuminanceScale:
-    """The luminance scale of the SOS convention of [ISO12232]_ (see the module docstring).
+    """The luminance scale of the SOS convention of [ISO12232] (see the module docstring).
 
     ``C = SOS_EXPOSURE / (100 · q · Y(f⁻¹(118)))`` with the model's own inverse response
     at the grey code; for ``model=None`` (linear frames) the saturation-based speed,
@@ -372,11 +372,12 @@ def absolute_radiance(how, radiance, sigma, *, model=None, unmeasured=None,
                              "give a reference reading")
         scale = scale_from_exif(None if linear else model)
     elif how == "model":
-        scale = getattr(model, "luminance", None)
-        if scale is None:
+        stored = getattr(model, "luminance", None)
+        if not isinstance(stored, LuminanceScale):
             raise InputError("the response model holds no luminance scale (measure one "
                              "with a reference reading)")
-        transfer = TRANSFER_LOG_SIGMA
+        scale = stored
+        transfer = TRANSFER_LOG_SIGMA if stored.source == "reference" else 0.0
     else:
         raise InputError(f"luminance must be None, 'exif', 'model', a ReferenceReading or "
                          f"a LuminanceScale, not {how!r}")

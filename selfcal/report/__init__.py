@@ -7,8 +7,9 @@
 
 from __future__ import annotations
 
+from .falsecolor import write_falsecolor
 from .plots import (CHANNEL_COLOURS, VERDICT_COLOURS, plot_model, plot_pipeline,
                     plot_response, verdict_lines)
 
 __all__ = ["CHANNEL_COLOURS", "VERDICT_COLOURS", "verdict_lines", "plot_response",
-           "plot_pipeline", "plot_model"]
+           "plot_pipeline", "plot_model", "write_falsecolor"]

@@ -7,7 +7,7 @@ frame of ``t`` seconds records ``E · t`` (1 = white).  In the EXIF units of a m
 (exposure ``e = t · S/100 / N²``, the stack's ``f_number`` N and ``iso`` S, written to the
 files' EXIF) the same radiance is ``E_rel = E · 100 N² / S``.
 
-The simulated camera is made to follow the standard output sensitivity of [ISO12232]_:
+The simulated camera is made to follow the standard output sensitivity of [ISO12232]:
 a grey surface of luminance ``L`` gives the focal-plane exposure ``H = q L t / N²``
 (q = 0.65), and ``H = 10/S_true`` renders at the grey code 118/255, where the camera's
 true f⁻¹ reads ``x_g = Y(f⁻¹(118))``.  So ``L = C_true · Y(E_rel)`` with::
