@@ -285,3 +285,21 @@ def test_cli_reading_saved_and_applied_later(written_stack, tmp_path, capsys):
     with OpenEXR.File(str(tmp_path / "b.exr")) as exr:
         assert exr.header()["whiteLuminance"] == 1.0
     assert "luminance scale" in capsys.readouterr().err
+
+
+def test_batch_applies_one_camera_curve_and_the_exif_convention(tmp_path):
+    import OpenEXR
+
+    from selfcal.batch import BatchOptions, run_batch
+    from selfcal.sim.cards import default_bodies, write_library
+
+    write_library(tmp_path / "card", bodies=default_bodies()[:1], sessions_per_body=2)
+    result = run_batch([tmp_path / "card"], tmp_path / "out", scheduler="serial",
+                       options=BatchOptions(luminance="exif"))
+    rows = [r for r in result.rows if r["status"] == "ok"]
+    assert len(rows) == 2 and all(r["units"] == "cd/m2" for r in rows)
+    # one camera, one curve: one EXIF scale for all its sessions
+    assert rows[0]["luminance_scale"] == pytest.approx(rows[1]["luminance_scale"])
+    exr = next(p for p in rows[0]["outputs"] if p.endswith(".exr"))
+    with OpenEXR.File(exr) as f:
+        assert dict(f.header())["whiteLuminance"] == 1.0
