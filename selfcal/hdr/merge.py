@@ -246,7 +246,8 @@ class HDRResult:
         where unmeasured.  None unless ``MergeOptions(sigma=True)``.
     units : {"relative", "cd/m2"}
         Of :attr:`radiance` and :attr:`sigma`: cd/m² with ``MergeOptions(luminance=...)``
-        (luminance ``0.2126 R + 0.7152 G + 0.0722 B``; the scale in ``diagnostics["luminance"]``).
+        (luminance ``0.2126 R + 0.7152 G + 0.0722 B``; the scale in ``diagnostics["luminance"]``,
+        its σ then in :attr:`sigma`, in quadrature).
     """
 
     radiance: np.ndarray
