@@ -204,6 +204,10 @@ def card_luminance(reflectance: float, illuminance: float) -> float:
 def grey_inverse(model) -> float:
     """``Y(f⁻¹)`` at the SOS grey code (118/255 of the largest code) of a response model
     (anything with ``inverse_response(codes) -> (n, 3)`` and ``max_code``)."""
+    if not callable(getattr(model, "inverse_response", None)):
+        raise InputError("the EXIF luminance convention needs a response model's f⁻¹ at "
+                         "the grey code (this model has no inverse_response): give a "
+                         "reference reading instead")
     max_code = int(getattr(model, "max_code", 255))
     code = SOS_GREY_CODE * max_code
     lo = int(math.floor(code))
