@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import io as _io
 import math
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,8 @@ __all__ = ["falsecolor_range", "write_falsecolor"]
 MAX_SIDE = 1600
 
 
-def falsecolor_range(luminance, mask=None) -> tuple[float, float]:
+def falsecolor_range(luminance: np.ndarray,
+                     mask: np.ndarray | None = None) -> tuple[float, float]:
     """The legend's range: the 0.5th and 99.9th percentiles of the positive luminance
     (over ``mask``), widened to whole 1-2-5 steps; (1e-3, 1) when nothing is positive."""
     y = np.asarray(luminance, np.float64)
@@ -45,9 +47,10 @@ def falsecolor_range(luminance, mask=None) -> tuple[float, float]:
     return float(lo), float(max(hi, lo * 10))
 
 
-def write_falsecolor(path: PathLike, radiance, *, units: str = "relative", mask=None,
+def write_falsecolor(path: PathLike, radiance: np.ndarray, *, units: str = "relative",
+                     mask: np.ndarray | None = None,
                      value_range: tuple[float, float] | None = None, force: bool = False,
-                     inputs=()) -> Path:
+                     inputs: Iterable[PathLike] = ()) -> Path:
     """Write a PNG of the luminance of ``radiance`` in false colour with a log legend.
 
     Parameters
