@@ -143,7 +143,8 @@ def cmd_batch(args) -> int:
         warn("--workers is for the local cluster; the scheduler's workers are used")
     options = BatchOptions(linearize=args.linearize, pool=not args.no_pool,
                            force=args.force, by_content=not args.by_time,
-                           max_gap=args.max_gap)
+                           max_gap=args.max_gap,
+                           luminance=None if args.luminance == "none" else args.luminance)
     previous = _terminate_as_interrupt()
     try:
         result = run_batch(
@@ -241,6 +242,10 @@ def register(sub) -> None:
                         "beyond it")
     p.add_argument("--linearize", action="store_true",
                    help="also write each frame linearised (16-bit TIFF, linear/)")
+    p.add_argument("--luminance", choices=("none", "exif"), default="none",
+                   help="exif: every session's radiance in cd/m² by the ISO 12232 "
+                        "convention from its EXIF time, f-number and ISO, with its "
+                        "camera's curve (±1/3 stop); none (default): relative")
     p.add_argument("--no-pool", action="store_true",
                    help="fit every session alone (no per-camera curve)")
     p.add_argument("--max-gap", type=_positive_seconds, default=DEFAULT_MAX_GAP,

@@ -8,6 +8,7 @@ is :func:`selfcal.merge_hdr`, :func:`selfcal.hdr.linearize_images` and
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from .common import (EPILOG, EXIT_OK, add_vignetting_argument, say_vignetting,
@@ -39,7 +40,9 @@ def cmd_merge(args) -> int:
     inputs = images + ([Path(args.model)] if args.model else []) + (
         [vignetting] if isinstance(vignetting, Path) else [])
     sig_out = (sigma_path(out) if args.sigma and out.suffix.lower() != ".exr" else None)
-    check_outputs([out, args.preview, sig_out], inputs, args.force)
+    _check_luminance_arguments(args, images)
+    check_outputs([out, args.preview, sig_out, args.falsecolor, args.save_scale], inputs,
+                  args.force)
     for p in images:
         if not p.is_file():
             raise selfcal.InputError("no such file" if not p.exists() else "not a file", p)
@@ -47,6 +50,7 @@ def cmd_merge(args) -> int:
         raise selfcal.InputError(f"--reference {args.reference} is out of range for "
                                  f"{len(images)} images (0 to {len(images) - 1})")
     model = selfcal.load_model(args.model) if args.model else None
+    luminance = _luminance_option(args, images, model)
     if not args.linear and model is None:
         if len(images) == 1:
             raise selfcal.CalibrationError(
@@ -59,7 +63,8 @@ def cmd_merge(args) -> int:
                                             linear_exposures=args.linear_exposures,
                                             sigma=args.sigma,
                                             measure_exposures=args.measure_exposures,
-                                            vignetting=vignetting),
+                                            vignetting=vignetting,
+                                            luminance=luminance),
                        progress=progress_bar("merge"))
     args.linear = args.linear or "linear_evidence" in result.diagnostics
     if model is None and not args.linear:
@@ -71,6 +76,7 @@ def cmd_merge(args) -> int:
         if args.preview:
             staged.write(args.preview, lambda tmp: write_preview(
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
+        _stage_luminance_outputs(staged, result, args)
 
     _say_merge_summary(result, images, args)
     say_vignetting(result.diagnostics.get("vignetting"))
@@ -122,7 +128,13 @@ def _say_merge_summary(result, images, args) -> None:
         if lum.size:
             lo, hi = np.percentile(lum, [0.1, 99.9])
             say(f"radiance: {rad.shape[1]}x{rad.shape[0]}, luminance {lo:.4g} .. {hi:.4g} "
-                 f"(0.1-99.9%), {np.log2(hi / max(lo, 1e-30)):.1f} stops; 1 = white at e = 1")
+                 f"(0.1-99.9%), {np.log2(hi / max(lo, 1e-30)):.1f} stops; "
+                + ("cd/m²" if result.units == "cd/m2" else "1 = white at e = 1"))
+    lum = result.diagnostics.get("luminance")
+    if lum:
+        say(f"luminance scale: {lum['scale']:.4g} cd/m² per unit of relative radiance, "
+            f"±{100 * math.expm1(lum['total_log_sigma']):.2g}% (1σ); "
+            f"{lum['source']}: {lum['description']}")
     say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
 
@@ -137,6 +149,11 @@ def _say_written(result, written, out, sig_out, args) -> None:
         _say_sigma(result, out, sig_out)
     if args.preview:
         say(f"wrote {args.preview}")
+    if args.falsecolor:
+        say(f"wrote {args.falsecolor} (false-colour luminance, log scale)")
+    if args.save_scale:
+        say(f"wrote {args.save_scale} (the response model with this luminance scale: later "
+            "merges with --model apply it)")
 
 
 # ------------------------------------------------------------------------- linearize
@@ -196,14 +213,120 @@ def _stage_radiance(staged, result, out, sig_out, args):
 
     if args.sigma and sig_out is None:           # EXR: a sigma layer
         written = staged.write(out, lambda tmp: write_radiance_sigma(
-            tmp, result.radiance, result.sigma, force=True, half=args.half)[0])
+            tmp, result.radiance, result.sigma, force=True, half=args.half,
+            units=result.units)[0])
     else:
         written = staged.write(out, lambda tmp: write_radiance(
-            tmp, result.radiance, force=True, half=args.half))
+            tmp, result.radiance, force=True, half=args.half, units=result.units))
     if sig_out is not None:                        # TIFF (or RGBE): OUT.sigma.tiff
         staged.write(sig_out, lambda tmp: write_sigma_tiff(
             tmp, result.sigma, scale=written.scale, half=args.half, force=True))
     return written
+
+
+def _parse_reading(text: str):
+    """``--reading``: a :class:`selfcal.lens.ReferenceReading` (the meter accuracy is set
+    later from ``--meter-accuracy``)."""
+    from selfcal.errors import InputError
+    from selfcal.lens.luminance import parse_reference
+
+    try:
+        return parse_reference(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _percent(text: str) -> float:
+    """``--meter-accuracy``: a percentage in [0, 100)."""
+    try:
+        value = float(text.rstrip("%"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a percentage") from None
+    if not (math.isfinite(value) and 0 <= value < 100):
+        raise argparse.ArgumentTypeError(f"{text!r} must be in [0, 100) percent")
+    return value
+
+
+def _check_luminance_arguments(args, images) -> None:
+    """The absolute-luminance arguments, before any work: usage errors (exit 2) naming them."""
+    from selfcal.io import read_exposure_info
+
+    err = args.parser.error
+    if args.falsecolor and Path(args.falsecolor).suffix.lower() != ".png":
+        err(f"argument --falsecolor: the picture is a .png, not {args.falsecolor!r}")
+    if args.save_scale and Path(args.save_scale).suffix.lower() != ".json":
+        err(f"argument --save-scale: a model file (.json), not {args.save_scale!r}")
+    if args.reading is not None and args.luminance not in ("auto",):
+        err(f"argument --reading: sets the scale itself; not with --luminance "
+            f"{args.luminance}")
+    if args.save_scale and (args.linear or args.luminance in ("none", "model")
+                            or (args.reading is None and args.luminance != "exif")):
+        err("argument --save-scale: needs a scale to save (--reading, or --luminance exif) "
+            "and a response model (not --linear)")
+    if args.luminance == "exif":
+        if args.times is not None:
+            err("argument --luminance: exif needs the EXIF exposures (time, f-number, ISO), "
+                "not --times")
+        info = read_exposure_info(images[0]) if images[0].is_file() else None
+        if info is not None and info.exposure_time is None:
+            err(f"argument --luminance: exif, but {images[0]} has no EXIF exposure time")
+    if args.luminance == "model" and not args.model:
+        err("argument --luminance: model needs --model (a model holding a luminance scale)")
+    if args.reading is not None:
+        size = _image_size(images[0])
+        x0, y0, x1, y1 = args.reading.region
+        if size is not None and (x1 > size[0] or y1 > size[1]):
+            err(f"argument --reading: region {x0},{y0},{x1},{y1} lies outside the "
+                f"{size[0]}x{size[1]} frames")
+
+
+def _image_size(path):
+    """(width, height) of an image file from its header (Pillow), None if unreadable."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as im:
+            return im.size
+    except Exception:       # raws and odd files: the merge names them later
+        return None
+
+
+def _luminance_option(args, images, model):
+    """``MergeOptions.luminance`` from ``--luminance``, ``--reading``, ``--meter-accuracy``
+    and the model (``auto``: the model's stored scale when it has one)."""
+    import dataclasses
+
+    if args.reading is not None:
+        return dataclasses.replace(args.reading, accuracy=args.meter_accuracy / 100.0)
+    has = getattr(model, "luminance", None) is not None
+    if args.luminance == "model" and not has:
+        args.parser.error(f"argument --luminance: model, but {args.model} holds no "
+                          "luminance scale (save one with --reading ... --save-scale)")
+    if args.luminance == "auto":
+        return "model" if has else None
+    return {"none": None, "exif": "exif", "model": "model"}[args.luminance]
+
+
+def _stage_luminance_outputs(staged, result, args) -> None:
+    """Stage ``--falsecolor`` and ``--save-scale`` (the model with the merge's scale)."""
+    import dataclasses
+
+    from selfcal.lens import LuminanceScale
+    from selfcal.report.falsecolor import write_falsecolor
+
+    if args.falsecolor:
+        staged.write(args.falsecolor, lambda tmp: write_falsecolor(
+            tmp, result.radiance, units=result.units, mask=result.unmeasured, force=True))
+    if args.save_scale:
+        from selfcal.errors import InputError
+        from selfcal.response.model import ResponseModel
+
+        lum = result.diagnostics.get("luminance")
+        if lum is None or not isinstance(result.model, ResponseModel):
+            raise InputError("--save-scale: this merge has no response model to hold "
+                             "the scale (linear frames, or a RAW-path model)")
+        model = dataclasses.replace(result.model, luminance=LuminanceScale.from_dict(lum))
+        staged.write(args.save_scale, lambda tmp: model.save(tmp, force=True))
 
 
 def _say_sigma(result, out, sig_out) -> None:
@@ -273,8 +396,27 @@ def register(subparsers) -> None:
                         "or RGBE output; +inf where no frame measured the pixel")
     p.add_argument("--preview", metavar="PREVIEW.jpg",
                    help="also write a tone-mapped preview (Reinhard global operator)")
+    p.add_argument("--luminance", choices=("auto", "exif", "model", "none"), default="auto",
+                   help="absolute luminance (cd/m²): exif = the ISO 12232 standard output "
+                        "sensitivity convention from the EXIF time, f-number and ISO "
+                        "(±1/3 stop); model = the scale stored in --model; none = relative; "
+                        "auto (default) = --reading if given, else the model's scale if it "
+                        "has one, else relative")
+    p.add_argument("--reading", type=_parse_reading, metavar="SPEC",
+                   help="a luminance measured in the scene, over a region x0,y0,x1,y1 of "
+                        "the frames (pixels, x1 and y1 exclusive): 'x0,y0,x1,y1=120cd/m2' "
+                        "(a spot meter) or 'card:0.18@500lux:x0,y0,x1,y1' (a grey card of "
+                        "reflectance 0.18 under 500 lux: L = 0.18*500/pi)")
+    p.add_argument("--meter-accuracy", type=_percent, default=3.0, metavar="PCT",
+                   help="the meter's accuracy, one sigma in percent (default %(default)g)")
+    p.add_argument("--save-scale", metavar="MODEL.json",
+                   help="also write the response model with this merge's luminance scale, "
+                        "so later merges with --model MODEL.json come out in cd/m²")
+    p.add_argument("--falsecolor", metavar="FILE.png",
+                   help="also write the luminance in false colour with a log-scale legend "
+                        "(cd/m² when absolute)")
     p.add_argument("--force", action="store_true", help="overwrite existing outputs")
-    p.set_defaults(func=cmd_merge)
+    p.set_defaults(func=cmd_merge, parser=p)
 
     p = subparsers.add_parser(
         "linearize", help="write linearised (f⁻¹) images with a response model",

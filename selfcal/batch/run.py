@@ -83,6 +83,11 @@ class BatchOptions:
     max_gap : float
         Seconds between frames that start a new session (the time rule, and the hint of
         the content grouping).
+    luminance : {None, "exif"}
+        ``"exif"``: every session's radiance in cd/m² by the EXIF convention of
+        :func:`selfcal.lens.luminance.scale_from_exif` with its camera's curve
+        (``MergeOptions(luminance="exif")``; the record's ``units`` and
+        ``luminance_scale``); a session without EXIF exposures fails.  None: relative.
     """
 
     linearize: bool = False
@@ -93,6 +98,7 @@ class BatchOptions:
     seed: int = 0
     by_content: bool = True
     max_gap: float = DEFAULT_MAX_GAP
+    luminance: str | None = None
 
 
 @dataclass(frozen=True)
@@ -430,7 +436,7 @@ def _merge_and_write(plan: SessionPlan, options: BatchOptions, prep: SessionPrep
                      row: dict) -> list:
     """The merge, preview and linear frames of ``selfcal merge``/``linearize``, written
     with the session's record, all together (returns the outputs written)."""
-    from ..hdr import linearize_images, merge_hdr
+    from ..hdr import MergeOptions, linearize_images, merge_hdr
     from ..hdr.io import write_linear, write_preview, write_radiance
     from ..io.images import StagedOutputs, read_exposure_info
     from ..choose.loading import load_model
@@ -455,9 +461,13 @@ def _merge_and_write(plan: SessionPlan, options: BatchOptions, prep: SessionPrep
         else:
             model = load_model(row["model_file"])
         t0 = time.perf_counter()
-        result = merge_hdr(frames, None, model)
-        write(staged, outputs["radiance"], lambda t: write_radiance(t, result.radiance,
-                                                                    force=True))
+        result = merge_hdr(frames, None, model,
+                           options=MergeOptions(luminance=options.luminance))
+        write(staged, outputs["radiance"], lambda t: write_radiance(
+            t, result.radiance, force=True, units=result.units))
+        row["units"] = result.units
+        if "luminance" in result.diagnostics:
+            row["luminance_scale"] = result.diagnostics["luminance"]["scale"]
         write(staged, outputs["preview"], lambda t: write_preview(
             t, result.radiance, force=True, mask=~result.unmeasured))
         row["warnings"] = list(result.warnings)

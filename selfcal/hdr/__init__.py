@@ -13,6 +13,7 @@ each module.  Where each piece lives:
 * :mod:`selfcal.hdr.accumulate` -- the merge's weighted sums, frame by frame in strips;
 * :mod:`selfcal.hdr.sigma` -- the standard deviation of every merged radiance value;
 * :mod:`selfcal.hdr.deghost` -- the per-pixel test against the reference frame;
+* :mod:`selfcal.hdr.plan` -- which frames a merge takes, floors and ceilings, lossy frames;
 * :mod:`selfcal.hdr.vignetting` -- the lens's falloff divided out of a merge: which one, and how;
 * :mod:`selfcal.hdr.io` -- OpenEXR / Radiance HDR / float TIFF output, previews, linear
   images (:func:`write_radiance`, :func:`write_preview`, :func:`write_linear`).

@@ -38,6 +38,7 @@ from ..errors import InputError
 from ..typing import PathLike
 from ..io.images import OutputWriteError, atomic_output, exif_rational, import_cv2, write_image
 from ..response.curve_family import srgb_encode
+from ..lens.luminance import SRGB_CHROMATICITIES
 
 __all__ = [
     "OutputWriteError",
@@ -49,6 +50,9 @@ __all__ = [
     "EXR_COMPRESSIONS",
     "write_radiance",
     "write_radiance_sigma",
+    "units_metadata",
+    "UNITS",
+    "RADIANCE_EFFICACY",
     "read_radiance",
     "read_sigma",
     "write_sigma_tiff",
@@ -129,7 +133,7 @@ EXR_COMPRESSIONS = ("piz", "zip", "zips", "rle", "none")
 
 def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
                    half: bool = False, inputs: Iterable[PathLike] = (),
-                   compression: str = "piz") -> RadianceFile:
+                   compression: str = "piz", units: str = "relative") -> RadianceFile:
     """Write an RGB radiance map as OpenEXR, Radiance HDR or float TIFF, atomically.
 
     Parameters
@@ -153,6 +157,13 @@ def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
     compression : {"piz", "zip", "zips", "rle", "none"}
         OpenEXR compression (all lossless).  PIZ (wavelet) is the default: on a 24 MP
         merged frame it wrote 5-10x faster than OpenCV's default ZIP at a similar size.
+    units : {"relative", "cd/m2"}
+        Of the values (:attr:`selfcal.hdr.HDRResult.units`).  What the files say
+        (:func:`units_metadata`): an EXR always carries ``chromaticities`` (sRGB / Rec. 709
+        primaries, D65: the values are scene-linear in the JPEG's output primaries) and,
+        in cd/m², ``whiteLuminance`` (the cd/m² of the stored RGB (1, 1, 1)); an RGBE file
+        carries ``PRIMARIES=`` and, in cd/m², ``EXPOSURE=179``; a TIFF ``selfcalUnits``
+        in its ImageDescription JSON.
 
     Returns
     -------
@@ -174,6 +185,8 @@ def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
     if suffix not in RADIANCE_SUFFIXES:
         raise InputError(f"unsupported radiance format {path.suffix!r} "
                          "(use .exr, .hdr or .tif)", path)
+    if units not in UNITS:
+        raise InputError(f"units must be one of {UNITS}, not {units!r}", path)
     arr = _check_radiance(radiance)
     scale = half_scale(arr) if half and suffix not in (".hdr", ".pic") else 1.0
     if suffix in (".tif", ".tiff"):
@@ -181,8 +194,9 @@ def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
             data = (arr.astype(np.float32) / np.float32(scale)).astype(np.float16)
         else:
             data = arr.astype(np.float16 if half else np.float32, copy=False)
-        _write_tiff(path, data, force=force, inputs=inputs,
-                    metadata={SCALE_ATTRIBUTE: scale} if scale != 1.0 else None)
+        meta = {**({SCALE_ATTRIBUTE: scale} if scale != 1.0 else {}),
+                **({UNITS_KEY: units} if units != "relative" else {})}
+        _write_tiff(path, data, force=force, inputs=inputs, metadata=meta or None)
         return RadianceFile(path, scale)
 
     cv2 = import_cv2()
@@ -208,12 +222,65 @@ def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
             raise OutputWriteError(f"{path}: OpenCV could not write it ({exc})") from None
         if not ok:
             raise OutputWriteError(f"{path}: OpenCV could not write it (no {suffix} encoder?)")
-        if scale != 1.0:
-            tmp = Path(tmp)
-            exr = _exr_add_attribute(tmp.read_bytes(), SCALE_ATTRIBUTE, "double",
-                                     struct.pack("<d", scale), path)
+        tmp = Path(tmp)
+        if suffix == ".exr":
+            exr = tmp.read_bytes()
+            attrs = units_metadata(units, scale)
+            if scale != 1.0:
+                attrs[SCALE_ATTRIBUTE] = scale
+            for name, value in attrs.items():
+                kind = _EXR_ATTRIBUTE_TYPES[name]
+                raw = struct.pack({"double": "<d", "float": "<f",
+                                   "chromaticities": "<8f"}[kind],
+                                  *(value if kind == "chromaticities" else [value]))
+                exr = _exr_add_attribute(exr, name, kind, raw, path)
             tmp.write_bytes(exr)
+        else:
+            tmp.write_bytes(_rgbe_add_header(tmp.read_bytes(), units, path))
     return RadianceFile(path, scale)
+
+
+#: The units a radiance file can be in (:attr:`selfcal.hdr.HDRResult.units`), and the key
+#: of the TIFF ImageDescription JSON that says them.
+UNITS = ("relative", "cd/m2")
+UNITS_KEY = "selfcalUnits"
+#: Radiance's luminous efficacy of its W/sr/m² (lm/W): luminance = 179 · (0.265 R + 0.670 G
+#: + 0.065 B) of the *original* values, stored / EXPOSURE (Ward, "The RADIANCE Lighting
+#: Simulation and Rendering System", SIGGRAPH 1994; Radiance's ``pvalue``/``falsecolor``).
+RADIANCE_EFFICACY = 179.0
+_EXR_ATTRIBUTE_TYPES = {"chromaticities": "chromaticities", "whiteLuminance": "float",
+                        SCALE_ATTRIBUTE: "double"}
+
+
+def units_metadata(units: str, scale: float = 1.0) -> dict:
+    """The OpenEXR header attributes that say a radiance file's colours and units.
+
+    ``chromaticities``: sRGB / Rec. 709 primaries with a D65 white
+    (:data:`selfcal.lens.luminance.SRGB_CHROMATICITIES`), always -- JPEG frames are
+    encoded in sRGB, so f⁻¹ gives scene-linear values in those primaries (approximate for
+    raws, whose camera RGB has its own); and for ``"cd/m2"`` ``whiteLuminance``, the
+    luminance of the stored RGB (1, 1, 1): ``scale`` cd/m² (the half-float scale, 1 when
+    the values are stored as they are); both are standard OpenEXR attributes.
+    """
+    attrs: dict = {"chromaticities": SRGB_CHROMATICITIES}
+    if units == "cd/m2":
+        attrs["whiteLuminance"] = float(scale)
+    return attrs
+
+
+def _rgbe_add_header(data: bytes, units: str, path) -> bytes:
+    """Radiance header lines for an RGBE file (ours, after OpenCV's ``FORMAT=`` line):
+    ``PRIMARIES=`` (sRGB, D65) and, in cd/m², ``EXPOSURE=179``: the stored values are
+    cd/m², so Radiance's original values (stored / EXPOSURE) are W/sr/m² with its 179 lm/W,
+    and its luminance ``179 · (0.265 R + 0.670 G + 0.065 B)`` of them is ours (exactly
+    for greys; Radiance's weights are for its own primaries)."""
+    end = data.find(b"\n\n")
+    if not data.startswith(b"#?") or end < 0:
+        raise OutputWriteError(f"{path}: the RGBE OpenCV wrote has no Radiance header")
+    lines = ["PRIMARIES= " + " ".join(f"{v:.4f}" for v in SRGB_CHROMATICITIES)]
+    if units == "cd/m2":
+        lines.append(f"EXPOSURE= {RADIANCE_EFFICACY:g}")
+    return data[:end + 1] + "\n".join(lines).encode("ascii") + b"\n" + data[end + 1:]
 
 
 # OpenEXR file layout (openexr.com, "OpenEXR File Layout"): magic, version field, header
@@ -314,7 +381,7 @@ def sigma_path(path) -> Path:
 
 
 def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bool = False,
-                         inputs=(), compression: str = "piz"):
+                         inputs=(), compression: str = "piz", units: str = "relative"):
     """Write a radiance map with its standard deviation, atomically.
 
     ``.exr``: one single-part scan-line file with the channels ``R, G, B`` and a
@@ -323,7 +390,8 @@ def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bo
     suffixes: the radiance as :func:`write_radiance` writes it, and σ as a float TIFF
     beside it (:func:`sigma_path`).  σ may hold +inf (pixels no frame measured,
     :attr:`selfcal.hdr.HDRResult.sigma`); a half-float output scaled into range
-    (:func:`half_scale`) stores σ with the same scale.
+    (:func:`half_scale`) stores σ with the same scale.  ``units`` as in
+    :func:`write_radiance` (the EXR's ``chromaticities`` and ``whiteLuminance``).
 
     Returns
     -------
@@ -339,7 +407,7 @@ def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bo
     if path.suffix.lower() != ".exr":
         spath = sigma_path(path)
         written = write_radiance(path, arr, force=force, half=half, inputs=inputs,
-                                 compression=compression)
+                                 compression=compression, units=units)
         write_sigma_tiff(spath, sig, scale=written.scale, half=half, force=force,
                          inputs=inputs)
         return written, spath
@@ -361,7 +429,10 @@ def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bo
         scaled = data.astype(np.float32) / np.float32(scale)
         for c, letter in enumerate("RGB"):
             channels[name + letter] = np.ascontiguousarray(scaled[..., c]).astype(kind)
-    header = {"compression": modes[compression], "type": OpenEXR.scanlineimage}
+    if units not in UNITS:
+        raise InputError(f"units must be one of {UNITS}, not {units!r}", path)
+    header = {"compression": modes[compression], "type": OpenEXR.scanlineimage,
+              **units_metadata(units, scale)}
     if scale != 1.0:
         header[SCALE_ATTRIBUTE] = float(scale)
     with atomic_output(path, force=force, inputs=inputs) as tmp:

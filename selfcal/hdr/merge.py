@@ -81,9 +81,7 @@ from typing import Literal
 import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..io.images import JPEG_SUFFIXES
-from ..response.calibrate import (DEFAULT_MAX_SAMPLES, ResponseOptions, calibrate_aligned,
-                                  calibrate_response)
+from ..response.calibrate import ResponseOptions, calibrate_aligned, calibrate_response
 from ..stack.align import estimate_alignment, negligible_motion
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,
@@ -92,17 +90,17 @@ from ..stack.frames import (
     model_frame_index,
     name_arrays,
     resolve_exposures,
-    stuck_code_levels,
 )
-from ..stack.samples import collect_samples
 from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import misalignment_warning, poor_agreement
 from ..exposure.linear import USES, resolve_linear_exposures, stack_frames
 from ..exposure.measured import TRENDS, measure_response_exposures, measured_warning
 from .weights import DEFAULT_NOISE, NoiseModel
+from .plan import frames_to_merge, looks_lossy, stuck_levels
 from .sigma import SigmaSums, add_trend_term
 from .vignetting import apply_vignetting, check_vignetting_option, resolve_vignetting
+from ..lens.luminance import absolute_radiance
 
 __all__ = ["HDRResult", "MergeOptions", "merge_hdr"]
 
@@ -181,6 +179,10 @@ class MergeOptions:
         :class:`~selfcal.lens.Vignetting` is used as given; ``"none"``: none.  What was
         chosen, and why the others were not: ``diagnostics["vignetting"]``; with ``sigma``,
         the vignetting's uncertainty joins σ.
+    luminance : {None, "exif", "model"}, LuminanceScale or ReferenceReading
+        Radiance and σ in cd/m² (:func:`selfcal.lens.luminance.absolute_radiance`: the EXIF
+        convention of [ISO12232], the model's stored scale, a scale, or a reading of a
+        region of this merge); None (default): relative.
     """
 
     reference: int | None = None
@@ -200,6 +202,7 @@ class MergeOptions:
     exposure_trend: str = "times"
     sigma_exposure_from_fit: bool = True
     vignetting: object = "auto"
+    luminance: object = None
 
 
 @dataclass
@@ -250,6 +253,10 @@ class HDRResult:
         curve's confidence band (:mod:`selfcal.hdr.sigma`), relative to the radiance's
         scale (the scale's own σ, in log, is ``diagnostics["sigma_scale_log"]``); +inf
         where unmeasured.  None unless ``MergeOptions(sigma=True)``.
+    units : {"relative", "cd/m2"}
+        Of :attr:`radiance` and :attr:`sigma`: cd/m² with ``MergeOptions(luminance=...)``
+        (luminance ``0.2126 R + 0.7152 G + 0.0722 B``; the scale in ``diagnostics["luminance"]``,
+        its σ then in :attr:`sigma`, in quadrature).
     """
 
     radiance: np.ndarray
@@ -266,6 +273,7 @@ class HDRResult:
     model: object = field(default=None, repr=False)
     sigma: np.ndarray | None = field(default=None, repr=False)
     unchecked: np.ndarray | None = field(default=None, repr=False)
+    units: str = "relative"
 
 
 # --------------------------------------------------------------------------------------
@@ -432,12 +440,17 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
                          record=diagnostics["vignetting"])
     if sigma is not None and trend_sigma > 0:
         add_trend_term(sigma, sums.num, trend_sigma)
+    if opts.luminance is not None:
+        sums.num, sigma, diagnostics["luminance"] = absolute_radiance(
+            opts.luminance, sums.num, sigma, model=model, unmeasured=unmeasured,
+            exposure_source=exposure_source, linear=linear)
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
                      reference=ref, transforms=transforms, exposure_source=exposure_source,
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
                      sigma=sigma,
-                     unchecked=sums.unchecked_pixels(unmeasured))
+                     unchecked=sums.unchecked_pixels(unmeasured),
+                     units="relative" if opts.luminance is None else "cd/m2")
 
 
 def _own_measurement(model, frames: StackFrames, fresh: bool, used, unchecked):
@@ -501,7 +514,7 @@ def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
     The reference moves to the middle merged frame when the calibration ignored it (an
     error when the caller chose it), or to the middle checked one when it is unchecked.
     """
-    used, unchecked = _frames_to_merge(frames, model, fresh, exposures, warnings, diagnostics,
+    used, unchecked = frames_to_merge(frames, model, fresh, exposures, warnings, diagnostics,
                                        merge_unchecked=opts.merge_unchecked)
     if ref in unchecked:
         ref = [k for k in used if k not in unchecked][default_reference(
@@ -511,9 +524,9 @@ def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
     if ref not in used:
         raise InputError(f"reference frame {ref} was ignored by the calibration: choose "
                          "another", frames.sources[ref])
-    stuck = None if linear or opts.stuck_codes is False else _stuck_levels(
+    stuck = None if linear or opts.stuck_codes is False else stuck_levels(
         model, frames, exposures, used, opts.clip_margin, diagnostics, opts.stuck_codes)
-    lossy = _looks_lossy(frames, linear) if opts.lossy is None else opts.lossy
+    lossy = looks_lossy(frames, linear) if opts.lossy is None else opts.lossy
     radius = RINGING_RADIUS if lossy else 0
     diagnostics["ringing_radius"] = radius
     return used, unchecked, ref, stuck, radius
@@ -541,89 +554,6 @@ def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bo
                         "are clipped in every frame (unmeasured; filled from the darkest "
                         "frame for highlights, the brightest for shadows)")
     return unmeasured
-
-
-def _frames_to_merge(frames: StackFrames, model, fresh: bool, exposures, warnings: list,
-                     diagnostics: dict, *, merge_unchecked: bool = True):
-    """(indices of the frames to merge, those of them merged unchecked) (ours).
-
-    From the model's :attr:`~selfcal.ResponseModel.frames_ignored` (not its warnings): a
-    frame ignored as a duplicate or clipped is not merged (a warning says why).  One
-    ignored as ``"unchecked"`` (a long exposure far beyond the others, black in every
-    other frame) is merged with its given or EXIF time, which the pixels could not check
-    -- it alone measures the shadows it sees -- and named in a warning,
-    ``diagnostics['frames_unchecked']`` and :attr:`HDRResult.unchecked` (left out with
-    ``merge_unchecked=False``).  Frames the model never saw are merged.
-    """
-    n = len(frames)
-    by_source = {f.source: f for f in getattr(model, "frames_ignored", ()) or ()}
-    if model is None or not by_source:
-        return list(range(n)), []
-    idx = model_frame_index(model, frames, fresh)
-    msources = list(getattr(model, "sources", []) or [])
-    ignored = [(k, by_source[msources[i]]) for k, i in enumerate(idx)
-               if i is not None and i < len(msources) and msources[i] in by_source]
-    if not ignored or len(ignored) == n:
-        return list(range(n)), []
-    left_out, unchecked = [], []
-    for k, why in ignored:
-        e = float(exposures[k])
-        if merge_unchecked and why.reason == "unchecked" and np.isfinite(e) and e > 0:
-            unchecked.append(k)
-            warnings.append(f"{frames.sources[k]}: merged with its exposure time "
-                            f"({e:g}), unchecked against the pixels: the calibration "
-                            f"ignored it ({why.detail}); HDRResult.unchecked flags the "
-                            "pixels that rest on it")
-            continue
-        left_out.append(k)
-        warnings.append(f"{frames.sources[k]}: not merged: the calibration ignored it"
-                        + (f" ({why.detail})" if why.detail else ""))
-    if left_out:
-        diagnostics["frames_ignored"] = [frames.sources[k] for k in left_out]
-    if unchecked:
-        diagnostics["frames_unchecked"] = [frames.sources[k] for k in unchecked]
-    return [k for k in range(n) if k not in left_out], unchecked
-
-
-def _stuck_levels(model, frames: StackFrames, exposures, used, clip_margin: float,
-                  diagnostics: dict, given=None):
-    """Per channel (floor, ceiling) as normalised codes: the calibration's, else measured.
-
-    The model's ``diagnostics['stuck_codes']`` (:func:`selfcal.stack.frames.stuck_code_levels`
-    over the calibration's samples) when it has them -- a floor or ceiling is a property
-    of the camera (or the scan), so a model of another scene's frames carries it -- else
-    the same function over samples of the frames to merge.
-    """
-    levels, source = given, "given"
-    if levels is None:
-        levels = (getattr(model, "diagnostics", None) or {}).get("stuck_codes")
-        source = "model"
-    if levels is None:
-        items = [frames.items[k] for k in used]
-        samples = collect_samples(items, sources=[frames.sources[k] for k in used],
-                                  max_samples=DEFAULT_MAX_SAMPLES)
-        levels = stuck_code_levels(samples.values, np.log(np.asarray(exposures)[used]),
-                                   clip_margin=clip_margin)
-        source = "frames"
-    floor = np.asarray(levels["floor"], dtype=float)
-    ceiling = np.asarray(levels["ceiling"], dtype=float)
-    diagnostics["stuck_codes"] = {"floor": np.round(255 * floor, 2).tolist(),
-                                  "ceiling": np.round(255 * ceiling, 2).tolist(),
-                                  "scale": "8-bit codes", "from": source}
-    return floor, ceiling
-
-
-def _looks_lossy(frames: StackFrames, linear: bool) -> bool:
-    """JPEG files, or 8-bit arrays (which may be decoded JPEGs): widen clipped regions."""
-    if linear:
-        return False
-    for item, path in zip(frames.items, frames.paths):
-        if path is not None:
-            if path.suffix.lower() in JPEG_SUFFIXES:
-                return True
-        elif np.asarray(item).dtype == np.uint8:
-            return True
-    return False
 
 
 def _check_options(weighting, align, linear: bool, model, opts: MergeOptions):

@@ -11,7 +11,9 @@ out, each ``{"source", "reason", "detail"}`` with a reason of
 :data:`IGNORED_FRAME_REASONS`; for files of versions 1 and 2 the loader derives them from
 the warnings (``ResponseModel.from_dict``, the one place that reads those words).
 Version 4 adds a response model's optional ``vignetting`` (:class:`selfcal.lens.Vignetting`:
-``coefficients`` 3×3, ``centre`` 2, ``source``, ``covariance`` 11×11 or null).  Loading validates the envelope (:func:`read_model_dict`) and
+``coefficients`` 3×3, ``centre`` 2, ``source``, ``covariance`` 11×11 or null).  It also adds the
+optional ``luminance`` (:class:`selfcal.lens.LuminanceScale`: ``scale`` > 0 in cd/m² per
+unit of radiance, ``log_sigma``, ``source``, ``description``).  Loading validates the envelope (:func:`read_model_dict`) and
 the content (:func:`check_response_content`, :func:`check_pipeline_content`: every field's
 type, shape and range, so that a model that loads can be used), and raises
 :class:`selfcal.errors.ModelFileError` naming the file and the field on anything wrong.
@@ -326,6 +328,13 @@ def check_response_content(doc: dict, path=None) -> None:
     vignetting = c.sub("vignetting", optional=True, nullable=True)        # version 4
     if vignetting is not None:
         _check_vignetting(vignetting)
+    luminance = c.sub("luminance", optional=True, nullable=True)          # version 4
+    if luminance is not None:
+        luminance.require("scale", "log_sigma", "source")
+        luminance.number("scale", low=0, low_open=True)
+        luminance.number("log_sigma", low=0)
+        luminance.string("source", choices=("exif-convention", "reference"))
+        luminance.string("description", optional=True)
     diag = c.sub("diagnostics", optional=True)
     if diag is not None:
         _check_response_diagnostics(diag)

@@ -14,9 +14,12 @@ from __future__ import annotations
 
 from .database import LensMatch, lens_vignetting
 from .flat_field import flat_field_vignetting
+from .luminance import (LuminanceScale, ReferenceReading, parse_reference,
+                        scale_from_exif, scale_from_reference)
 from .vignetting import (PARAMETER_NAMES, Vignetting, binned_points, normalised_radius,
                          radial_falloff)
 
 __all__ = ["Vignetting", "PARAMETER_NAMES", "normalised_radius", "radial_falloff",
-           "binned_points", "flat_field_vignetting", "lens_vignetting", "LensMatch"]
-
+           "binned_points", "flat_field_vignetting", "lens_vignetting", "LensMatch",
+           "LuminanceScale", "ReferenceReading", "parse_reference", "scale_from_exif",
+           "scale_from_reference"]

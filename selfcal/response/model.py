@@ -18,6 +18,7 @@ import numpy.typing as npt
 from ..errors import InputError, ModelFileError
 from ..typing import PathLike
 from ..io.model_file import IGNORED_FRAME_REASONS, jsonable, save_model_dict
+from ..lens.luminance import LuminanceScale
 from ..lens.vignetting import Vignetting
 
 MODEL_KIND = "response"
@@ -134,6 +135,11 @@ class ResponseModel:
         the calibration observed it (frames that moved, ``align="homography"``,
         :mod:`selfcal.response.vignetting_fit`) or it was attached from a lens profile or a
         flat field; None otherwise.  Saved with the model (file format version 4).
+    luminance : LuminanceScale or None
+        The camera's absolute scale, cd/m² per unit of the radiance this model's merges
+        give (:mod:`selfcal.lens.luminance`), when one was measured (``selfcal merge
+        --reference ... --save-scale``); later merges apply it with
+        ``MergeOptions(luminance="model")``.  Saved with the model (format version 4).
     """
 
     intensity: np.ndarray
@@ -148,6 +154,7 @@ class ResponseModel:
     inverse_log_sigma: np.ndarray | None = None
     frames_ignored: tuple[IgnoredFrame, ...] = ()
     vignetting: Vignetting | None = None
+    luminance: LuminanceScale | None = None
     #: samples of one frame pair with rejection reasons (for plots); not saved
     fit_data: dict | None = field(default=None, repr=False, compare=False)
 
@@ -257,6 +264,7 @@ class ResponseModel:
             "frames_ignored": [f.to_dict() for f in self.frames_ignored],
             **({} if self.vignetting is None else
                {"vignetting": jsonable(self.vignetting.to_dict())}),
+            **({} if self.luminance is None else {"luminance": self.luminance.to_dict()}),
             **({} if self.inverse_log_sigma is None else
                {"inverse_log_sigma": np.round(np.asarray(self.inverse_log_sigma).T,
                                               7).tolist()}),
@@ -289,7 +297,9 @@ class ResponseModel:
                                                     detail=f.get("detail", ""))
                                        for f in d["frames_ignored"])),
                         vignetting=(None if d.get("vignetting") is None
-                                    else Vignetting.from_dict(d["vignetting"])))
+                                    else Vignetting.from_dict(d["vignetting"])),
+                        luminance=(None if d.get("luminance") is None
+                                   else LuminanceScale.from_dict(d["luminance"])))
         except KeyError as exc:
             raise bad(f"response model lacks the field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
