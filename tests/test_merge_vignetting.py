@@ -125,3 +125,51 @@ def test_a_vignetting_for_another_aspect_is_refused(tripod):
     other = Vignetting(np.zeros((3, 3)), np.zeros(2), "flat", aspect=1.0)
     with pytest.raises(selfcal.InputError, match="aspect"):
         selfcal.merge_hdr(frames, TIMES, model, options=MergeOptions(vignetting=other))
+
+
+def _write_with_lens(folder, frames, times, *, lens=True):
+    """The frames as JPEG files whose EXIF names a Canon 5D Mark II with an EF 50mm f/1.8
+    II at f/1.8 (a lens lensfun holds vignetting data for), or no lens."""
+    import cv2
+
+    from selfcal.io.images import exif_bytes
+    from selfcal.sim.encoding import jpeg_with_exif
+
+    paths = []
+    for k, (im, t) in enumerate(zip(frames, times)):
+        ok, data = cv2.imencode(".jpg", np.ascontiguousarray(im[:, :, ::-1]),
+                                [cv2.IMWRITE_JPEG_QUALITY, 95])
+        assert ok
+        exif = exif_bytes(t, 1.8, 100, make="Canon", model="Canon EOS 5D Mark II",
+                          **({"lens_make": "Canon", "lens_model": "EF50mm f/1.8 II",
+                              "focal_length": 50, "focus_distance": 3.0} if lens else {}))
+        path = folder / f"frame{k}.jpg"
+        path.write_bytes(jpeg_with_exif(data.tobytes(), exif))
+        paths.append(path)
+    return paths
+
+
+def test_auto_applies_the_lens_profile_the_exif_names(tmp_path, scene_and_pipeline, tripod):
+    from selfcal.lens import lens_vignetting
+
+    big, pad, pipe = scene_and_pipeline
+    model, base, _ = tripod
+    probe = _write_with_lens(tmp_path, [np.zeros((H, W, 3), np.uint8)], [TIMES[0]])[0]
+    profile, match = lens_vignetting(probe)
+    assert profile is not None, match.reason
+    # the bracket shot through that lens carries its falloff
+    frames = _frames(big, pad, pipe, [(0, 0)] * len(TIMES), profile)
+    with_lens = _write_with_lens(tmp_path, frames, TIMES)
+    (tmp_path / "plain").mkdir()
+    without_lens = _write_with_lens(tmp_path / "plain", frames, TIMES, lens=False)
+    r = _radius()
+
+    result = selfcal.merge_hdr(with_lens, TIMES, model)
+    record = result.diagnostics["vignetting"]
+    assert record["source"] == "lens" and "50mm" in record["description"]
+    assert abs(_error(result, base, r > 0.85)) < 0.04
+
+    kept = selfcal.merge_hdr(without_lens, TIMES, model)
+    assert kept.diagnostics["vignetting"]["source"] is None
+    assert any("lens" in why for why in kept.diagnostics["vignetting"]["reasons"])
+    assert _error(kept, base, r > 0.85) < -0.3       # the falloff at f/1.8, left in
