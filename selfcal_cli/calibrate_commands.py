@@ -28,10 +28,22 @@ def _print_response_summary(model) -> None:
          f"down-weighted as outliers; rejected pairs: {rej}")
     delta = ", ".join(f"{c} {v:.4f}" for c, v in zip("RGB", d["delta_eq12"]))
     say(f"fit: residual {d['residual_rms_log']:.4f} (log units), δ (Eq. 12): {delta}")
+    _say_vignetting_fit(model)
     _, reasons = verdict_of(d)
     for w in d["warnings"]:
         if w not in reasons and not (reasons and all(r in w for r in reasons)):
             warn(w)       # the verdict's reasons are said with it
+
+
+def _say_vignetting_fit(model) -> None:
+    """The vignetting the calibration fitted, or why it fitted none (aligned runs only)."""
+    said = model.diagnostics.get("vignetting")
+    if model.vignetting is not None:
+        stops = " ".join(f"{c} {s:.2f}" for c, s in zip("RGB", model.vignetting.corner_stops()))
+        say(f"vignetting: {model.vignetting.description}; corner falloff {stops} stops "
+            "(selfcal show --plot draws it)")
+    elif isinstance(said, dict) and said.get("reason"):
+        say(f"vignetting: not observable: {said['reason']}")
 
 
 # ------------------------------------------------------------------------- commands
