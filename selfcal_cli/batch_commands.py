@@ -144,7 +144,8 @@ def cmd_batch(args) -> int:
     options = BatchOptions(linearize=args.linearize, pool=not args.no_pool,
                            force=args.force, by_content=not args.by_time,
                            max_gap=args.max_gap,
-                           luminance=None if args.luminance == "none" else args.luminance)
+                           luminance=None if args.luminance == "none" else args.luminance,
+                           camera_scales=dict(args.luminance_scale))
     previous = _terminate_as_interrupt()
     try:
         result = run_batch(
@@ -211,6 +212,25 @@ def _positive_seconds(text: str) -> float:
     return value
 
 
+def _camera_scale(text: str):
+    """``CAMERA=MODEL.json``: the luminance scale a model file holds, for one camera."""
+    camera, sep, path = text.rpartition("=")
+    if not sep or not camera.strip() or not path:
+        raise argparse.ArgumentTypeError(f"expected CAMERA=MODEL.json, not {text!r}")
+    import selfcal
+
+    try:
+        model = selfcal.load_model(path)
+    except selfcal.SelfcalError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    scale = getattr(model, "luminance", None)
+    if scale is None:
+        raise argparse.ArgumentTypeError(
+            f"{path}: the model holds no luminance scale (selfcal merge --reading ... "
+            "--save-scale MODEL.json stores one)")
+    return camera.strip(), scale
+
+
 def register(sub) -> None:
     """Add the ``batch`` command to the main parser's subparsers."""
     from selfcal.batch.discover import DEFAULT_MAX_GAP
@@ -246,6 +266,11 @@ def register(sub) -> None:
                    help="exif: every session's radiance in cd/m² by the ISO 12232 "
                         "convention from its EXIF time, f-number and ISO, with its "
                         "camera's curve (±1/3 stop); none (default): relative")
+    p.add_argument("--luminance-scale", type=_camera_scale, action="append", default=[],
+                   metavar="CAMERA=MODEL.json",
+                   help="every session of CAMERA (its EXIF model, or make model #serial) "
+                        "in cd/m² with the scale MODEL.json holds (measured once with "
+                        "selfcal merge --reading ... --save-scale); repeat per camera")
     p.add_argument("--no-pool", action="store_true",
                    help="fit every session alone (no per-camera curve)")
     p.add_argument("--max-gap", type=_positive_seconds, default=DEFAULT_MAX_GAP,

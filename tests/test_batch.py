@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import selfcal
 from selfcal import sim
 from selfcal.batch import ClusterOptions, discover, run_batch
 from selfcal.sim.cards import camera_exif, default_bodies, write_library
@@ -331,3 +332,44 @@ def test_a_plot_per_camera_beside_cameras_csv(batch, library):
         curve = np.array(r["own_curve"])
         assert curve.shape == (CURVE_POINTS,) and np.all(np.diff(curve) >= -1e-6)
     assert off(styled) > 2 * max(off(r) for r in same)
+
+
+def test_a_cameras_reference_scale_puts_its_sessions_in_cd_m2(library, tmp_path, capsys):
+    """--luminance-scale CAMERA=MODEL.json: that camera's sessions come out in cd/m² with
+    the stored constant, the other camera's stay relative; a model without a scale is
+    refused (exit 2, the file named) before any work."""
+    import dataclasses
+
+    from selfcal.lens import LuminanceScale
+
+    root = tmp_path / "card"
+    root.mkdir()
+    by_body = {}
+    for s in library["lib"].sessions:
+        if library["broken"] not in s.frames:
+            by_body.setdefault(s.body.model, s)
+    for s in by_body.values():
+        for f in s.frames:
+            shutil.copy2(f, root / f.name)
+    model = selfcal.calibrate_response(by_body["S1"].frames)
+    plain = model.save(tmp_path / "plain.json")
+    scale = LuminanceScale(scale=3.5, log_sigma=0.03, source="reference",
+                           description="test: a spot meter")
+    scaled = dataclasses.replace(model, luminance=scale).save(tmp_path / "scaled.json")
+
+    with pytest.raises(SystemExit) as exited:
+        main(["batch", str(root), "-o", str(tmp_path / "never"), "--scheduler", "serial",
+              "--luminance-scale", f"S1={plain}"])
+    err = capsys.readouterr().err
+    assert exited.value.code == 2 and "plain.json" in err and "no luminance scale" in err
+    assert not (tmp_path / "never").exists()
+
+    out = tmp_path / "out"
+    code = main(["batch", str(root), "-o", str(out), "--scheduler", "serial", "--no-pool",
+                 "--luminance-scale", f"S1={scaled}"])
+    assert code == 0, capsys.readouterr().err
+    rows = [json.loads(x) for x in (out / "manifest.jsonl").read_text().splitlines()]
+    units = {r["camera_label"].split()[1]: (r["units"], r.get("luminance_scale"))
+             for r in rows}
+    assert units["S1"] == ("cd/m2", pytest.approx(3.5))
+    assert units["S2"][0] == "relative"

@@ -88,6 +88,11 @@ class BatchOptions:
         :func:`selfcal.lens.luminance.scale_from_exif` with its camera's curve
         (``MergeOptions(luminance="exif")``; the record's ``units`` and
         ``luminance_scale``); a session without EXIF exposures fails.  None: relative.
+    camera_scales : dict
+        Camera → :class:`selfcal.lens.LuminanceScale`: a constant measured once with a
+        reference reading (``selfcal merge --reading ... --save-scale``), applied to every
+        session of that camera (before ``luminance``).  A key matches a session's camera
+        label (``make model #serial``) or its EXIF model, ignoring case.
     """
 
     linearize: bool = False
@@ -99,6 +104,18 @@ class BatchOptions:
     by_content: bool = True
     max_gap: float = DEFAULT_MAX_GAP
     luminance: str | None = None
+    camera_scales: dict = field(default_factory=dict)
+
+    def luminance_for(self, camera_label: str):
+        """The luminance option of a session of ``camera_label``: its camera's scale when
+        one is given, else :attr:`luminance`."""
+        label = camera_label.lower()
+        for key, scale in self.camera_scales.items():
+            key = key.lower()
+            if label == key or label.split(" #")[0] == key or label.split(" #")[0].endswith(
+                    " " + key):
+                return scale
+        return self.luminance
 
 
 @dataclass(frozen=True)
@@ -462,7 +479,8 @@ def _merge_and_write(plan: SessionPlan, options: BatchOptions, prep: SessionPrep
             model = load_model(row["model_file"])
         t0 = time.perf_counter()
         result = merge_hdr(frames, None, model,
-                           options=MergeOptions(luminance=options.luminance))
+                           options=MergeOptions(
+                               luminance=options.luminance_for(plan.camera_label)))
         write(staged, outputs["radiance"], lambda t: write_radiance(
             t, result.radiance, force=True, units=result.units))
         row["units"] = result.units
