@@ -144,8 +144,7 @@ class SmoothField:
     """A smooth per-channel field on a frame's pixel grid (the falloff, its σ), evaluated
     exactly on a coarse grid of every ``step``-th pixel and interpolated bilinearly to
     each strip of rows (ours: the falloff is a low-order polynomial, so the interpolation
-    error is ``k₁·(step / half diagonal)² / 4``, under 1e-5 at 8 px on a 24 MP frame and
-    under 1e-3 on a 200-pixel one; exact evaluation per pixel cost the merge 40 %).
+    error is ``k₁·(step / half diagonal)² / 4``; docs/decisions.md says why 8 pixels).
 
     Parameters
     ----------
