@@ -29,6 +29,7 @@ from ..stack.align import negligible_motion, warp_to_reference
 from ..stack.frames import Lineariser, StackFrames, apply_lut, frame_limits, max_code_of
 from .deghost import ghost_mask, neighbour_residual, small_log_luma
 from .vignetting import FrameFalloff
+from ..lens.vignetting import Vignetting
 from .weights import NoiseModel, FrameTables, packed_lookup
 
 if TYPE_CHECKING:
@@ -151,7 +152,7 @@ class MergeSums:
         #: the lens's vignetting, divided out of each frame at its own pixels (frames
         #: that moved: :class:`.vignetting.FrameFalloff`); None when there is none or it
         #: is divided out of the finished radiance (:func:`.vignetting.apply_vignetting`)
-        self.falloff = None
+        self.falloff: Vignetting | None = None
 
     def keep_unchecked(self, tab: FrameTables, shape, dtype, max_code) -> None:
         """Where an unchecked frame's weights will be kept (call before its strips)."""

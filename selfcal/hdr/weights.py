@@ -191,9 +191,11 @@ class FrameTables:
     """
 
     #: set by the merge (:mod:`selfcal.hdr.accumulate`): the code above which a pixel is
-    #: bright, and an unchecked frame's masked codes (None when they are not kept)
+    #: bright, an unchecked frame's masked codes (None when they are not kept), and the
+    #: lens's falloff as the frame saw it (:class:`.vignetting.FrameFalloff`, or None)
     bright: float
     unchecked_codes: np.ndarray | None
+    falloff: object | None
 
     def __init__(self, lin: Lineariser, exposure: float, weighting, noise: NoiseModel,
                  lo: float, hi: float, need_variance: bool, exposure_norm: float = 1.0,
