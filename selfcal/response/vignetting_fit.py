@@ -51,15 +51,21 @@ MAX_CORNER_LOG_SIGMA = 0.1
 #: Fewer correspondences than this (points seen unclipped in two frames or more): refused.
 MIN_POINTS = 150
 #: Rounds of the alternation response → vignetting (→ corrected frames → response ...).
-DEFAULT_ROUNDS = 2
+DEFAULT_ROUNDS = 3
 #: Codes (8-bit scale) within this distance of 0 or the maximum are not used.
 CODE_MARGIN = 6.0
-#: Largest standard deviation of the codes inside a block (8-bit scale): smoother blocks
-#: only, so that the residual misalignment does not read as falloff.
+#: Largest standard deviation of the codes inside a block (8-bit scale): flat blocks only.
 MAX_BLOCK_STD = 2.5
+#: Blocks whose HSV saturation exceeds this in a frame are not used there: the camera's
+#: colour step (matrix, gamut mapping) mixes the channels of saturated colours, which a
+#: per-channel curve does not undo ([Lin2011] §5 rejects them for the response too).
+MAX_SATURATION = 0.5
 #: Prior standard deviations of the coefficients and of the centre offset (weak).
 PRIOR_SIGMA_K = 1.0
 PRIOR_SIGMA_CENTRE = 0.2
+#: Prior standard deviation of the residual alignment (pixels), fitted per frame as an
+#: affine map through the scene's log gradient.
+PRIOR_SIGMA_SHIFT = 2.0
 #: Huber threshold on standardised residuals.
 HUBER_K = 1.5
 
@@ -98,14 +104,21 @@ def frame_motion(transforms, shape) -> list:
     return out
 
 
-def _block_stats(frame: np.ndarray, block: int, scale: float):
-    """Block means (nb_y, nb_x, 3) and the largest per-channel std, on the 8-bit scale."""
+def _block_stats(frame: np.ndarray, block: int, scale: float, curve):
+    """Per block: the mean codes (nb_y, nb_x, 3) on the 8-bit scale, the largest
+    per-channel std of the codes, the lowest and highest code, and the mean gradient of
+    ``log f⁻¹`` (nb_y, nb_x, 3, 2: d/dx, d/dy per pixel)."""
     h, w = frame.shape[:2]
     ny, nx = h // block, w // block
-    a = frame[:ny * block, :nx * block].astype(np.float64) * scale
-    a = a.reshape(ny, block, nx, block, 3)
+    a = frame.astype(np.float64) * scale
+    logs = np.stack([np.interp(a[..., c] / 255.0, curve[0], curve[1][:, c])
+                     for c in range(3)], axis=-1)
+    gy, gx = np.gradient(logs, axis=(0, 1))
+    grad = np.stack([gx, gy], axis=-1)[:ny * block, :nx * block]
+    grad = grad.reshape(ny, block, nx, block, 3, 2).mean(axis=(1, 3))
+    a = a[:ny * block, :nx * block].reshape(ny, block, nx, block, 3)
     lo, hi = a.min(axis=(1, 3)).min(axis=-1), a.max(axis=(1, 3)).max(axis=-1)
-    return a.mean(axis=(1, 3)), a.std(axis=(1, 3)).max(axis=-1), lo, hi
+    return a.mean(axis=(1, 3)), a.std(axis=(1, 3)).max(axis=-1), lo, hi, grad
 
 
 def correspondences(frames, transforms, intensity, inverse, max_code: int, *,
@@ -120,12 +133,17 @@ def correspondences(frames, transforms, intensity, inverse, max_code: int, *,
     h, w = frames[0].shape[:2]
     block = block or max(4, max(h, w) // 96)
     scale = 255.0 / max_code
-    stats = [_block_stats(f, block, scale) for f in frames]
+    curve = (intensity, np.log(np.maximum(inverse, 1e-6)))
+    stats = [_block_stats(f, block, scale, curve) for f in frames]
     means = np.stack([s[0].reshape(-1, 3) for s in stats], axis=1)     # (P, F, 3)
     std = np.stack([s[1].ravel() for s in stats], axis=1)
     lo = np.stack([s[2].ravel() for s in stats], axis=1)
     hi = np.stack([s[3].ravel() for s in stats], axis=1)
-    valid = (lo > CODE_MARGIN) & (hi < 255.0 - CODE_MARGIN) & (std <= MAX_BLOCK_STD)
+    grad = np.stack([s[4].reshape(-1, 3, 2) for s in stats], axis=1)   # (P, F, 3, 2)
+    top, bottom = means.max(axis=-1), means.min(axis=-1)
+    saturation = (top - bottom) / np.maximum(top, 1e-6)       # HSV S, as [Lin2011] §5
+    valid = ((lo > CODE_MARGIN) & (hi < 255.0 - CODE_MARGIN) & (std <= MAX_BLOCK_STD)
+             & (saturation <= MAX_SATURATION))
     ny, nx = h // block, w // block
     cy, cx = np.mgrid[0:ny, 0:nx].astype(np.float64)
     cx, cy = cx.ravel() * block + 0.5 * (block - 1), cy.ravel() * block + 0.5 * (block - 1)
@@ -137,7 +155,11 @@ def correspondences(frames, transforms, intensity, inverse, max_code: int, *,
     inside = (xs >= block) & (xs <= w - 1 - block) & (ys >= block) & (ys <= h - 1 - block)
     valid &= inside
     keep = valid.sum(axis=1) >= 2
-    means, valid, xs, ys = means[keep], valid[keep], xs[keep], ys[keep]
+    means, valid, xs, ys, grad = means[keep], valid[keep], xs[keep], ys[keep], grad[keep]
+    # the scene's log gradient at each point: the frames' mean (exposure cancels)
+    grad = (grad * valid[..., None, None]).sum(axis=1) / valid.sum(axis=1)[:, None, None]
+    u = (cx[keep] - 0.5 * (w - 1)) / (0.5 * w)
+    v = (cy[keep] - 0.5 * (h - 1)) / (0.5 * h)
     log = np.empty(means.shape)
     weight = np.empty(means.shape)
     for c in range(3):
@@ -149,14 +171,20 @@ def correspondences(frames, transforms, intensity, inverse, max_code: int, *,
         noise = slope ** 2 / (block * block) + 1e-6     # one code per pixel, averaged
         weight[..., c] = 1.0 / noise
     return {"log": log, "valid": valid, "weight": weight, "xs": xs, "ys": ys,
-            "shape": (h, w), "block": block}
+            "shape": (h, w), "block": block, "grad": grad,
+            "uv1": np.stack([u, v, np.ones_like(u)], axis=1)}
 
 
 def _unpack(params, n_frames: int, reference: int):
+    """Centre, coefficients, log exposures and the residual alignment (F, 2, 3) in pixels
+    per unit of the normalised frame coordinates (the reference's held at 0)."""
     centre, k = params[:2], params[2:11].reshape(3, 3)
+    others = np.arange(n_frames) != reference
     log_e = np.zeros(n_frames)
-    log_e[np.arange(n_frames) != reference] = params[11:]
-    return centre, k, log_e
+    log_e[others] = params[11:11 + n_frames - 1]
+    shift = np.zeros((n_frames, 2, 3))
+    shift[others] = params[11 + n_frames - 1:].reshape(n_frames - 1, 2, 3)
+    return centre, k, log_e, shift
 
 
 def _model_log_v(data, centre, k):
@@ -169,12 +197,16 @@ def _model_log_v(data, centre, k):
 def _residuals(params, data, reference: int):
     """Projected residuals (log L eliminated as the weighted mean) and prior rows."""
     n_frames = data["valid"].shape[1]
-    centre, k, log_e = _unpack(params, n_frames, reference)
-    m = data["log"] - log_e[None, :, None] - _model_log_v(data, centre, k)
+    centre, k, log_e, shift = _unpack(params, n_frames, reference)
+    # log L(x + δ_j(x)) ≈ log L(x) + ∇log L · δ_j(x): the alignment's residual error
+    delta = np.einsum("fab,pb->pfa", shift, data["uv1"])                  # (P, F, 2)
+    moved = np.einsum("pca,pfa->pfc", data["grad"], delta)
+    m = data["log"] - log_e[None, :, None] - _model_log_v(data, centre, k) - moved
     wv = data["weight"] * data["valid"][..., None]
     level = (wv * m).sum(axis=1) / wv.sum(axis=1)
     res = np.sqrt(wv) * (m - level[:, None, :])
-    prior = np.concatenate([centre / PRIOR_SIGMA_CENTRE, k.ravel() / PRIOR_SIGMA_K])
+    prior = np.concatenate([centre / PRIOR_SIGMA_CENTRE, k.ravel() / PRIOR_SIGMA_K,
+                            shift.ravel() / PRIOR_SIGMA_SHIFT])
     return np.concatenate([res[data["valid"]].ravel(), prior])
 
 
@@ -191,7 +223,8 @@ def fit_vignetting(data: dict, reference: int, log_exposures0) -> VignettingFit:
     n_frames = data["valid"].shape[1]
     others = np.arange(n_frames) != reference
     x0 = np.concatenate([np.zeros(11), (np.asarray(log_exposures0, np.float64)
-                                         - log_exposures0[reference])[others]])
+                                         - log_exposures0[reference])[others],
+                         np.zeros(6 * (n_frames - 1))])
     plain = least_squares(_residuals, x0, args=(data, reference), method="trf",
                           x_scale="jac")
     n_obs = int(data["valid"].sum() * 3)
@@ -204,7 +237,7 @@ def fit_vignetting(data: dict, reference: int, log_exposures0) -> VignettingFit:
     sigma2 = float((w * r ** 2).sum()) / dof
     jac = np.asarray(fit.jac)
     cov = np.linalg.pinv(jac.T @ jac) * sigma2
-    centre, k, log_e = _unpack(fit.x, n_frames, reference)
+    centre, k, log_e, _ = _unpack(fit.x, n_frames, reference)
     h, w_ = data["shape"]
     vig = Vignetting(k, centre, source="self", covariance=cov[:11, :11], aspect=w_ / h)
     corner = vig.log_sigma_at(h, w_, np.array([0.0, w_ - 1.0, 0.0, w_ - 1.0]),
@@ -261,7 +294,7 @@ def single_exposure(times) -> bool:
 
 
 def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_model, *,
-                              reference: int, seed: int = 0, rounds: int = DEFAULT_ROUNDS):
+                              reference: int, seed: int = 0, rounds: int | None = None):
     """The response and the vignetting of aligned frames, fitted in alternation.
 
     Parameters
@@ -279,8 +312,8 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
         all at one exposure (Eq. 8 then has no exposure change to fit).
     reference : int
     seed : int
-    rounds : int
-        Vignetting fits (each followed by a response refit on the corrected frames).
+    rounds : int, optional
+        Vignetting fits (default :data:`DEFAULT_ROUNDS`) (each followed by a response refit on the corrected frames).
 
     Returns
     -------
@@ -288,6 +321,7 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
         ``model.vignetting`` the fit (``None`` when not observable) and
         ``model.diagnostics["vignetting"]`` what happened.
     """
+    rounds = DEFAULT_ROUNDS if rounds is None else int(rounds)
     fixed = single_exposure(times)
     model = prior_model(frames) if fixed else recalibrate(frames)
     h, w = frames[0].shape[:2]

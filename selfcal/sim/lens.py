@@ -38,7 +38,8 @@ def random_vignetting(seed: int, *, corner_stops=(0.5, 2.0), max_offset: float =
     """A random, plausible lens falloff (ours): the simulator's truth.
 
     ``V(r) = 1 + k₁r² + k₂r⁴ + k₃r⁶`` ([Goldman2010], Eq. 4) with every ``kᵢ ≤ 0`` (so
-    ``V`` falls monotonically), the shape drawn as Dirichlet weights of ``r², r⁴, r⁶``,
+    ``V`` falls monotonically), the shape drawn as Dirichlet weights of ``r², r⁴, r⁶``
+    (green's; red's and blue's drawn close to it, Dirichlet of concentration 200),
     the optical centre off the image centre by up to ``max_offset`` (half-diagonal units)
     and the depth chosen so that green loses ``U(corner_stops)`` stops at the farthest
     corner; red and blue lose ``1 ± channel_spread`` times green's depth.
@@ -76,8 +77,9 @@ def random_vignetting(seed: int, *, corner_stops=(0.5, 2.0), max_offset: float =
                 for sx in (-1, 1) for sy in (-1, 1))
     stops = rng.uniform(lo, hi)
     coefficients = np.empty((3, 3))
+    common = rng.dirichlet([2.0, 1.0, 0.5])
     for c, spread in enumerate((rng.uniform(-1, 1), 0.0, rng.uniform(-1, 1))):
-        shape = rng.dirichlet([2.0, 1.0, 0.5])
+        shape = common if c == 1 else rng.dirichlet(1.0 + 200.0 * common)
         depth = 1.0 - 2.0 ** (-stops * (1.0 + channel_spread * spread))
         powers = np.array([r_far ** 2, r_far ** 4, r_far ** 6])
         coefficients[c] = -depth * shape / float(shape @ powers)
