@@ -206,8 +206,43 @@ def _residuals(params, data, reference: int):
     level = (wv * m).sum(axis=1) / wv.sum(axis=1)
     res = np.sqrt(wv) * (m - level[:, None, :])
     prior = np.concatenate([centre / PRIOR_SIGMA_CENTRE, k.ravel() / PRIOR_SIGMA_K,
-                            shift.ravel() / PRIOR_SIGMA_SHIFT])
+                            params[11 + n_frames - 1:] / PRIOR_SIGMA_SHIFT])
     return np.concatenate([res[data["valid"]].ravel(), prior])
+
+
+def _jacobian(params, data, reference: int):
+    """The Jacobian of :func:`_residuals`, analytic: the projection of ``∂m/∂θ``."""
+    n_frames = data["valid"].shape[1]
+    centre, k, _, _ = _unpack(params, n_frames, reference)
+    h, w = data["shape"]
+    half_diagonal = 0.5 * math.hypot(h, w)
+    u = (data["xs"] - 0.5 * (w - 1)) / half_diagonal - centre[0]
+    v = (data["ys"] - 0.5 * (h - 1)) / half_diagonal - centre[1]
+    r2 = (u * u + v * v)[..., None]                                        # (P, F, 1)
+    value = np.maximum(radial_falloff(np.sqrt(r2), k), 1e-3)               # (P, F, 3)
+    d_r2 = (k[:, 0] + 2 * k[:, 1] * r2 + 3 * k[:, 2] * r2 ** 2) / value
+    n_p = params.size
+    dm = np.zeros(data["log"].shape + (n_p,))                              # (P, F, 3, n)
+    dm[..., 0] = 2 * u[..., None] * d_r2
+    dm[..., 1] = 2 * v[..., None] * d_r2
+    for c in range(3):
+        for n in range(3):
+            dm[:, :, c, 2 + 3 * c + n] = -(r2[..., 0] ** (n + 1)) / value[..., c]
+    others = np.flatnonzero(np.arange(n_frames) != reference)
+    for i, j in enumerate(others):
+        dm[:, j, :, 11 + i] = -1.0
+        base = 11 + n_frames - 1 + 6 * i
+        for a in range(2):
+            for b in range(3):
+                dm[:, j, :, base + 3 * a + b] = -data["grad"][:, :, a] * data["uv1"][:, b, None]
+    wv = data["weight"] * data["valid"][..., None]
+    level = (wv[..., None] * dm).sum(axis=1) / wv.sum(axis=1)[..., None]
+    jac = np.sqrt(wv)[..., None] * (dm - level[:, None])
+    prior = np.diag(np.concatenate([np.full(2, 1 / PRIOR_SIGMA_CENTRE),
+                                    np.full(9, 1 / PRIOR_SIGMA_K), np.zeros(n_frames - 1),
+                                    np.full(6 * (n_frames - 1), 1 / PRIOR_SIGMA_SHIFT)]))
+    prior = prior[np.r_[0:11, 11 + n_frames - 1:n_p]]
+    return np.concatenate([jac[data["valid"]].reshape(-1, n_p), prior])
 
 
 def fit_vignetting(data: dict, reference: int, log_exposures0) -> VignettingFit:
@@ -225,12 +260,12 @@ def fit_vignetting(data: dict, reference: int, log_exposures0) -> VignettingFit:
     x0 = np.concatenate([np.zeros(11), (np.asarray(log_exposures0, np.float64)
                                          - log_exposures0[reference])[others],
                          np.zeros(6 * (n_frames - 1))])
-    plain = least_squares(_residuals, x0, args=(data, reference), method="trf",
-                          x_scale="jac")
+    plain = least_squares(_residuals, x0, jac=_jacobian, args=(data, reference),
+                          method="trf", x_scale="jac")
     n_obs = int(data["valid"].sum() * 3)
     scale = 1.4826 * float(np.median(np.abs(plain.fun[:n_obs]))) or 1.0
-    fit = least_squares(_residuals, plain.x, args=(data, reference), method="trf",
-                        loss="huber", f_scale=HUBER_K * scale, x_scale="jac")
+    fit = least_squares(_residuals, plain.x, jac=_jacobian, args=(data, reference),
+                        method="trf", loss="huber", f_scale=HUBER_K * scale, x_scale="jac")
     r = fit.fun[:n_obs]
     w = np.minimum(1.0, HUBER_K * scale / np.maximum(np.abs(r), 1e-12))
     dof = max(1.0, float(w.sum()) - fit.x.size - 3 * data["valid"].shape[0])
