@@ -197,7 +197,9 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
     align : {False, "mtb", "homography"}
         Handheld stacks: align the frames to the middle exposure first
         (:func:`calibrate_aligned`); misaligned frames give wrong
-        correspondences, which read as contradicted exposure times.
+        correspondences, which read as contradicted exposure times.  With
+        ``"homography"`` the lens falloff is fitted jointly when the frames moved
+        (:mod:`.vignetting_fit`, [Goldman2010]; ``diagnostics["vignetting"]`` says if not).
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
     times_source : str, optional
