@@ -19,6 +19,8 @@
 * :mod:`selfcal.response.hidden_white` -- samples at white that JPEG moved below the clip
   limit;
 * :mod:`selfcal.response.code_error` -- the curve's error per code, on its own samples;
+* :mod:`selfcal.response.vignetting_fit` -- the lens falloff from frames that moved, fitted
+  jointly with the response ([Goldman2010]);
 * :mod:`selfcal.response.bands` -- the confidence band of f⁻¹;
 * :mod:`selfcal.response.delta` -- δ of Eq. 12;
 * :mod:`selfcal.response.verdict` -- whether the fit can be trusted, from its evidence;

@@ -197,7 +197,9 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
     align : {False, "mtb", "homography"}
         Handheld stacks: align the frames to the middle exposure first
         (:func:`calibrate_aligned`); misaligned frames give wrong
-        correspondences, which read as contradicted exposure times.
+        correspondences, which read as contradicted exposure times.  With
+        ``"homography"`` the lens falloff is fitted jointly when the frames moved
+        (:mod:`.vignetting_fit`, [Goldman2010]; ``diagnostics["vignetting"]`` says if not).
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
     times_source : str, optional
@@ -236,6 +238,8 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
                  refine_exposures=refine_exposures, seed=seed,
                  progress=progress, times_source=times_source)
     model = _calibrate_response(images, exposure_times, call, align=align)
+    model.diagnostics.setdefault("vignetting", {
+        "observable": None, "reason": "not attempted (needs align='homography')"})
     emit_warnings(model)
     return model
 
@@ -404,7 +408,8 @@ def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
     warnings: list[str] = []
     provisional = replace(call, options=replace(call.options, clip_margin=DEFAULT_CLIP_MARGIN))
     model, _, _ = _calibrate_aligned(frames, exposure_times, provisional, method=align,
-                                     clip_margin=call.options.clip_margin, warnings=warnings)
+                                     clip_margin=call.options.clip_margin, warnings=warnings,
+                                     fit_vignetting=True)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
@@ -477,8 +482,10 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
 
 def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", reference=None,
                        clip_margin: float = DEFAULT_CLIP_MARGIN,
-                       warnings: list | None = None, max_side: int = 2048):
-    """:func:`calibrate_aligned` without emitting the model's warnings.
+                       warnings: list | None = None, max_side: int = 2048,
+                       fit_vignetting: bool = False):
+    """:func:`calibrate_aligned` without emitting the model's warnings; with
+    ``fit_vignetting`` and homographies, the vignetting is fitted jointly.
 
     ``call`` serves the provisional calibration (unknown times); the aligned frames are
     calibrated with ``clip_margin``, the alignment's.
@@ -504,7 +511,16 @@ def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", ref
                                                 list(frames.sources), call.times_source)
     aligned = replace(call, times_source=time_source,
                       options=replace(call.options, clip_margin=clip_margin))
-    model = _calibrate_response(small, times, aligned)
+    if fit_vignetting and method == "homography":     # [Goldman2010], .vignetting_fit
+        from . import vignetting_fit as vf
+
+        basis = _log_domain_basis(call.options.basis, call.options.n_components)
+        model = vf.calibrate_with_vignetting(
+            small, vf.working_transforms(transforms, frames.shape, small[0].shape[:2]), times,
+            lambda f: _calibrate_response(f, times, aligned),
+            lambda f: vf.prior_mean_model(f, times, *basis), reference=ref, seed=call.seed)
+    else:
+        model = _calibrate_response(small, times, aligned)
     model.diagnostics["exposure_source"] = time_source
     model.sources = list(frames.sources)
     diag = model.diagnostics

@@ -16,6 +16,8 @@ three per-channel tone curves.  The modules follow a frame through the camera:
 * :mod:`selfcal.sim.stacks` -- bracketed stacks and RAW+JPEG pairs with their truth
   (:func:`simulate_stack`, :func:`demo_stack`);
 * :mod:`selfcal.sim.conditions` -- the named benchmark conditions (the condition matrix);
+* :mod:`selfcal.sim.lens` -- lens falloff and handheld stacks through it, with the truth
+  (:func:`random_vignetting`, :func:`simulate_handheld_stack`);
 * :mod:`selfcal.sim.exact` -- benchmark cells where the per-channel response model is exact;
 * :mod:`selfcal.sim.cards` -- simulated memory cards of many sessions (``selfcal batch``);
 * :mod:`selfcal.sim.mixed_cards` -- cards as photographers fill them: bursts, manual
@@ -40,6 +42,7 @@ from __future__ import annotations
 from .camera import (CameraPipeline, default_pipeline, gamut_clip, gamut_compress,
                      random_color_matrix)
 from .encoding import CHROMA_SUBSAMPLINGS, FrameOutput, UnsharpMask
+from .lens import random_vignetting, simulate_handheld_stack, vignetting_rms
 from .scenes import make_scene
 from .sensor import SensorModel
 from .stacks import (DEMO_EXPOSURE_TIMES, SyntheticStack, demo_stack, handheld,
@@ -49,4 +52,5 @@ from .tone import ToneCurve
 __all__ = ["ToneCurve", "gamut_clip", "gamut_compress", "CameraPipeline",
            "random_color_matrix", "default_pipeline", "UnsharpMask", "CHROMA_SUBSAMPLINGS",
            "FrameOutput", "make_scene", "SensorModel", "SyntheticStack", "simulate_stack",
-           "simulate_raw_jpeg_pair", "handheld", "demo_stack", "DEMO_EXPOSURE_TIMES"]
+           "simulate_raw_jpeg_pair", "handheld", "demo_stack", "DEMO_EXPOSURE_TIMES",
+           "random_vignetting", "simulate_handheld_stack", "vignetting_rms"]

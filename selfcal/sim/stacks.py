@@ -78,6 +78,14 @@ class SyntheticStack:
         (:mod:`selfcal.sim.conditions`), else None.
     params : dict
         What a condition drew from its seed (JPEG quality, gains, ...), for reports.
+    transforms : list of numpy.ndarray or None
+        Handheld stacks (:func:`selfcal.sim.lens.simulate_handheld_stack`): per frame, the
+        3×3 map from reference to frame pixel coordinates; ``radiance`` is then the scene
+        in the reference frame's coordinates.  None: the frames did not move.
+    reference : int or None
+        The reference frame of ``transforms``.
+    vignetting : Vignetting or None
+        The lens falloff the frames went through (the truth), None for none.
     """
 
     images: list
@@ -98,6 +106,9 @@ class SyntheticStack:
     sharpening: UnsharpMask | None = None
     condition: str | None = None
     params: dict = field(default_factory=dict)
+    transforms: list | None = None
+    reference: int | None = None
+    vignetting: Any = None
 
     def __len__(self) -> int:
         return len(self.images)
@@ -220,7 +231,8 @@ class SyntheticStack:
         return paths
 
 
-def _check_scene(scene) -> np.ndarray:
+def check_scene(scene) -> np.ndarray:
+    """The scene as a float ``HxWx3`` array (InputError when it is not a non-negative one)."""
     scene = np.asarray(scene)
     if scene.ndim != 3 or scene.shape[2] != 3:
         raise InputError(f"the scene must be an HxWx3 array, got shape {scene.shape}")
@@ -231,7 +243,7 @@ def _check_scene(scene) -> np.ndarray:
     return scene
 
 
-def _check_stack_args(pipeline, exposure_times, jitter, repeats, jpeg_quality,
+def check_stack_args(pipeline, exposure_times, jitter, repeats, jpeg_quality,
                       output) -> np.ndarray:
     """Validate :func:`simulate_stack`'s arguments; return the sorted nominal times."""
     if not (callable(getattr(pipeline, "render", None))
@@ -252,7 +264,7 @@ def _check_stack_args(pipeline, exposure_times, jitter, repeats, jpeg_quality,
     return np.repeat(np.sort(times), int(repeats))
 
 
-def _default_exposure_scale(scene: np.ndarray, nominal: np.ndarray) -> float:
+def default_exposure_scale(scene: np.ndarray, nominal: np.ndarray) -> float:
     """The scale that exposes the scene's median luminance at raw mid-grey 0.18 in the
     frame in the middle of the bracket (geometric mean of the extreme times)."""
     median = float(np.median(scene.mean(axis=2, dtype=np.float64)))
@@ -321,14 +333,14 @@ def simulate_stack(scene: np.ndarray, pipeline: CameraPipeline, exposure_times: 
     >>> stack.images[0].dtype, stack.max_code
     (dtype('uint16'), 65535)
     """
-    scene = _check_scene(scene)
+    scene = check_scene(scene)
     output = FrameOutput() if output is None else output
-    nominal = _check_stack_args(pipeline, exposure_times, jitter, repeats, jpeg_quality,
+    nominal = check_stack_args(pipeline, exposure_times, jitter, repeats, jpeg_quality,
                                 output)
     jitter = float(jitter)
     sensor = SensorModel() if sensor is None else sensor
     if exposure_scale is None:
-        exposure_scale = _default_exposure_scale(scene, nominal)
+        exposure_scale = default_exposure_scale(scene, nominal)
     exposure_scale = float(exposure_scale)
     if not (np.isfinite(exposure_scale) and exposure_scale > 0):
         raise InputError(f"exposure_scale must be positive, got {exposure_scale!r}")
@@ -392,7 +404,7 @@ def simulate_raw_jpeg_pair(scene: np.ndarray | None = None,
         ``pipeline``, ``radiance``, ``exposure``.
     """
     scene = (make_scene(dynamic_range_stops=8.0, saturation=0.6, seed=seed)
-             if scene is None else _check_scene(scene))
+             if scene is None else check_scene(scene))
     pipeline = default_pipeline(seed=seed) if pipeline is None else pipeline
     sensor = SensorModel() if sensor is None else sensor
     raw = sensor.expose(scene, exposure, np.random.default_rng(np.random.SeedSequence(seed)))

@@ -1,0 +1,100 @@
+"""Vignetting self-calibrated from frames that moved (selfcal.response.vignetting_fit)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+import selfcal
+from selfcal import sim
+from selfcal.response import vignetting_fit as vf
+
+TIMES = (1 / 200, 1 / 100, 1 / 50, 1 / 25, 1 / 12)
+FRAME = (160, 240)
+
+
+def _stack(seed=4, *, moved=True, times=TIMES, vignetting=True):
+    scene = sim.make_scene(232, 344, dynamic_range_stops=10.0, saturation=0.5, seed=seed)
+    v = sim.random_vignetting(seed, aspect=FRAME[1] / FRAME[0]) if vignetting else None
+    return sim.simulate_handheld_stack(
+        scene, sim.default_pipeline(seed=seed), times, frame_shape=FRAME, vignetting=v,
+        shift=0.12 if moved else 0.0, degrees=2.0 if moved else 0.0, seed=seed)
+
+
+def _calibrate(stack, times=TIMES, align="homography"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return selfcal.calibrate_response(stack.images, list(times), align=align)
+
+
+@pytest.fixture(scope="module")
+def handheld():
+    stack = _stack()
+    return stack, _calibrate(stack)
+
+
+def test_simulated_handheld_stack_has_its_truth():
+    stack = _stack(moved=True)
+    assert len(stack.images) == 5 and stack.images[0].shape == FRAME + (3,)
+    assert stack.reference == 2 and np.allclose(stack.transforms[2], np.eye(3))
+    shifts = [np.hypot(*t[:2, 2] - np.eye(3)[:2, 2]) for t in stack.transforms]
+    assert max(shifts) >= 0.1 * FRAME[1]
+    assert stack.radiance.shape == FRAME + (3,)
+    stops = stack.vignetting.corner_stops()
+    assert np.all((stops > 0.4) & (stops < 2.3))
+
+
+def test_fitted_map_is_close_to_the_truth(handheld):
+    stack, model = handheld
+    assert model.vignetting is not None and model.vignetting.source == "self"
+    diag = model.diagnostics["vignetting"]
+    assert diag["observable"] is True and diag["points"] > vf.MIN_POINTS
+    rms = sim.vignetting_rms(model.vignetting, stack.vignetting, *FRAME)
+    ignored = sim.vignetting_rms(None, stack.vignetting, *FRAME)
+    assert rms < 0.03 and rms < ignored / 5
+    cov = model.vignetting.covariance
+    assert cov.shape == (11, 11) and np.all(np.diag(cov) > 0)
+    sigma = model.vignetting.log_sigma_map(*FRAME)
+    assert np.all(np.isfinite(sigma)) and float(sigma.max()) < vf.MAX_CORNER_LOG_SIGMA
+
+
+def test_tripod_stack_is_not_observable():
+    model = _calibrate(_stack(moved=False))
+    assert model.vignetting is None
+    diag = model.diagnostics["vignetting"]
+    assert diag["observable"] is False and "did not move" in diag["reason"]
+    assert any("vignetting not observable" in w for w in model.diagnostics["warnings"])
+
+
+def test_model_round_trip(handheld, tmp_path):
+    _, model = handheld
+    path = model.save(tmp_path / "m.json")
+    back = selfcal.load_model(path)
+    assert np.allclose(back.vignetting.map(*FRAME), model.vignetting.map(*FRAME))
+    assert np.allclose(back.vignetting.covariance, model.vignetting.covariance)
+    assert back.diagnostics["vignetting"]["observable"] is True
+
+
+def test_same_input_same_model(handheld):
+    stack, model = handheld
+    again = _calibrate(stack)
+    assert np.array_equal(again.vignetting.parameters, model.vignetting.parameters)
+    assert np.array_equal(again.inverse, model.inverse)
+
+
+def test_single_exposure_frames_use_the_prior_curve():
+    times = (1 / 50,) * 5
+    stack = _stack(seed=6, times=times)
+    model = _calibrate(stack, times)
+    assert model.diagnostics.get("response_source") == "prior mean"
+    assert model.diagnostics["vignetting"]["response"] == "prior mean"
+    assert model.vignetting is not None
+
+
+def test_mtb_alignment_does_not_attempt_it():
+    stack = _stack(seed=6, moved=False)
+    model = _calibrate(stack, align="mtb")
+    assert model.vignetting is None
+    assert model.diagnostics["vignetting"]["observable"] is None
