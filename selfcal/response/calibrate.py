@@ -518,7 +518,8 @@ def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", ref
         model = vf.calibrate_with_vignetting(
             small, vf.working_transforms(transforms, frames.shape, small[0].shape[:2]), times,
             lambda f: _calibrate_response(f, times, aligned),
-            lambda f: vf.prior_mean_model(f, times, *basis), reference=ref, seed=call.seed)
+            lambda f: vf.prior_mean_model(f, times, *basis), reference=ref, seed=call.seed,
+            originals=lambda: [frames.load(k) for k in range(n)])
     else:
         model = _calibrate_response(small, times, aligned)
     model.diagnostics["exposure_source"] = time_source

@@ -328,8 +328,59 @@ def single_exposure(times) -> bool:
     return len(known) == len(times) and max(known) / min(known) < 1.0001
 
 
+def wide_alignment(images, reference: int, seed: int = 0, min_inliers: int = 40) -> list:
+    """Reference→frame homographies for frames that moved far (a panorama), by ORB
+    features matched both ways and RANSAC (``cv2.findHomography``, seeded); None for a
+    frame with fewer than ``min_inliers`` inliers.  (The bracket alignment,
+    :func:`selfcal.stack.align.estimate_alignment`, refuses motions over 10 %.)"""
+    import cv2
+
+    cv2.setRNGSeed(int(seed))
+    orb = cv2.ORB_create(4000)
+    grey = [cv2.cvtColor(np.asarray(im, np.uint8), cv2.COLOR_RGB2GRAY) for im in images]
+    features = [orb.detectAndCompute(g, None) for g in grey]
+    kp_ref, des_ref = features[reference]
+    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+    out = []
+    for j, (kp, des) in enumerate(features):
+        if j == reference:
+            out.append(np.eye(3))
+            continue
+        matches = [] if des is None or des_ref is None else matcher.match(des_ref, des)
+        if len(matches) < min_inliers:
+            out.append(None)
+            continue
+        src = np.float32([kp_ref[m.queryIdx].pt for m in matches])
+        dst = np.float32([kp[m.trainIdx].pt for m in matches])
+        h, mask = cv2.findHomography(src, dst, cv2.RANSAC, 1.5)
+        ok = h is not None and int(mask.sum()) >= min_inliers
+        out.append(h / h[2, 2] if ok else None)
+    return out
+
+
+def _panorama_frames(originals, small, reference: int, seed: int):
+    """The frames aligned by :func:`wide_alignment` at the working size, and their
+    homographies (frames it could not align left out)."""
+    from ..stack.align import warp_to_reference
+
+    h, w = small[0].shape[:2]
+    images = []
+    for im in originals:
+        im = np.asarray(im)
+        if im.shape[:2] != (h, w):
+            import cv2
+
+            im = cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
+        images.append(im)
+    transforms = wide_alignment(images, reference, seed)
+    keep = [j for j, t in enumerate(transforms) if t is not None]
+    return ([warp_to_reference(images[j], transforms[j]) for j in keep],
+            [transforms[j] for j in keep], keep.index(reference))
+
+
 def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_model, *,
-                              reference: int, seed: int = 0, rounds: int | None = None):
+                              reference: int, seed: int = 0, rounds: int | None = None,
+                              originals=None):
     """The response and the vignetting of aligned frames, fitted in alternation.
 
     Parameters
@@ -347,6 +398,9 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
         all at one exposure (Eq. 8 then has no exposure change to fit).
     reference : int
     seed : int
+    originals : callable, optional
+        ``originals() -> list of arrays``, the frames unaligned: frames all at one exposure
+        (a panorama) are aligned again from them by :func:`wide_alignment`.
     rounds : int, optional
         Vignetting fits (default :data:`DEFAULT_ROUNDS`) (each followed by a response refit on the corrected frames).
 
@@ -359,6 +413,10 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
     rounds = DEFAULT_ROUNDS if rounds is None else int(rounds)
     fixed = single_exposure(times)
     model = prior_model(frames) if fixed else recalibrate(frames)
+    if fixed and originals is not None:
+        frames, transforms, reference = _panorama_frames(originals(), frames, reference, seed)
+        if len(frames) < 2:
+            return _refused(model, "no frame could be matched to the reference", [0.0])
     h, w = frames[0].shape[:2]
     motion = frame_motion(transforms, (h, w))
     if max(motion) < MIN_MOTION:
