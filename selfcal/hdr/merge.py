@@ -75,7 +75,7 @@ from __future__ import annotations
 
 import warnings as _pywarnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -597,10 +597,13 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: Merg
     with _pywarnings.catch_warnings():
         _pywarnings.simplefilter("ignore", SelfcalWarning)
         if align:
+            # the vignetting is fitted only where the merge may use it
+            options = replace(opts.calibrate_options or ResponseOptions(),
+                              fit_vignetting=opts.vignetting in ("auto", "self"))
             model, transforms, ref0 = calibrate_aligned(
                 frames, exposure_times, method=align, reference=opts.reference,
                 clip_margin=opts.clip_margin, warnings=warnings, progress=progress,
-                refine_exposures=opts.refine_exposures, options=opts.calibrate_options)
+                refine_exposures=opts.refine_exposures, options=options)
             diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
         else:
             model = calibrate_response(frames.items, exposure_times, progress=progress,

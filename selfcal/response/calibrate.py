@@ -125,6 +125,11 @@ class ResponseOptions(SolverOptions):
         merge's measurement; ours): the model's ``exposures`` are then these, and its
         ``diagnostics["measured_exposures"]`` says how they were found.  Default True
         (docs/decisions.md, "Exposures measured from the pixels: by default").
+    fit_vignetting : bool
+        With homography alignment (``align="homography"``, :func:`calibrate_aligned`),
+        fit the lens's vignetting jointly with the response and the exposures where the
+        frames moved enough to observe it (:mod:`.vignetting_fit`, [Goldman2010]); the
+        model's ``vignetting`` and ``diagnostics["vignetting"]``.  Default True.
 
     Examples
     --------
@@ -142,6 +147,7 @@ class ResponseOptions(SolverOptions):
     hidden_white: bool = True
     band_method: str = DEFAULT_BAND_METHOD
     measure_exposures: bool = True
+    fit_vignetting: bool = True
 
     def __post_init__(self) -> None:
         if self.correspondences not in CORRESPONDENCE_KINDS:
@@ -408,8 +414,7 @@ def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
     warnings: list[str] = []
     provisional = replace(call, options=replace(call.options, clip_margin=DEFAULT_CLIP_MARGIN))
     model, _, _ = _calibrate_aligned(frames, exposure_times, provisional, method=align,
-                                     clip_margin=call.options.clip_margin, warnings=warnings,
-                                     fit_vignetting=True)
+                                     clip_margin=call.options.clip_margin, warnings=warnings)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
@@ -482,10 +487,9 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
 
 def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", reference=None,
                        clip_margin: float = DEFAULT_CLIP_MARGIN,
-                       warnings: list | None = None, max_side: int = 2048,
-                       fit_vignetting: bool = False):
+                       warnings: list | None = None, max_side: int = 2048):
     """:func:`calibrate_aligned` without emitting the model's warnings; with
-    ``fit_vignetting`` and homographies, the vignetting is fitted jointly.
+    ``options.fit_vignetting`` and homographies, the vignetting is fitted jointly.
 
     ``call`` serves the provisional calibration (unknown times); the aligned frames are
     calibrated with ``clip_margin``, the alignment's.
@@ -511,7 +515,7 @@ def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", ref
                                                 list(frames.sources), call.times_source)
     aligned = replace(call, times_source=time_source,
                       options=replace(call.options, clip_margin=clip_margin))
-    if fit_vignetting and method == "homography":     # [Goldman2010], .vignetting_fit
+    if call.options.fit_vignetting and method == "homography":   # [Goldman2010]
         from . import vignetting_fit as vf
 
         basis = _log_domain_basis(call.options.basis, call.options.n_components)
