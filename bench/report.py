@@ -75,6 +75,25 @@ SECTIONS = (
      ("python3 -m bench.measured_exposures --split heldout",)),
     ("hdr_alignment", "Alignment", "Aligning handheld frames before the merge.",
      ("python3 -m bench.hdr_alignment",)),
+    ("vignetting", "Vignetting self-calibrated", "Vignetting self-calibrated from handheld "
+     "brackets (simulated, with truth): the map against the truth, the response with and "
+     "without the joint fit, tripods said not observable.",
+     ("python3 -m bench.vignetting --split held-out --jobs 2",)),
+    ("vignetting_merge", "Merge through a vignetting lens", "The merge of handheld brackets "
+     "through a vignetting lens: corner against centre, the falloff's bias, σ.",
+     ("python3 -m bench.vignetting_merge --split held-out --jobs 2",)),
+    ("vignetting_real", "Vignetting on real frames", "Which vignetting each real stack gets "
+     "(self, lens database, none) and the self-calibrated falloff of the real panoramas.",
+     ("python3 -m bench.vignetting_real --skip-ntu",)),
+    ("lens_sources", "Lens profiles", "What lensfun's database matches for the real stacks' "
+     "EXIF, and how uncertain an interpolated profile is.",
+     ("python3 -m bench.lens_sources",)),
+    ("luminance", "Absolute luminance", "Radiance in cd/m²: a reference reading of one region "
+     "against the truth elsewhere, the EXIF convention's error, σ of the scale.",
+     ("python3 -m bench.luminance --split held-out",)),
+    ("vignetting_speed", "Vignetting: cost in the merge", "What dividing the vignetting out "
+     "costs a merge with σ on 24 MP frames.",
+     ("python3 -m bench.vignetting_speed",)),
     ("hdr_speed", "HDR merge: speed and memory", "HDR merge speed and memory on 24 MP frames.",
      ("python3 -m bench.hdr_speed",)),
     ("roundtrip", "RAW path: round trips", "Round trips through a RAW-path model.",
