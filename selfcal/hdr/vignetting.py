@@ -151,11 +151,15 @@ class SmoothField:
     function : callable
         ``function(xs, ys) -> (…, 3)`` at pixel coordinates.
     shape : (H, W)
-    step : int
+    step : int, optional
+        Default 8 pixels, less on frames whose half-diagonal is under 512 pixels (at most
+        1/64 of it).
     """
 
-    def __init__(self, function, shape, *, step: int = 8):
+    def __init__(self, function, shape, *, step: int | None = None):
         hh, ww = shape
+        if step is None:    # 8 px on large frames; at most 1/64 of the half-diagonal
+            step = int(np.clip(0.5 * np.hypot(hh, ww) / 64, 1, 8))
         self.rows = np.unique(np.r_[np.arange(0, hh, step), hh - 1]).astype(np.float64)
         cols = np.unique(np.r_[np.arange(0, ww, step), ww - 1]).astype(np.float64)
         grid = np.asarray(function(cols[None, :], self.rows[:, None]), np.float64)
@@ -164,15 +168,22 @@ class SmoothField:
         j, t = _bracket(cols, x)
         self.across = (grid[:, j] * (1 - t)[None, :, None]
                        + grid[:, j + 1] * t[None, :, None]).astype(np.float32)
+        # each interval's step between its two coarse rows, so that a strip costs two
+        # passes (a multiply and an add per coarse interval), not a gather of rows
+        self.step = np.diff(self.across, axis=0) if len(self.rows) > 1 else self.across * 0
 
     def strip(self, s: slice) -> np.ndarray:
         """The field on rows ``s``: float32 (rows, W, 3)."""
         y = np.arange(s.start, s.stop, dtype=np.float64)
         i, t = _bracket(self.rows, y)
-        a, b = self.across[i], self.across[i + 1]
-        out = np.subtract(b, a)
-        np.multiply(out, t.astype(np.float32)[:, None, None], out=out)
-        np.add(out, a, out=out)
+        t = t.astype(np.float32)[:, None, None]
+        out = np.empty((y.size,) + self.across.shape[1:], np.float32)
+        bounds = np.flatnonzero(np.diff(i)) + 1
+        for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, y.size]):
+            k = i[lo]
+            block = out[lo:hi]
+            np.multiply(self.step[k], t[lo:hi], out=block)
+            np.add(block, self.across[k], out=block)
         return out
 
 
@@ -222,21 +233,23 @@ class FrameFalloff:
 
     def scale_sums(self, s: slice, a: np.ndarray, w: np.ndarray) -> np.ndarray:
         """``a``, ``w`` (the frame's weighted values and weights on strip ``s``) scaled in
-        place (``a·V^(p−1)``, ``w·V^p``); returns ``V`` for σ's sums."""
+        place (``a·V^(p−1)``, ``w·V^p``); returns ``(V, V²)`` (``V²`` None unless
+        p = 2) for σ's sums (:meth:`sigma_factors`)."""
         v = self.strip(s)
         if self.power == 2:
             np.multiply(a, v, out=a)
-            np.multiply(w, v, out=w)
-            np.multiply(w, v, out=w)
-        else:
-            np.divide(a, v, out=a)
-        return v
+            v2 = np.multiply(v, v)
+            np.multiply(w, v2, out=w)
+            return v, v2
+        np.divide(a, v, out=a)
+        return v, None
 
-    def sigma_factors(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sigma_factors(self, scaled) -> tuple[np.ndarray, np.ndarray]:
         """Factors of σ's two sums, ``Σ w²(V + X²σ_t²)`` and ``Σ w X σ_g``: ``V^(2p−2)``
-        and ``V^(p−1)``."""
+        and ``V^(p−1)``, from what :meth:`scale_sums` returned."""
+        v, v2 = scaled
         if self.power == 2:
-            return v * v, v
+            return v2, v
         return 1.0 / (v * v), 1.0 / v
 
 
