@@ -13,7 +13,7 @@ from pathlib import Path
 
 import selfcal
 
-SUBPACKAGES = ("io", "stack", "exposure", "response", "pipeline", "hdr", "export", "choose",
+SUBPACKAGES = ("io", "stack", "exposure", "lens", "response", "pipeline", "hdr", "export", "choose",
                "report", "batch", "sim")
 
 

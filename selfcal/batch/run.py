@@ -106,7 +106,7 @@ class BatchOptions:
     luminance: str | None = None
     camera_scales: dict = field(default_factory=dict)
 
-    def luminance_for(self, camera_label: str):
+    def luminance_for(self, camera_label: str) -> object:
         """The luminance option of a session of ``camera_label``: its camera's scale when
         one is given, else :attr:`luminance`."""
         label = camera_label.lower()

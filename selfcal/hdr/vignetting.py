@@ -231,7 +231,7 @@ class FrameFalloff:
         """``V`` at the reference pixels of rows ``s`` as the frame saw them: float32 (rows, W, 3)."""
         return self.field.strip(s)
 
-    def scale_sums(self, s: slice, a: np.ndarray, w: np.ndarray) -> np.ndarray:
+    def scale_sums(self, s: slice, a: np.ndarray, w: np.ndarray) -> tuple:
         """``a``, ``w`` (the frame's weighted values and weights on strip ``s``) scaled in
         place (``a·V^(p−1)``, ``w·V^p``); returns ``(V, V²)`` (``V²`` None unless
         p = 2) for σ's sums (:meth:`sigma_factors`)."""

@@ -219,7 +219,7 @@ def grey_inverse(model) -> float:
     return value
 
 
-def scale_from_exif(model=None, *, log_sigma: float | None = None) -> LuminanceScale:
+def scale_from_exif(model: object = None, *, log_sigma: float | None = None) -> LuminanceScale:
     """The luminance scale of the SOS convention of [ISO12232] (see the module docstring).
 
     ``C = SOS_EXPOSURE / (100 · q · Y(f⁻¹(118)))`` with the model's own inverse response
@@ -251,8 +251,8 @@ def scale_from_exif(model=None, *, log_sigma: float | None = None) -> LuminanceS
                           description=text)
 
 
-def scale_from_reference(radiance, reading: ReferenceReading, *, unmeasured=None
-                         ) -> LuminanceScale:
+def scale_from_reference(radiance: np.ndarray, reading: ReferenceReading, *,
+                         unmeasured: np.ndarray | None = None) -> LuminanceScale:
     """The luminance scale from a reference reading of a region of a merged map (ours).
 
     ``C = L_ref / Y(m)`` with ``m`` the per-channel median of the radiance over the

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from ..errors import InputError
 
@@ -40,7 +41,9 @@ SOURCES = ("self", "lens", "flat")
 PARAMETER_NAMES = ("cx", "cy") + tuple(f"k{j}_{c}" for c in "RGB" for j in (1, 2, 3))
 
 
-def normalised_radius(height: int, width: int, centre=(0.0, 0.0), *, xs=None, ys=None):
+def normalised_radius(height: int, width: int, centre: npt.ArrayLike = (0.0, 0.0), *,
+                      xs: npt.ArrayLike | None = None,
+                      ys: npt.ArrayLike | None = None) -> np.ndarray:
     """Distance from the optical centre in units of half the image diagonal.
 
     Pixel centres are at integer coordinates; the image centre at ``((w-1)/2, (h-1)/2)``.
@@ -48,6 +51,7 @@ def normalised_radius(height: int, width: int, centre=(0.0, 0.0), *, xs=None, ys
     of on the whole grid.
     """
     half_diagonal = 0.5 * float(np.hypot(height, width))
+    centre = np.asarray(centre, np.float64)
     if xs is None:
         ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
     u = (np.asarray(xs, np.float64) - 0.5 * (width - 1)) / half_diagonal - centre[0]
@@ -55,7 +59,7 @@ def normalised_radius(height: int, width: int, centre=(0.0, 0.0), *, xs=None, ys
     return np.hypot(u, v)
 
 
-def radial_falloff(r, coefficients) -> np.ndarray:
+def radial_falloff(r: npt.ArrayLike, coefficients: npt.ArrayLike) -> np.ndarray:
     """``V(r) = 1 + k₁r² + k₂r⁴ + k₃r⁶`` ([Goldman2010], Eq. 4), ``coefficients`` (…, 3)."""
     k = np.asarray(coefficients, np.float64)
     r2 = np.asarray(r, np.float64) ** 2
@@ -160,7 +164,7 @@ class Vignetting:
         """The 11 parameters in the order of :data:`PARAMETER_NAMES`."""
         return np.concatenate([self.centre, self.coefficients.ravel()])
 
-    def falloff(self, r) -> np.ndarray:
+    def falloff(self, r: npt.ArrayLike) -> np.ndarray:
         """``V(r)`` per channel at radii ``r`` about the optical centre: shape ``r.shape + (3,)``."""
         r = np.asarray(r, np.float64)
         return radial_falloff(r[..., None], self.coefficients)
@@ -171,7 +175,7 @@ class Vignetting:
         r = normalised_radius(height, width, self.centre)
         return self.falloff(r).astype(np.float32)
 
-    def at(self, height: int, width: int, xs, ys) -> np.ndarray:
+    def at(self, height: int, width: int, xs: npt.ArrayLike, ys: npt.ArrayLike) -> np.ndarray:
         """``V`` at pixel coordinates ``xs``, ``ys`` of a ``height × width`` frame: ``(…, 3)``."""
         r = normalised_radius(height, width, self.centre, xs=xs, ys=ys)
         return self.falloff(r)
@@ -186,7 +190,8 @@ class Vignetting:
         ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
         return self.log_sigma_at(height, width, xs, ys).astype(np.float32)
 
-    def log_sigma_at(self, height: int, width: int, xs, ys) -> np.ndarray:
+    def log_sigma_at(self, height: int, width: int, xs: npt.ArrayLike,
+                     ys: npt.ArrayLike) -> np.ndarray:
         """:meth:`log_sigma_map` at pixel coordinates ``xs``, ``ys``: ``(…, 3)``."""
         r = normalised_radius(height, width, self.centre, xs=xs, ys=ys)
         variance = (self.log_sigma_floor * r ** 2)[..., None] ** 2 * np.ones(3)

@@ -40,7 +40,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import CalibrationError
+from ..io.images import import_cv2
 from ..lens.vignetting import Vignetting, normalised_radius, radial_falloff
+from ..stack.align import orb_homography
 
 #: Frames that moved less than this (largest RMS displacement of a frame's pixels from the
 #: reference's, a fraction of the image diagonal) show no vignetting: nothing is fitted.
@@ -333,29 +335,13 @@ def wide_alignment(images, reference: int, seed: int = 0, min_inliers: int = 40)
     features matched both ways and RANSAC (``cv2.findHomography``, seeded); None for a
     frame with fewer than ``min_inliers`` inliers.  (The bracket alignment,
     :func:`selfcal.stack.align.estimate_alignment`, refuses motions over 10 %.)"""
-    import cv2
-
+    cv2 = import_cv2()
     cv2.setRNGSeed(int(seed))
-    orb = cv2.ORB_create(4000)
-    grey = [cv2.cvtColor(np.asarray(im, np.uint8), cv2.COLOR_RGB2GRAY) for im in images]
-    features = [orb.detectAndCompute(g, None) for g in grey]
-    kp_ref, des_ref = features[reference]
-    matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
-    out = []
-    for j, (kp, des) in enumerate(features):
-        if j == reference:
-            out.append(np.eye(3))
-            continue
-        matches = [] if des is None or des_ref is None else matcher.match(des_ref, des)
-        if len(matches) < min_inliers:
-            out.append(None)
-            continue
-        src = np.float32([kp_ref[m.queryIdx].pt for m in matches])
-        dst = np.float32([kp[m.trainIdx].pt for m in matches])
-        h, mask = cv2.findHomography(src, dst, cv2.RANSAC, 1.5)
-        ok = h is not None and int(mask.sum()) >= min_inliers
-        out.append(h / h[2, 2] if ok else None)
-    return out
+    grey = [cv2.cvtColor(np.asarray(im, np.uint8), cv2.COLOR_RGB2GRAY).astype(np.float32)
+            for im in images]
+    return [np.eye(3) if j == reference else
+            orb_homography(grey[reference], g, threshold=1.5, min_inliers=min_inliers)
+            for j, g in enumerate(grey)]
 
 
 def _panorama_frames(originals, small, reference: int, seed: int):
@@ -444,6 +430,7 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
             model = recalibrate(corrected)
         except CalibrationError:
             break
+    assert fit is not None      # rounds >= 1
     vig = fit.vignetting
     vig.description = (f"self-calibrated from {len(frames)} frames that moved "
                        f"(up to {max(motion):.1%} of the diagonal)")

@@ -33,7 +33,7 @@ __all__ = ["random_vignetting", "simulate_handheld_stack", "frame_similarities",
            "vignetting_rms"]
 
 
-def random_vignetting(seed: int, *, corner_stops=(0.5, 2.0), max_offset: float = 0.08,
+def random_vignetting(seed: int, *, corner_stops: tuple[float, float] = (0.5, 2.0), max_offset: float = 0.08,
                       channel_spread: float = 0.08, aspect: float = 1.5) -> Vignetting:
     """A random, plausible lens falloff (ours): the simulator's truth.
 
@@ -123,7 +123,8 @@ def _default_frame_shape(scene_shape, shift: float, degrees: float):
 
 
 def simulate_handheld_stack(scene: np.ndarray, pipeline: CameraPipeline,
-                            exposure_times: npt.ArrayLike, *, frame_shape=None,
+                            exposure_times: npt.ArrayLike, *,
+                            frame_shape: tuple[int, int] | None = None,
                             vignetting: Vignetting | None = None, shift: float = 0.12,
                             degrees: float = 2.0, jitter: float = 0.03,
                             jpeg_quality: int | None = 90, seed: int = 0) -> SyntheticStack:
@@ -212,7 +213,7 @@ def simulate_handheld_stack(scene: np.ndarray, pipeline: CameraPipeline,
         images=images, exposure_times=nominal, true_exposures=true,
         radiance=radiances[reference], raws=raws, pipeline=pipeline, bit_depth=8,
         exposure_scale=exposure_scale, seed=seed,
-        jpeg_quality=int(jpeg_quality) if use_jpeg else None, jitter=float(jitter),
+        jpeg_quality=int(jpeg_quality) if use_jpeg and jpeg_quality is not None else None, jitter=float(jitter),
         _encoded=encoded if use_jpeg else None,
         chroma_subsampling=output.chroma_subsampling if use_jpeg else None,
         params={"shift": shift, "degrees": degrees},

@@ -173,7 +173,7 @@ def estimate_alignment(images, exposures=None, model=None, *, method: str = "mtb
                 except cv2.error:
                     h = None
                 if h is None:
-                    h = _orb_homography(tc, ic)
+                    h = orb_homography(tc, ic)
                     if h is not None and not _plausible(h, tc.shape):
                         h = None
             if h is None:
@@ -340,8 +340,11 @@ def _ecc_homography(template, image, init: np.ndarray, levels: int = 3) -> tuple
     return h, float(cc)
 
 
-def _orb_homography(template, image) -> np.ndarray | None:
-    """ORB features (Rublee et al., ICCV 2011) + RANSAC homography, template → image."""
+def orb_homography(template: np.ndarray, image: np.ndarray, *, threshold: float = 2.0,
+                   min_inliers: int = 8) -> np.ndarray | None:
+    """ORB features (Rublee et al., ICCV 2011) + RANSAC homography, template → image
+    (grey images of any range); None with fewer than ``min_inliers`` inliers (at a
+    reprojection ``threshold`` in pixels)."""
     cv2 = import_cv2()
 
     def to8(g):
@@ -351,15 +354,15 @@ def _orb_homography(template, image) -> np.ndarray | None:
     orb = cv2.ORB_create(4000)
     k1, d1 = orb.detectAndCompute(to8(template), None)
     k2, d2 = orb.detectAndCompute(to8(image), None)
-    if d1 is None or d2 is None or len(k1) < 8 or len(k2) < 8:
+    if d1 is None or d2 is None or min(len(k1), len(k2)) < min_inliers:
         return None
     matches = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True).match(d1, d2)
-    if len(matches) < 8:
+    if len(matches) < min_inliers:
         return None
     src = np.array([k1[m.queryIdx].pt for m in matches], dtype=np.float32)
     dst = np.array([k2[m.trainIdx].pt for m in matches], dtype=np.float32)
-    h, inliers = cv2.findHomography(src, dst, cv2.RANSAC, 2.0)
-    if h is None or inliers is None or int(inliers.sum()) < 8:
+    h, inliers = cv2.findHomography(src, dst, cv2.RANSAC, threshold)
+    if h is None or inliers is None or int(inliers.sum()) < min_inliers:
         return None
     return h / h[2, 2]
 
