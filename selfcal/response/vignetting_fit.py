@@ -337,8 +337,7 @@ def wide_alignment(images, reference: int, seed: int = 0, min_inliers: int = 40)
     :func:`selfcal.stack.align.estimate_alignment`, refuses motions over 10 %.)"""
     cv2 = import_cv2()
     cv2.setRNGSeed(int(seed))
-    grey = [cv2.cvtColor(np.asarray(im, np.uint8), cv2.COLOR_RGB2GRAY).astype(np.float32)
-            for im in images]
+    grey = [cv2.cvtColor(np.asarray(im, np.uint8), cv2.COLOR_RGB2GRAY) for im in images]
     return [np.eye(3) if j == reference else
             orb_homography(grey[reference], g, threshold=1.5, min_inliers=min_inliers)
             for j, g in enumerate(grey)]

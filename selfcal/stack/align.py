@@ -343,11 +343,14 @@ def _ecc_homography(template, image, init: np.ndarray, levels: int = 3) -> tuple
 def orb_homography(template: np.ndarray, image: np.ndarray, *, threshold: float = 2.0,
                    min_inliers: int = 8) -> np.ndarray | None:
     """ORB features (Rublee et al., ICCV 2011) + RANSAC homography, template → image
-    (grey images of any range); None with fewer than ``min_inliers`` inliers (at a
+    (grey images: 8-bit ones as they are, others stretched between their 1st and 99th
+    percentiles); None with fewer than ``min_inliers`` inliers (at a
     reprojection ``threshold`` in pixels)."""
     cv2 = import_cv2()
 
     def to8(g):
+        if g.dtype == np.uint8:
+            return g
         lo, hi = np.percentile(g, [1, 99])
         return np.clip((g - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.uint8)
 
