@@ -48,6 +48,7 @@ def corner(vignetting):
 def describe_stack(name, paths, times):
     import selfcal
     from selfcal.hdr.vignetting import resolve_vignetting
+    from selfcal.lens import lens_vignetting
     from selfcal.io import read_image_size
 
     with warnings.catch_warnings():
@@ -60,7 +61,14 @@ def describe_stack(name, paths, times):
     observable = "yes" if said.get("observable") else f"no: {said.get('reason', '?')}"
     chosen = record["source"] or "none"
     detail = record["description"] or "; ".join(record["reasons"])
-    return [name, len(paths), f"{100 * max(motion):.2f} %", observable, chosen, detail], model
+    own = "-"
+    if model.vignetting is not None:
+        stops, band = corner(model.vignetting)
+        own = f"{stops[1]:.2f} ± {band[1]:.2f}"
+    profile, _ = lens_vignetting(paths[0])
+    lens = "-" if profile is None else f"{profile.corner_stops()[1]:.2f}"
+    return [name, len(paths), f"{100 * max(motion):.2f} %", observable, chosen, own, lens,
+            detail], model
 
 
 def main():
@@ -78,7 +86,8 @@ def main():
     print("Real brackets: calibrate_response(align=\"homography\"), then what "
           "vignetting=\"auto\" chose\n")
     print(table(["stack", "frames", "largest motion (of the diagonal)", "self-calibration "
-                 "observable", "auto chose", "what / why"], rows))
+                 "observable", "auto chose", "self-calibrated corner G (stops, ± 90 %)",
+                 "lensfun corner G (stops)", "what / why"], rows))
 
     pano_rows, falloffs = [], []
     for scene in PANORAMAS:
