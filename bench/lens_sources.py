@@ -17,6 +17,7 @@ import sys
 import numpy as np
 
 from bench.data import SHARED_DATA
+from bench.tables import finish, start, table
 
 #: Stacks (folders of frames) looked at, in ../shared/data.
 STACKS = ("real_brackets/sony_ilce6400/scene1", "real_brackets/fujifilm_xh1/scene1",
@@ -86,19 +87,18 @@ def main() -> int:
         return 0
     import lensfunpy
 
+    start("lens_sources", "none")
     print(f"lensfunpy {lensfunpy.__version__}, lensfun "
           f"{'.'.join(map(str, lensfunpy.lensfun_version[:3]))}\n")
     header = ["stack", "EXIF camera", "EXIF lens", "at", "lensfun", "corner G (stops)"]
-    rows = stacks_table()
-    print("| " + " | ".join(header) + " |")
-    print("|" + "---|" * len(header))
-    for row in rows:
-        print("| " + " | ".join(cell.replace("|", "\\|") for cell in row) + " |")
+    rows = [[cell.replace("|", "/") for cell in row] for row in stacks_table()]
+    print(table(header, rows))
     spread = interpolation_spread()
     print(f"\nlensfun apertures, leave-one-out (|error| of log V(1) from the two neighbours, "
           f"{spread['predictions']} predictions on {spread['lenses']} lenses): median "
           f"{spread['median']:.3f}, 75th percentile {spread['p75']:.3f}, 90th "
           f"{spread['p90']:.3f}")
+    finish()
     return 0
 
 

@@ -5,7 +5,8 @@
 
 Each script records its run (:mod:`bench.tables`): the tables it printed, the lines around
 them, the command, the commit, the date and the split.  This renders every record, in the
-order of :data:`SECTIONS`, under the question its script answers; a table longer than
+order of :data:`SECTIONS`, under the question its script answers (a tuning-split run
+beside a held-out one is named, not shown: its figures are in its record); a table longer than
 :data:`MAX_ROWS` rows shows its first and last rows and names the JSON file that holds
 them all (likewise a long block of text).  A script with no record is listed at the end
 as "not regenerated yet", with the command that would make one.  No figure is written
@@ -24,9 +25,9 @@ OUT = REPO / "bench" / "BENCHMARKS.md"
 #: Longest BENCHMARKS.md this writes without complaint (issue 34).
 MAX_LINES = 600
 #: A longer table shows its first and last rows here; every row is in its JSON record.
-MAX_ROWS, HEAD_ROWS, TAIL_ROWS = 5, 3, 1
+MAX_ROWS, HEAD_ROWS, TAIL_ROWS = 4, 2, 1
 #: Likewise a longer block of text.
-MAX_TEXT_LINES, HEAD_TEXT, TAIL_TEXT = 2, 1, 1
+MAX_TEXT_LINES, HEAD_TEXT, TAIL_TEXT = 1, 1, 0
 
 #: (script, title, question, the commands of its reference runs), in the order of the
 #: file; a reference command with no record of that exact command is listed as not
@@ -137,6 +138,9 @@ DETAIL_TABLES = {
     "response_speed": {1},         # where selfcal's seconds go (the ratio is shown)
     "merge_oracle": {1},           # stack by stack (the summary per shutter condition is shown)
     "response_top": {1, 2},        # cell by cell; the brightest kept codes (the per-code-range table is shown)
+    "vignetting": {0},             # stack by stack (the medians are shown)
+    "vignetting_merge": {0},       # stack by stack (the medians are shown)
+    "luminance": {0},              # stack by stack (the medians line is shown)
     # the band runs: their γ summary repeats the first run's (the bands are shown)
     "response_unknown.split-held-out.step-5.known-all_two_one_none.band": {0, 1},
 }
@@ -206,7 +210,8 @@ def text_block(text: str, source: str) -> list:
         return [plain(lines[0])]
     if len(lines) > MAX_TEXT_LINES:
         hidden = len(lines) - HEAD_TEXT - TAIL_TEXT
-        lines = lines[:HEAD_TEXT] + [f"[… {hidden} lines in {source} …]"] + lines[-TAIL_TEXT:]
+        lines = (lines[:HEAD_TEXT] + [f"[… {hidden} lines in {source} …]"]
+                 + lines[len(lines) - TAIL_TEXT:])
     # a paragraph per run of lines, each line kept (a hard break ends all but the last)
     out = []
     for k, line in enumerate(lines):
@@ -258,8 +263,16 @@ def render(records: dict) -> str:
         if name not in records:
             continue
         lines += [f"## {title}", ""]
-        for k, record in enumerate(records[name]):
-            lines += render_record(record, f"`bench.{name}`: {question}" if k == 0 else "")
+        held_out = any(r.get("split") == "held-out" for r in records[name])
+        lead = f"`bench.{name}`: {question}"
+        for record in records[name]:
+            if held_out and record.get("split") == "tuning":
+                # the figures to judge by are the held-out run's; the tuning run is named
+                lines += [f"The tuning split's run, `{record['command']}` at "
+                          f"{record['commit']}: in `{record_file(record)}`.", ""]
+                continue
+            lines += render_record(record, lead)
+            lead = ""
     strays = sorted(set(records) - known)
     if strays:
         raise SystemExit(f"records of scripts not in bench.report.SECTIONS: {strays}")
