@@ -377,7 +377,7 @@ def accumulate_frames(sums: MergeSums, frames: StackFrames, exposures, model, tr
             tab.bright = (WHITE_FOLLOWS * lin.max_code if lin.max_code is not None
                           else WHITE_FOLLOWS)
             tab.unchecked = k in sums.unchecked
-            tab.falloff = None if sums.falloff is None else FrameFalloff(
+            tab.falloff = FrameFalloff.for_frame(
                 sums.falloff, None if transforms is None else transforms[k], frames.shape,
                 noise_weights=weighting == "noise")
             if tab.unchecked:

@@ -3,14 +3,15 @@
 A frame ``j`` records ``I_j(p) = f(e_j · V(p) · L(p))`` at its own pixel ``p``
 ([Goldman2010], Eq. 1), so its radiance estimate at a reference pixel ``x`` seen at
 ``p = H_j x`` is ``X_j / V(H_j x)``.  Under the merge's noise weights (the inverse variance
-of that estimate) the weight becomes ``w_j · V²``: the frame's terms of the merge's sums
-are ``a_j · V`` and ``w_j · V²`` (the hat and callable weightings leave ``w_j`` alone:
-``a_j / V`` and ``w_j``), and σ's two sums scale by the same powers
-(:class:`FrameFalloff`).  Where no frame moved, ``V`` is the same for every frame of a
-pixel, the weighted mean is unchanged but for one factor, and dividing the finished
-radiance and its σ by ``V(x)`` is exact and cheaper (:func:`apply_vignetting`).  Either way
-the vignetting's own uncertainty (:meth:`selfcal.lens.Vignetting.log_sigma_map`) joins σ
-in quadrature, taken at the reference pixel (ours).
+of that estimate) the weight becomes ``w_j · V(H_j x)²``.  Writing ``V(H_j x) = ρ_j V(x)``,
+the weighted mean is ``Σ w_j ρ_j X_j / Σ w_j ρ_j²`` divided by ``V(x)``: each frame that
+moved carries its ratio ``ρ_j`` into the sums (``a_j · ρ_j``, ``w_j · ρ_j²``; the hat and
+callable weightings leave ``w_j`` alone: ``a_j / ρ_j``), σ's two sums scale by the same
+powers (:class:`FrameFalloff`), and the finished radiance and σ are divided by ``V(x)``
+(:func:`apply_vignetting`).  Where no frame moved every ``ρ_j`` is 1 and the division
+alone is exact.  The vignetting's own uncertainty
+(:meth:`selfcal.lens.Vignetting.log_sigma_map`) joins σ in quadrature, taken at the
+reference pixel (ours).
 
 Which vignetting (:func:`resolve_vignetting`): the ``MergeOptions.vignetting`` choice,
 ``"auto"`` by default -- the model's own (self-calibrated from frames that moved, or one
@@ -32,6 +33,10 @@ import numpy as np
 from ..errors import InputError
 from ..lens.database import lens_vignetting
 from ..lens.vignetting import Vignetting
+
+#: A frame whose falloff ratio to the reference's stays within this of 1 everywhere is
+#: summed as it is (0.1 %, far under the vignetting's own uncertainty).
+NEGLIGIBLE_RATIO = 1e-3
 
 __all__ = ["VIGNETTING_CHOICES", "resolve_vignetting", "FrameFalloff", "apply_vignetting",
            "SmoothField"]
@@ -205,8 +210,15 @@ def _through(transform, xs, ys):
 
 
 class FrameFalloff:
-    """``V(H_j x)`` of one frame on the reference grid, strip by strip, and the powers
-    by which it scales the frame's terms of the merge's sums (module docstring).
+    """``ρ_j = V(H_j x) / V(x)`` of one frame on the reference grid, strip by strip, and
+    the powers by which it scales the frame's terms of the merge's sums.
+
+    A frame's estimate is ``X_j / V(H_j x) = X_j / (ρ_j V(x))`` with the weight
+    ``w_j ρ_j² V(x)²``, so ``E = Σ w_j ρ_j X_j / Σ w_j ρ_j²`` divided by ``V(x)``: the
+    frames carry ``ρ_j`` while they are summed, and the finished map is divided by
+    ``V(x)`` as on a tripod (:func:`apply_vignetting`); a frame that sees the falloff
+    where the reference does (``|ρ_j − 1|`` under :data:`NEGLIGIBLE_RATIO` everywhere,
+    the reference itself) costs nothing (:meth:`for_frame` gives None).
 
     Parameters
     ----------
@@ -222,18 +234,33 @@ class FrameFalloff:
     def __init__(self, vignetting: Vignetting, transform, shape, *, noise_weights: bool):
         hh, ww = shape
         transform = None if transform is None else np.asarray(transform, np.float64)
-        self.field = SmoothField(
-            lambda xs, ys: np.maximum(vignetting.at(hh, ww, *_through(transform, xs, ys)),
-                                      1e-3), shape)
+
+        def ratio(xs, ys):
+            seen = np.maximum(vignetting.at(hh, ww, *_through(transform, xs, ys)), 1e-3)
+            return seen / np.maximum(vignetting.at(hh, ww, xs, ys), 1e-3)
+
+        self.field = SmoothField(ratio, shape)
         self.power = 2 if noise_weights else 0
 
+    @classmethod
+    def for_frame(cls, vignetting: Vignetting | None, transform, shape, *,
+                  noise_weights: bool) -> "FrameFalloff | None":
+        """The frame's falloff ratio, or None when there is no vignetting or the ratio is
+        negligible (the frame did not move, or moved along the falloff's level lines)."""
+        if vignetting is None or transform is None:
+            return None
+        made = cls(vignetting, transform, shape, noise_weights=noise_weights)
+        if np.max(np.abs(made.field.across - 1.0)) < NEGLIGIBLE_RATIO:
+            return None
+        return made
+
     def strip(self, s: slice) -> np.ndarray:
-        """``V`` at the reference pixels of rows ``s`` as the frame saw them: float32 (rows, W, 3)."""
+        """``ρ_j`` at the reference pixels of rows ``s``: float32 (rows, W, 3)."""
         return self.field.strip(s)
 
     def scale_sums(self, s: slice, a: np.ndarray, w: np.ndarray) -> tuple:
         """``a``, ``w`` (the frame's weighted values and weights on strip ``s``) scaled in
-        place (``a·V^(p−1)``, ``w·V^p``); returns ``(V, V²)`` (``V²`` None unless
+        place (``a·ρ^(p−1)``, ``w·ρ^p``); returns ``(ρ, ρ²)`` (``ρ²`` None unless
         p = 2) for σ's sums (:meth:`sigma_factors`)."""
         v = self.strip(s)
         if self.power == 2:
@@ -245,8 +272,8 @@ class FrameFalloff:
         return v, None
 
     def sigma_factors(self, scaled) -> tuple[np.ndarray, np.ndarray]:
-        """Factors of σ's two sums, ``Σ w²(V + X²σ_t²)`` and ``Σ w X σ_g``: ``V^(2p−2)``
-        and ``V^(p−1)``, from what :meth:`scale_sums` returned."""
+        """Factors of σ's two sums, ``Σ w²(V + X²σ_t²)`` and ``Σ w X σ_g``: ``ρ^(2p−2)``
+        and ``ρ^(p−1)``, from what :meth:`scale_sums` returned."""
         v, v2 = scaled
         if self.power == 2:
             return v2, v
@@ -255,23 +282,22 @@ class FrameFalloff:
 
 def apply_vignetting(radiance: np.ndarray, sigma: np.ndarray | None, vignetting: Vignetting,
                      *, moved: bool, record: dict, rows: int = 256) -> None:
-    """The lens's falloff out of a finished merge, in place, strip by strip: divided out
-    of the radiance and σ unless it left each moved frame already (:class:`FrameFalloff`;
-    dividing after the merge is exact when no frame moved, module docstring), and its
-    uncertainty ``E · σ_logV(x)`` added to σ in quadrature; ``record`` (the merge's
+    """The lens's falloff out of a finished merge, in place, strip by strip: the radiance
+    and σ divided by ``V(x)`` (exact when no frame moved; frames that moved carried their
+    ratio ``V(H_j x)/V(x)`` into the sums, :class:`FrameFalloff`), and its uncertainty
+    ``E · σ_logV(x)`` added to σ in quadrature; ``record`` (the merge's
     ``diagnostics["vignetting"]``) says how."""
     hh, ww = radiance.shape[:2]
-    falloff = None if moved else SmoothField(
+    falloff = SmoothField(
         lambda xs, ys: np.maximum(vignetting.at(hh, ww, xs, ys), 1e-3), (hh, ww))
     band = None if sigma is None else SmoothField(
         lambda xs, ys: vignetting.log_sigma_at(hh, ww, xs, ys), (hh, ww))
     for y in range(0, hh, rows):
         s = slice(y, min(y + rows, hh))
-        if falloff is not None:
-            v = falloff.strip(s)
-            np.divide(radiance[s], v, out=radiance[s])
-            if sigma is not None:
-                np.divide(sigma[s], v, out=sigma[s])
+        v = falloff.strip(s)
+        np.divide(radiance[s], v, out=radiance[s])
+        if sigma is not None:
+            np.divide(sigma[s], v, out=sigma[s])
         if band is not None:
             assert sigma is not None
             term = band.strip(s)
