@@ -98,3 +98,17 @@ def test_mtb_alignment_does_not_attempt_it():
     model = _calibrate(stack, align="mtb")
     assert model.vignetting is None
     assert model.diagnostics["vignetting"]["observable"] is None
+
+
+def test_an_implausible_falloff_is_refused():
+    """A fit that darkens the corners past 3 stops (a real bracket's misalignment read as
+    falloff gave V ≈ 1e-6) or brightens them is no lens's: refused with the reason."""
+    from selfcal.lens import Vignetting
+    from selfcal.response.vignetting_fit import implausible_falloff
+
+    def lens(k1, k2=0.0):
+        return Vignetting(np.tile([k1, k2, 0.0], (3, 1)), np.zeros(2), "self")
+
+    assert implausible_falloff(lens(-0.5), 200, 300) == ""
+    assert "implausible" in implausible_falloff(lens(-1.2), 200, 300)
+    assert "brighter" in implausible_falloff(lens(0.3), 200, 300)

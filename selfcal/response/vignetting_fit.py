@@ -50,6 +50,11 @@ MIN_MOTION = 0.015
 #: The fit is refused as ill-conditioned when the standard deviation of log V at the
 #: image corner (from the covariance, worst channel) exceeds this.
 MAX_CORNER_LOG_SIGMA = 0.1
+#: A fitted falloff darker than this anywhere in the frame (3 stops; lensfun's strongest
+#: profiles of rectilinear lenses lose about 2.5 wide open), or brighter than the centre
+#: by more than MAX_BRIGHTENING, is refused as implausible (ours).
+MIN_FALLOFF = 0.125
+MAX_BRIGHTENING = 1.05
 #: Fewer correspondences than this (points seen unclipped in two frames or more): refused.
 MIN_POINTS = 150
 #: Rounds of the alternation response → vignetting (→ corrected frames → response ...).
@@ -431,6 +436,9 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
             break
     assert fit is not None      # rounds >= 1
     vig = fit.vignetting
+    implausible = implausible_falloff(vig, h, w)
+    if implausible:
+        return _refused(model, implausible, motion)
     vig.description = (f"self-calibrated from {len(frames)} frames that moved "
                        f"(up to {max(motion):.1%} of the diagonal)")
     vig.diagnostics = {"points": fit.points, "residual": round(fit.residual, 5),
@@ -462,6 +470,22 @@ def prior_mean_model(frames, times, basis, n_components: int):
         max_code=max_code,
         diagnostics={"warnings": [reason], "verdict": "doubtful", "verdict_reasons": [reason],
                      "response_source": "prior mean", "frames_used": []})
+
+
+def implausible_falloff(vignetting: Vignetting, height: int, width: int) -> str:
+    """Why a fitted falloff is no lens's (darker than :data:`MIN_FALLOFF` or brighter than
+    :data:`MAX_BRIGHTENING` somewhere in the frame), or "" when it could be one."""
+    ys, xs = np.mgrid[0:height:max(1, height // 32), 0:width:max(1, width // 32)]
+    ys = np.concatenate([ys.ravel(), [0, 0, height - 1, height - 1]])
+    xs = np.concatenate([xs.ravel(), [0, width - 1, 0, width - 1]])
+    v = vignetting.at(height, width, xs.astype(float), ys.astype(float))
+    if not np.all(np.isfinite(v)) or v.min() < MIN_FALLOFF:
+        return (f"the fitted falloff is implausible (V down to {np.nanmin(v):.3g} in the "
+                f"frame, under {MIN_FALLOFF}: more than {-np.log2(MIN_FALLOFF):.0f} stops)")
+    if v.max() > MAX_BRIGHTENING:
+        return (f"the fitted falloff is implausible (V up to {v.max():.3g}: brighter than "
+                "the optical centre)")
+    return ""
 
 
 def _refused(model, reason: str, motion):
