@@ -112,3 +112,22 @@ def test_an_implausible_falloff_is_refused():
     assert implausible_falloff(lens(-0.5), 200, 300) == ""
     assert "implausible" in implausible_falloff(lens(-1.2), 200, 300)
     assert "brighter" in implausible_falloff(lens(0.3), 200, 300)
+
+
+def test_a_panorama_frame_the_alignment_cannot_place_is_left_out(monkeypatch):
+    """One frame of equal-exposure frames that ORB cannot match (as OpenCV 4.8 did on the
+    oldest dependencies) is left out; the rest still fit."""
+    import selfcal.response.vignetting_fit as vf
+
+    found = vf.wide_alignment
+
+    def losing_the_last(images, reference, seed=0, min_inliers=40):
+        transforms = found(images, reference, seed, min_inliers)
+        transforms[-1] = None
+        return transforms
+
+    monkeypatch.setattr(vf, "wide_alignment", losing_the_last)
+    times = (1 / 50,) * 5
+    model = _calibrate(_stack(seed=6, times=times), times)
+    assert model.diagnostics["vignetting"]["observable"] is True
+    assert len(model.diagnostics["vignetting"]["log_exposures"]) == 4

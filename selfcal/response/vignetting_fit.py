@@ -419,8 +419,9 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
         if data["valid"].shape[0] < MIN_POINTS:
             return _refused(model, f"only {data['valid'].shape[0]} smooth unclipped points "
                             f"are seen in two frames or more (under {MIN_POINTS})", motion)
-        log_e0 = np.log(np.where(np.isfinite(model.exposures) & (model.exposures > 0),
-                                 model.exposures, 1.0))
+        # one exposure (a panorama): equal starts, for the frames the alignment kept
+        log_e0 = np.zeros(len(frames)) if fixed else np.log(np.where(
+            np.isfinite(model.exposures) & (model.exposures > 0), model.exposures, 1.0))
         fit = fit_vignetting(data, reference, log_e0)
         if fit.corner_log_sigma > MAX_CORNER_LOG_SIGMA:
             return _refused(model, "the fit is ill-conditioned (σ of log V at the corner "
