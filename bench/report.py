@@ -142,6 +142,7 @@ DETAIL_TABLES = {
     "basis": {0},                  # the fit per basis size (the target line is shown)
     "basis.calibrate-heldout": set(),
     "vignetting": {0},             # stack by stack (the medians are shown)
+    "batch": {1},                  # the pooled curve per body (the throughput table is shown)
     "lens_sources": {0},           # the matches (bench.vignetting_real's table names them too)
     "vignetting_merge": {0},       # stack by stack (the medians are shown)
     "luminance": {0},              # stack by stack (the medians line is shown)
