@@ -2,6 +2,7 @@
 
 * :mod:`selfcal.io.images` -- image files (OpenCV, Pillow), EXIF exposure data, atomic and
   all-or-nothing writes (:class:`StagedOutputs`); its names are re-exported here;
+* :mod:`selfcal.io.exif` -- EXIF: exposure (time, f-number, ISO) and lens, read and written;
 * :mod:`selfcal.io.raw` -- raw files as linear camera RGB (rawpy/LibRaw);
 * :mod:`selfcal.io.model_file` -- the versioned JSON envelope every model file is written in.
 
