@@ -75,6 +75,9 @@ PRIOR_SIGMA_CENTRE = 0.2
 PRIOR_SIGMA_SHIFT = 2.0
 #: Huber threshold on standardised residuals.
 HUBER_K = 1.5
+#: Whether the homographies are refined once, after the first vignetting fit, by ECC on
+#: the frames with that vignetting divided out (:func:`realign`).
+REALIGN = True
 
 
 @dataclass
@@ -323,6 +326,51 @@ def correct_frames(frames, transforms, vignetting: Vignetting, intensity, invers
     return out
 
 
+def _log_grey_corrected(frame, vignetting: Vignetting, intensity, inverse, max_code: int):
+    """``log`` of the grey ``f⁻¹(B) / V(p)`` of an unaligned frame (float32), and the
+    log range its unclipped codes span once divided by ``V``."""
+    cv2 = import_cv2()
+    h, w = frame.shape[:2]
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    v = np.maximum(vignetting.at(h, w, xs, ys), 1e-3)
+    codes = frame.astype(np.float64) / max_code
+    lin = np.stack([np.interp(codes[..., c], intensity, inverse[:, c]) / v[..., c]
+                    for c in range(3)], axis=-1)
+    grey = cv2.cvtColor(np.ascontiguousarray(lin, dtype=np.float32), cv2.COLOR_RGB2GRAY)
+    margin = CODE_MARGIN / 255.0
+    lo = float(np.max([np.interp(margin, intensity, inverse[:, c]) for c in range(3)]))
+    hi = float(np.min([np.interp(1 - margin, intensity, inverse[:, c]) for c in range(3)]))
+    lo = math.log(max(lo, 1e-6)) - float(np.log(v.min()))
+    return np.log(np.maximum(grey, 1e-6)).astype(np.float32), lo, math.log(max(hi, 1e-6))
+
+
+def realign(originals, shape, transforms, reference: int, fit: VignettingFit, model) -> list:
+    """The homographies refined by ECC on the frames' log radiance with the fitted
+    vignetting divided out (ours: the falloff, different in each frame at a scene point,
+    biases ECC on the raw frames); a frame where ECC fails keeps its homography."""
+    from ..stack.align import refine_homography
+
+    cv2 = import_cv2()
+    h, w = shape
+    logs = []
+    for j, im in enumerate(originals):
+        im = np.asarray(im)
+        if im.shape[:2] != (h, w):
+            im = cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
+        g, lo, hi = _log_grey_corrected(im, fit.vignetting, model.intensity, model.inverse,
+                                        model.max_code)
+        e = float(fit.log_exposures[j])
+        logs.append((g - np.float32(e), lo - e, hi - e))
+    t, tlo, thi = logs[reference]
+    out = []
+    for j, (g, glo, ghi) in enumerate(logs):
+        a, b = max(glo, tlo), min(ghi, thi)
+        new = None if j == reference or a >= b else refine_homography(
+            np.clip(t, a, b), np.clip(g, a, b), np.asarray(transforms[j], np.float64))
+        out.append(np.asarray(transforms[j], np.float64) if new is None else new)
+    return out
+
+
 def not_observable(reason: str, motion=None) -> dict:
     """``model.diagnostics["vignetting"]`` when nothing was fitted."""
     return {"observable": False, "reason": reason,
@@ -366,6 +414,20 @@ def _panorama_frames(originals, small, reference: int, seed: int):
     keep = [j for j, t in enumerate(transforms) if t is not None]
     return ([warp_to_reference(images[j], transforms[j]) for j in keep],
             [transforms[j] for j in keep], keep.index(reference))
+
+
+def _warped(images, transforms, shape) -> list:
+    """The frames at the working size warped onto the reference by ``transforms``."""
+    from ..stack.align import warp_to_reference
+
+    cv2 = import_cv2()
+    h, w = shape
+    out = []
+    for im, t in zip(images, transforms):
+        if im.shape[:2] != (h, w):
+            im = cv2.resize(im, (w, h), interpolation=cv2.INTER_AREA)
+        out.append(warp_to_reference(im, t))
+    return out
 
 
 def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_model, *,
@@ -429,6 +491,10 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
                             motion)
         if fixed:
             break
+        if done == 1 and originals is not None and REALIGN:
+            images = [np.asarray(im) for im in originals()]
+            transforms = realign(images, (h, w), transforms, reference, fit, model)
+            frames = _warped(images, transforms, (h, w))
         corrected = correct_frames(frames, transforms, fit.vignetting, model.intensity,
                                    model.inverse, model.max_code, seed=seed + done)
         try:

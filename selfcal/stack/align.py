@@ -340,6 +340,17 @@ def _ecc_homography(template, image, init: np.ndarray, levels: int = 3) -> tuple
     return h, float(cc)
 
 
+def refine_homography(template, image, init: np.ndarray, min_cc: float = 0.5):
+    """:func:`_ecc_homography` from ``init`` (template → image, float32 grey images of one
+    size), or None when ECC fails, correlates under ``min_cc`` or moves too far."""
+    cv2 = import_cv2()
+    try:
+        h, cc = _ecc_homography(template, image, init)
+    except cv2.error:
+        return None
+    return h if cc >= min_cc and _plausible(h, template.shape) else None
+
+
 def orb_homography(template: np.ndarray, image: np.ndarray, *, threshold: float = 2.0,
                    min_inliers: int = 8) -> np.ndarray | None:
     """ORB features (Rublee et al., ICCV 2011) + RANSAC homography, template → image
