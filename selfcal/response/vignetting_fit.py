@@ -75,9 +75,6 @@ PRIOR_SIGMA_CENTRE = 0.2
 PRIOR_SIGMA_SHIFT = 2.0
 #: Huber threshold on standardised residuals.
 HUBER_K = 1.5
-#: Whether the homographies are refined once, after the first vignetting fit, by ECC on
-#: the frames with that vignetting divided out (:func:`realign`).
-REALIGN = True
 
 
 @dataclass
@@ -432,7 +429,7 @@ def _warped(images, transforms, shape) -> list:
 
 def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_model, *,
                               reference: int, seed: int = 0, rounds: int | None = None,
-                              originals=None):
+                              originals=None, realign_after_first: bool = True):
     """The response and the vignetting of aligned frames, fitted in alternation.
 
     Parameters
@@ -455,6 +452,9 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
         (a panorama) are aligned again from them by :func:`wide_alignment`.
     rounds : int, optional
         Vignetting fits (default :data:`DEFAULT_ROUNDS`) (each followed by a response refit on the corrected frames).
+    realign_after_first : bool
+        Refine the homographies once, after the first vignetting fit, by ECC on the frames
+        with that vignetting divided out (:func:`realign`; needs ``originals``).
 
     Returns
     -------
@@ -491,7 +491,7 @@ def calibrate_with_vignetting(frames, transforms, times, recalibrate, prior_mode
                             motion)
         if fixed:
             break
-        if done == 1 and originals is not None and REALIGN:
+        if done == 1 and originals is not None and realign_after_first:
             images = [np.asarray(im) for im in originals()]
             transforms = realign(images, (h, w), transforms, reference, fit, model)
             frames = _warped(images, transforms, (h, w))
