@@ -7,6 +7,7 @@ is :func:`selfcal.batch.run_batch`).
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import signal
 import sys
@@ -130,6 +131,11 @@ def _nothing_to_do(unassigned, roots) -> int:
 def cmd_batch(args) -> int:
     from selfcal.batch import BatchOptions, ClusterError, ClusterOptions, discover, run_batch
 
+    cameras = [cam for cam, _ in args.luminance_scale]
+    twice = sorted({cam for cam in cameras if cameras.count(cam) > 1})
+    if twice:
+        args.parser.error(f"argument --luminance-scale: {', '.join(map(repr, twice))} given "
+                          "more than once (one scale per camera)")
     out = Path(args.output)
     check_output_folder(out)
     if args.dry_run:
@@ -139,8 +145,11 @@ def cmd_batch(args) -> int:
             return _nothing_to_do(library.unassigned, args.roots)
         _say_dry_run(library)
         return EXIT_OK
-    if args.scheduler and args.workers:
-        warn("--workers is for the local cluster; the scheduler's workers are used")
+    for given, option in ((args.workers, "--workers"), (args.memory_limit, "--memory-limit")):
+        if args.scheduler and given is not None:
+            warn(f"{option} is for the local cluster; "
+                 + ("--scheduler serial runs in this process" if args.scheduler == "serial"
+                    else "the scheduler's workers are used"))
     options = BatchOptions(linearize=args.linearize, pool=not args.no_pool,
                            force=args.force, by_content=not args.by_time,
                            max_gap=args.max_gap,
@@ -150,7 +159,8 @@ def cmd_batch(args) -> int:
     try:
         result = run_batch(
             [Path(r) for r in args.roots], out, scheduler=args.scheduler,
-            cluster=ClusterOptions(workers=args.workers, memory_limit=args.memory_limit),
+            cluster=ClusterOptions(workers=args.workers, memory_limit="auto"
+                                   if args.memory_limit is None else args.memory_limit),
             options=options, redo=args.redo, progress=_progress_bar())
     except ClusterError as exc:
         say(f"selfcal: error: {exc}")
@@ -174,7 +184,13 @@ def cmd_batch(args) -> int:
 
 
 _ADDRESS = re.compile(r"^(?:(?:tcp|tls|ws|wss|ucx)://)?(?:\[[0-9a-fA-F:]+\]|[^\s:/\[\]]+)"
-                      r":\d{1,5}$")
+                      r":(\d{1,5})$")
+
+
+def _is_address(text: str) -> bool:
+    """A Dask scheduler address with a port from 1 to 65535."""
+    m = _ADDRESS.match(text)
+    return bool(m) and 1 <= int(m.group(1)) <= 65535
 
 
 def _scheduler_address(text: str) -> str:
@@ -182,7 +198,7 @@ def _scheduler_address(text: str) -> str:
     scheduler file (``dask scheduler --scheduler-file F``: JSON with its address)."""
     import json
 
-    if text == "serial" or _ADDRESS.match(text.strip()):
+    if text == "serial" or _is_address(text.strip()):
         return text.strip()
     path = Path(text)
     if path.suffix.lower() == ".json" or path.is_file():
@@ -192,13 +208,52 @@ def _scheduler_address(text: str) -> str:
             why = "no such file" if isinstance(exc, FileNotFoundError) else \
                 f"not a Dask scheduler file: {type(exc).__name__}: {exc}"
             raise argparse.ArgumentTypeError(f"{path}: {why}") from None
-        if isinstance(address, str) and _ADDRESS.match(address):
+        if isinstance(address, str) and _is_address(address):
             return address
         raise argparse.ArgumentTypeError(f"{path}: its address {address!r} is not a Dask "
                                          "scheduler address")
     raise argparse.ArgumentTypeError(
-        f"not a Dask scheduler address: {text!r} (give one like tcp://host:8786, a "
+        f"not a Dask scheduler address: {text!r} (give one like tcp://host:8786, the "
+        "port from 1 to 65535, a "
         "scheduler file, or 'serial' to run without Dask)")
+
+
+#: Dask's byte units (``dask.utils.byte_sizes``: kB = 1000, KiB = 1024, ...), lower case.
+_BYTE_UNITS = {"": 1, "b": 1, **{p + s: 1000 ** (i + 1) for i, p in enumerate("kmgtp")
+                                 for s in ("", "b")},
+               **{p + s: 1024 ** (i + 1) for i, p in enumerate("kmgtp") for s in ("i", "ib")}}
+#: The smallest per-worker memory limit taken (a bare "4" is 4 bytes, not 4 GB).
+MIN_MEMORY_LIMIT = 64 * 2 ** 20
+
+
+def _memory_limit(text: str):
+    """``--memory-limit``: what Dask's ``memory_limit`` takes, checked before any cluster
+    starts -- ``auto``, 0 (no limit), a fraction of the memory (0 < x <= 1) or a size
+    (``4GB``, ``512MiB``, bytes) of at least :data:`MIN_MEMORY_LIMIT`."""
+    t = text.strip().lower().replace(" ", "")
+    if t == "auto":
+        return "auto"
+    m = re.fullmatch(r"([0-9.]+(?:e[+-]?[0-9]+)?)?([a-z]*)", t)
+    number = unit = None
+    if m and m.group(2) in _BYTE_UNITS:
+        try:
+            number = float(m.group(1) or "1")
+        except ValueError:
+            pass
+        unit = _BYTE_UNITS[m.group(2)]
+    hint = ("give a size like 4GB or 512MiB, a fraction of the memory like 0.5, auto "
+            "(the memory shared among the workers) or 0 (no limit)")
+    if number is None or unit is None or not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"not a memory limit: {text!r}; {hint}")
+    if number == 0:
+        return 0
+    if not m.group(2) and number <= 1:
+        return number                        # a fraction of the machine's memory
+    size = int(number * unit)
+    if size < MIN_MEMORY_LIMIT:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is {size} bytes, too little for a worker (at least 64MiB); {hint}")
+    return size
 
 
 def _positive_seconds(text: str) -> float:
@@ -256,10 +311,11 @@ def register(sub) -> None:
                         "in this process (default: a local cluster)")
     p.add_argument("--workers", type=int_range(1, 1024, "--workers"), metavar="N",
                    help="local cluster workers, one thread each (default: the cores)")
-    p.add_argument("--memory-limit", default="auto", metavar="LIMIT",
-                   help="memory per local worker, e.g. 4GB (default: the machine's memory "
-                        "shared among the workers); Dask pauses, then restarts a worker "
-                        "beyond it")
+    p.add_argument("--memory-limit", type=_memory_limit, metavar="LIMIT",
+                   help="memory per local worker: a size (4GB, 512MiB), a fraction of the "
+                        "machine's memory (0.25), 0 for none, or auto (default: the "
+                        "machine's memory shared among the workers); Dask pauses, then "
+                        "restarts a worker beyond it")
     p.add_argument("--linearize", action="store_true",
                    help="also write each frame linearised (16-bit TIFF, linear/)")
     p.add_argument("--luminance", choices=("none", "exif"), default="none",
@@ -289,4 +345,4 @@ def register(sub) -> None:
     p.add_argument("--force", action="store_true",
                    help="use calibrations whose verdict is unusable; write into a "
                         "non-empty folder that holds no batch")
-    p.set_defaults(func=cmd_batch)
+    p.set_defaults(func=cmd_batch, parser=p)

@@ -186,6 +186,18 @@ def _max_components() -> int:
     return builtin_basis().n_components
 
 
+def _seed(text: str) -> int:
+    """``--seed``: a non-negative whole number (the simulator's numpy seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"the seed must be a whole number from 0, not "
+                                         f"{text!r}")
+    return value
+
+
 def register(sub) -> None:
     """Add the ``demo`` and ``calibrate`` commands to the main parser's subparsers."""
     from selfcal.response.calibrate import DEFAULT_N_COMPONENTS
@@ -198,7 +210,8 @@ def register(sub) -> None:
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-o", "--output", default="selfcal-demo",
                    help="folder for the stack, model and plot (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    p.add_argument("--seed", type=_seed, default=0,
+                   help="simulation seed, a whole number from 0 (default 0)")
     p.add_argument("--force", action="store_true", help="overwrite existing files")
     p.set_defaults(func=cmd_demo)
 
