@@ -11,6 +11,7 @@ from pathlib import Path
 
 from selfcal.io import format_exposure_time as fmt_time
 
+from . import interrupts
 from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, float_range,
                      int_range, parse_time, progress_bar, say, say_verdict, verdict_of, warn)
 
@@ -116,6 +117,8 @@ def cmd_calibrate(args) -> int:
             target = out if result.response is None else \
                 (pipeline_out or _pipeline_output_path(out))
             staged.write(target, lambda tmp: result.pipeline.save(tmp, force=True))
+        interrupts.check()
+    interrupts.committed()
     for path in staged.written:
         say(f"wrote {path}")
     return EXIT_OK
@@ -153,6 +156,7 @@ def cmd_demo(args) -> int:
             staged.write(model_path, lambda tmp: model.save(tmp, force=True))
             staged.write(plot_path, lambda tmp: plot_response(model, tmp, truth=truth,
                                                               force=True))
+            interrupts.check()
     except BaseException:
         # nothing new left behind: the frames written, and the folder if it was made here
         for p in (set(out.iterdir()) if out.exists() else set()) - before:
@@ -161,6 +165,7 @@ def cmd_demo(args) -> int:
             if folder.is_dir() and not any(folder.iterdir()):
                 folder.rmdir()
         raise
+    interrupts.committed()
     _print_response_summary(model)
     say_verdict(model.diagnostics, True)
     say(f"wrote {model_path}")

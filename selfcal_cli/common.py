@@ -14,6 +14,8 @@ import sys
 from fractions import Fraction
 from pathlib import Path
 
+from . import interrupts
+
 EXIT_OK = 0
 EXIT_USAGE = 2          # argparse's own code for bad arguments
 EXIT_INPUT = 3          # an input file or value is bad
@@ -22,8 +24,9 @@ EXIT_OUTPUT = 5         # an output exists (use --force) or cannot be written
 
 EPILOG = """exit codes: 0 success, 2 bad arguments, 3 bad input (file or value),
 4 the data cannot be calibrated (or the verdict is unusable; --force writes it anyway),
-5 an output exists (use --force) or cannot be written. Every output is checked before
-the work starts and written at the end, all or nothing."""
+5 an output exists (use --force) or cannot be written, 130 interrupted (Ctrl-C: nothing
+written). Every output is checked before the work starts and written at the end, all
+or nothing."""
 
 
 def say(msg: str = "") -> None:
@@ -53,6 +56,7 @@ def progress_bar(desc: str):
     bars = {}
 
     def callback(stage, done, total, detail=""):
+        interrupts.check()          # a Ctrl-C a library swallowed stops the work here
         bar = bars.get(stage)
         if bar is None:
             bar = bars[stage] = tqdm(total=total, desc=f"{desc}: {stage}", unit="frame"
@@ -161,7 +165,12 @@ def negative_times(argv) -> str | None:
 
 # ------------------------------------------------------------------------- verdicts
 
-from selfcal.response.verdict import verdict_of  # noqa: E402
+def verdict_of(diagnostics):
+    """:func:`selfcal.response.verdict.verdict_of` (imported when first used: this module
+    is imported while the ``selfcal`` command starts)."""
+    from selfcal.response.verdict import verdict_of as of
+
+    return of(diagnostics)
 
 
 def say_verdict(diagnostics, force: bool, what: str = "the calibration") -> None:

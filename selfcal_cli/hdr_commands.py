@@ -11,6 +11,7 @@ import argparse
 import math
 from pathlib import Path
 
+from . import interrupts
 from .common import (EPILOG, EXIT_OK, add_vignetting_argument, say_vignetting,
                      vignetting_argument, check_output_folder, check_outputs, parse_time,
                      progress_bar, say, say_verdict, warn)
@@ -71,14 +72,18 @@ def cmd_merge(args) -> int:
         say_verdict(getattr(result.model, "diagnostics", None) or
                     {"verdict": result.diagnostics.get("model_verdict")},
                     args.force, "the response calibrated on the fly")
+    summary = _merge_summary(result, images, args)      # (before the outputs appear)
     with StagedOutputs(force=args.force, inputs=inputs) as staged:
         written = _stage_radiance(staged, result, out, sig_out, args)
         if args.preview:
             staged.write(args.preview, lambda tmp: write_preview(
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
         _stage_luminance_outputs(staged, result, args)
+        interrupts.check()
+    interrupts.committed()
 
-    _say_merge_summary(result, images, args)
+    for line in summary:
+        say(line)
     say_vignetting(result.diagnostics.get("vignetting"))
     for w in result.warnings:
         warn(w)
@@ -86,10 +91,14 @@ def cmd_merge(args) -> int:
     return EXIT_OK
 
 
-def _say_merge_summary(result, images, args) -> None:
-    """What ``selfcal merge`` says about a merge: the exposures and where they came from,
-    each frame's share and shift, the radiance range and the unmeasured pixels."""
+def _merge_summary(result, images, args) -> list:
+    """What ``selfcal merge`` says about a merge, as lines: the exposures and where they
+    came from, each frame's share and shift, the radiance range and the unmeasured
+    pixels."""
     import numpy as np
+
+    lines: list = []
+    say = lines.append
 
     how = ("linear input" if args.linear else
            f"model from {args.model}" if args.model else "model calibrated on the fly")
@@ -137,6 +146,7 @@ def _say_merge_summary(result, images, args) -> None:
             f"{lum['source']}: {lum['description']}")
     say(f"unmeasured (clipped in every frame): {100 * result.unmeasured.mean():.2f}% of "
          "pixels" + (f"; deghosted: {100 * result.ghost.mean():.2f}%" if args.deghost else ""))
+    return lines
 
 
 def _say_written(result, written, out, sig_out, args) -> None:
@@ -193,6 +203,8 @@ def cmd_linearize(args) -> int:
                 tmp, linear, float32=args.float, force=True,
                 exposure_time=info.exposure_time, f_number=info.f_number, iso=info.iso))
             del linear
+        interrupts.check()
+    interrupts.committed()
     written = staged.written
     kind = "float32" if args.float else "16-bit"
     say(f"linearised {len(written)} images with {args.model} ({kind} linear TIFF, "

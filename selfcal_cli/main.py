@@ -8,20 +8,23 @@ Nothing numerical lives in ``selfcal_cli/``.
 
 from __future__ import annotations
 
-import argparse
 import sys
-import warnings
 
-from . import calibrate_commands, hdr_commands, pipeline_commands
-from . import batch_commands
-from . import export_commands
-from . import show_commands
-from .common import (EPILOG, EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT, negative_times,
-                     reset_warnings, say, warn)
+from . import interrupts
+from .common import EXIT_CALIBRATION, EXIT_INPUT, EXIT_OUTPUT  # noqa: F401 (the codes)
+
+# Everything else is imported inside the functions: a Ctrl-C while the modules load is
+# then inside main's handling (see selfcal_cli.interrupts).
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser():
+    import argparse
+
     from selfcal import __version__
+
+    from . import (batch_commands, calibrate_commands, export_commands, hdr_commands,
+                   pipeline_commands, show_commands)
+    from .common import EPILOG
 
     parser = argparse.ArgumentParser(
         prog="selfcal",
@@ -44,6 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _parse(parser, argv):
     """``parser.parse_args``, but a value like ``-1/60`` after ``--times`` is a usage error
     naming it (argparse would take it for an unknown option)."""
+    from .common import negative_times
+
     argv = sys.argv[1:] if argv is None else [str(a) for a in argv]
     bad = negative_times(argv)
     if bad is not None:
@@ -56,10 +61,29 @@ def _parse(parser, argv):
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
-    args = _parse(parser, argv)
+    """Run one ``selfcal`` command; its exit code (130 when interrupted by Ctrl-C)."""
+    previous = None
+    try:
+        parser = build_parser()
+        args = _parse(parser, argv)
+        previous = interrupts.working()
+        return _run(args)
+    except KeyboardInterrupt:
+        interrupts.stopping()
+        print("selfcal: interrupted", file=sys.stderr)
+        return interrupts.EXIT_INTERRUPTED
+    finally:
+        interrupts.finished(previous)
+
+
+def _run(args) -> int:
+    """The command, its library warnings said, its exceptions turned into exit codes."""
+    import warnings
+
     import selfcal
     from selfcal.io import OutputWriteError
+
+    from .common import reset_warnings, say, warn
 
     reset_warnings()
     try:
@@ -82,9 +106,6 @@ def main(argv=None) -> int:
     except selfcal.CalibrationError as exc:
         say(f"selfcal: cannot calibrate: {exc}")
         return EXIT_CALIBRATION
-    except KeyboardInterrupt:
-        say("selfcal: interrupted")
-        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover
