@@ -164,13 +164,22 @@ class DaskExecutor:
             # Dask's nannies export MALLOC_TRIM_THRESHOLD_=65536 to their workers, which
             # turns every large numpy allocation into an mmap/munmap round trip: the
             # calibration then spends 6-15x more system time (python3 -m bench.batch).
-            with dask.config.set({NO_MALLOC_TRIM: None}):
-                cluster = distributed.LocalCluster(
-                    n_workers=n, threads_per_worker=1, processes=processes,
-                    memory_limit=memory_limit, dashboard_address=None,
-                    silence_logs=logging.ERROR)
-            self.client = distributed.Client(cluster)
-            self._own += [self.client, cluster]
+            before = _local_clusters(distributed)
+            try:
+                with dask.config.set({NO_MALLOC_TRIM: None}):
+                    cluster = distributed.LocalCluster(
+                        n_workers=n, threads_per_worker=1, processes=processes,
+                        memory_limit=memory_limit, dashboard_address=None,
+                        silence_logs=logging.ERROR)
+                self._own.append(cluster)
+                self.client = distributed.Client(cluster)
+                self._own.insert(0, self.client)
+            except BaseException:
+                # interrupted (Ctrl-C) while the cluster starts: close what started, so
+                # that Dask's own clean-up at exit finds nothing half-started to trip on
+                _close_quietly(self._own + list(_local_clusters(distributed) - before))
+                self._own = []
+                raise
         self.name = str(self.client.scheduler.address)
         self._token = uuid.uuid4().hex[:8]
 
@@ -196,6 +205,20 @@ class DaskExecutor:
         for obj in self._own:
             obj.close()
         self._own = []
+
+
+def _local_clusters(distributed) -> set:
+    """The Dask clusters this process has started (Dask's own register of them)."""
+    return set(getattr(distributed.SpecCluster, "_instances", ()))
+
+
+def _close_quietly(objects) -> None:
+    """Close clients and clusters, whatever state their start was interrupted in."""
+    for obj in objects:
+        try:
+            obj.close()
+        except Exception:       # half-started: its workers never came up
+            pass
 
 
 # ------------------------------------------------------------------------ the driver
