@@ -35,9 +35,13 @@ def _exit_interrupted(signum, frame):
         os._exit(130)
 
 
-#: Whether this process is the ``selfcal`` program (then it owns SIGINT).
+#: Whether this process is the ``selfcal`` program (then it owns SIGINT) -- unless it
+#: started with SIGINT ignored (a background job of a shell script): then it stays so.
 PROGRAM = _is_program()
 if PROGRAM:
     import _signal
 
-    _signal.signal(_signal.SIGINT, _exit_interrupted)
+    if _signal.getsignal(_signal.SIGINT) == _signal.SIG_IGN:
+        PROGRAM = False
+    else:
+        _signal.signal(_signal.SIGINT, _exit_interrupted)

@@ -72,21 +72,20 @@ def cmd_merge(args) -> int:
         say_verdict(getattr(result.model, "diagnostics", None) or
                     {"verdict": result.diagnostics.get("model_verdict")},
                     args.force, "the response calibrated on the fly")
-    summary = _merge_summary(result, images, args)      # (before the outputs appear)
     with StagedOutputs(force=args.force, inputs=inputs) as staged:
         written = _stage_radiance(staged, result, out, sig_out, args)
         if args.preview:
             staged.write(args.preview, lambda tmp: write_preview(
                 tmp, result.radiance, force=True, mask=~result.unmeasured))
         _stage_luminance_outputs(staged, result, args)
+        # the summary before the outputs appear: their renaming is the last of the work
+        for line in _merge_summary(result, images, args):
+            say(line)
+        say_vignetting(result.diagnostics.get("vignetting"))
+        for w in result.warnings:
+            warn(w)
         interrupts.check()
     interrupts.committed()
-
-    for line in summary:
-        say(line)
-    say_vignetting(result.diagnostics.get("vignetting"))
-    for w in result.warnings:
-        warn(w)
     _say_written(result, written, out, sig_out, args)
     return EXIT_OK
 

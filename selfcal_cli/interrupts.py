@@ -24,7 +24,9 @@ finished (:func:`finished`, :func:`committed`)
 
 Only a program (the ``selfcal`` console script, ``python -m selfcal_cli``) installs the
 loading and finished handlers; ``main()`` called from Python code (the tests) keeps its
-caller's handler but for the working phase, and restores it after.  A SIGINT in the
+caller's handler but for the working phase, and restores it after.  A process started
+with SIGINT ignored (``selfcal ... &`` in a shell script: the shell ignores it for
+background jobs, as ``nohup`` does SIGHUP) keeps it ignored.  A SIGINT in the
 first milliseconds, before the interpreter has run any code of ours (its own start and
 ``site``), is the interpreter's: killed by the signal (130 in a shell), or Python's
 ``KeyboardInterrupt`` traceback while ``site`` imports.
@@ -66,8 +68,11 @@ def _set(handler):
 
 
 def working():
-    """The command starts: SIGINT raises KeyboardInterrupt; the handler it replaces."""
+    """The command starts: SIGINT raises KeyboardInterrupt; the handler it replaces
+    (None, and SIGINT left ignored, in a process that started with it ignored)."""
     _state["interrupted"] = False
+    if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        return None
     return _set(_raise)
 
 

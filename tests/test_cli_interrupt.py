@@ -166,6 +166,19 @@ def test_demo_interrupted_exits_130_and_removes_its_frames(tmp_path):
     assert not out.exists()
 
 
+def test_a_command_started_with_sigint_ignored_keeps_it_ignored(tmp_path):
+    """A shell script's background job (``selfcal ... &``) starts with SIGINT ignored:
+    selfcal leaves it so (as Python does), and the command ends as it would."""
+    proc = subprocess.Popen([sys.executable, "-m", "selfcal_cli", "--version"], env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    _when_numpy_loads(proc)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert out.startswith("selfcal ") and "interrupted" not in err
+
+
 def test_main_in_process_keeps_the_callers_handler(tmp_path, capsys, monkeypatch):
     """``main()`` from Python (not the program): a KeyboardInterrupt in the work is exit
     130 with one line, and the SIGINT handler is the caller's again afterwards."""
