@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from . import interrupts
 from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, int_range, say,
                      warn)
 
@@ -69,6 +70,8 @@ def _convert_files(args, inputs, suffix: str, desc: str, convert) -> list:
         for src, out in tqdm(list(zip(inputs, outs)), desc=desc, unit="image",
                              disable=None, leave=False):
             said.append(staged.write(out, lambda tmp, src=src: convert(model, src, tmp)))
+        interrupts.check()
+    interrupts.committed()
     for w in said:
         if w is not None:
             warn(w)
