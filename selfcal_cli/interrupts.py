@@ -83,7 +83,8 @@ def stopping() -> None:
 
 def finished(previous) -> None:
     """The command is over: in a program Ctrl-C no longer changes its end; otherwise the
-    caller's handler again."""
+    caller's handler again (and the interrupt forgotten: the next call starts afresh)."""
+    _state["interrupted"] = False
     if _program():
         _set(signal.SIG_IGN)
     elif previous is not None:
