@@ -68,7 +68,19 @@ class GroupingRule:
     min_overlap : float
         Fraction of the thumbnail well exposed in both frames for a comparison to count.
     max_shift : int
-        Thumbnail pixels of shift tried each way (a handheld burst moves a little).
+        Thumbnail pixels of translation at most each way (a handheld phone bracket
+        moves by a few per cent of the frame).
+    rotations : tuple of float
+        Turns (degrees) of one thumbnail tried when the frames do not agree as they are
+        (a phone bracket turns by a degree or two).
+    min_visible : float
+        A frame with fewer than this fraction of its pixels well exposed is too dark or
+        too bright to tell scenes apart: it joins a session it agrees with, or else one
+        it continues (``continue_stops``); a disagreement is not trusted.
+    continue_stops : float
+        A frame too dark or too bright to compare (fewer than ``min_visible`` of its
+        pixels well exposed) continues a session whose darkest (brightest) frame is at
+        most this many stops brighter (darker), in the frame's direction.
     low, high : int
         8-bit codes strictly between which a thumbnail pixel is well exposed.
     open_sessions : int
@@ -82,7 +94,10 @@ class GroupingRule:
     match: float = 0.70
     differ: float = 0.50
     min_overlap: float = 0.01
-    max_shift: int = 2
+    max_shift: int = 8
+    rotations: tuple = (0.0, -1.5, 1.5, -3.0, 3.0)
+    min_visible: float = 0.05
+    continue_stops: float = 2.1
     low: int = 6
     high: int = 249
     open_sessions: int = 4
@@ -171,54 +186,126 @@ def read_frames(pairs, reader, *, workers: int | None = None, thumbnails: bool =
         return [x for chunk in done for x in chunk]
 
 
-def _shifted(a, b, dy, dx):
-    h, w = a.shape
-    return (a[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)],
-            b[max(-dy, 0):h + min(-dy, 0), max(-dx, 0):w + min(-dx, 0)])
+def _prepared(a, rule: GroupingRule):
+    """Log codes and the mask of well-exposed pixels of a thumbnail (float32)."""
+    ok = (a > rule.low) & (a < rule.high)
+    return np.log(np.maximum(a, 1.0)).astype(np.float32), ok
+
+
+def _correlation(la, ok_a, lb, ok_b, need):
+    """Pearson correlation of two log thumbnails over the pixels well exposed in both
+    (None below ``need`` pixels), and that pixel count."""
+    m = ok_a & ok_b
+    n = int(m.sum())
+    if n < need:
+        return None, n
+    x, y = la[m].astype(np.float64), lb[m].astype(np.float64)
+    x, y = x - x.mean(), y - y.mean()
+    d = math.sqrt(float((x * x).sum()) * float((y * y).sum()))
+    return (float((x * y).sum()) / d if d > 0 else 0.0), n
+
+
+def _warped(lb, ok_b, angle, dx, dy):
+    """``b`` turned by ``angle`` degrees about its centre and moved by ``(dx, dy)``
+    pixels; pixels from outside the frame are not well exposed."""
+    import cv2
+
+    h, w = lb.shape
+    m = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0), float(angle), 1.0)
+    m[:, 2] += (dx, dy)
+    wl = cv2.warpAffine(lb, m, (w, h), flags=cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    wm = cv2.warpAffine(ok_b.astype(np.uint8), m, (w, h), flags=cv2.INTER_NEAREST,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    inside = cv2.warpAffine(np.ones_like(lb), m, (w, h), flags=cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_CONSTANT, borderValue=0.0) > 0.999
+    return wl, (wm > 0) & inside
+
+
+def _phase_shift(la, ok_a, lb, ok_b):
+    """The translation taking ``b`` onto ``a`` by phase correlation [Kuglin1975] of the
+    log thumbnails (badly exposed pixels set to each one's mean: the exposure changes
+    the level and the clipped areas, not where the structure is)."""
+    import cv2
+
+    def filled(l, ok):
+        x = l.astype(np.float64).copy()
+        x[~ok] = x[ok].mean() if ok.any() else 0.0
+        return x
+
+    win = cv2.createHanningWindow(la.shape[::-1], cv2.CV_64F)
+    (dx, dy), _ = cv2.phaseCorrelate(filled(lb, ok_b), filled(la, ok_a), win)
+    return dx, dy
 
 
 def similarity(a, b, rule: GroupingRule = GroupingRule()):
-    """How well two thumbnails agree as one scene at two exposures.
+    """How well two thumbnails agree as one scene at two exposures, after registration.
 
     The correlation of log codes over the pixels well exposed in both (codes strictly
-    between ``rule.low`` and ``rule.high``), the best over shifts of up to
-    ``rule.max_shift`` pixels.  Exposure-normalised in effect: a change of exposure
-    scales codes through the (unknown, monotone) response, which a correlation of logs
-    hardly sees.
+    between ``rule.low`` and ``rule.high``): a change of exposure scales codes through
+    the (unknown, monotone) response, which a correlation of logs hardly sees.  ``b`` is
+    registered onto ``a`` first, cheapest first, stopping at ``rule.match``: as it is;
+    moved by up to a pixel; then, for each turn in ``rule.rotations`` (degrees), by the
+    translation phase correlation finds ([Kuglin1975], at most ``rule.max_shift``
+    pixels each way) and the pixel around it -- a handheld phone bracket moves and turns
+    a little between frames.  A moved comparison counts only over at least
+    ``rule.min_visible`` of the pixels (the best of many small overlaps agrees by
+    chance).  The registration search is ours.
 
     Returns
     -------
     (float or None, float)
-        The correlation (None when fewer than ``rule.min_overlap`` of the pixels are well
-        exposed in both at every shift, or the thumbnails differ in size) and the
-        fraction of pixels it used.
+        The best correlation (None when fewer than ``rule.min_overlap`` of the pixels
+        are well exposed in both at every registration tried, or the thumbnails differ
+        in size) and the fraction of pixels it used.
+
+    References
+    ----------
+    .. [Kuglin1975] C. D. Kuglin, D. C. Hines, "The phase correlation image alignment
+       method", Proc. IEEE Int. Conf. Cybernetics and Society, 1975, 163-165.
     """
     if a is None or b is None or a.shape != b.shape:
         return None, 0.0
-    best, used = None, 0.0
-    la, lb = np.log(np.maximum(a, 1.0)), np.log(np.maximum(b, 1.0))
-    ok_a = (a > rule.low) & (a < rule.high)
-    ok_b = (b > rule.low) & (b < rule.high)
+    la, ok_a = _prepared(a, rule)
+    lb, ok_b = _prepared(b, rule)
     need = max(16, rule.min_overlap * a.size)
-    s = int(rule.max_shift)
-    shifts = [(0, 0)] + [(dy, dx) for dy in range(-s, s + 1) for dx in range(-s, s + 1)
-                         if dy or dx]
-    for dy, dx in shifts:
-        if best is not None and best >= rule.match:
-            break                        # agreement found: no need for the other shifts
-        ma, mb = _shifted(ok_a, ok_b, dy, dx)
-        m = ma & mb
-        n = int(m.sum())
-        if n < need:
-            continue
-        xa, xb = _shifted(la, lb, dy, dx)
-        x, y = xa[m], xb[m]
-        x, y = x - x.mean(), y - y.mean()
-        d = math.sqrt(float((x * x).sum()) * float((y * y).sum()))
-        c = float((x * y).sum()) / d if d > 0 else 0.0
-        if best is None or c > best:
-            best, used = c, n / a.size
-    return best, used
+    best, used = None, 0
+
+    moved_need = max(need, rule.min_visible * a.size)
+
+    def consider(c, n, moved=True):
+        nonlocal best, used
+        if moved and n < moved_need:    # the best of many small overlaps: by chance
+            return False
+        if c is not None and (best is None or c > best):
+            best, used = c, n
+        return best is not None and best >= rule.match
+
+    if consider(*_correlation(la, ok_a, lb, ok_b, need), moved=False):
+        return best, used / a.size
+    for dy, dx in ((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx):
+        if consider(*_correlation(la, ok_a, *_warped(lb, ok_b, 0.0, dx, dy), need)):
+            return best, used / a.size
+    if not (ok_a.sum() >= moved_need and ok_b.sum() >= moved_need):
+        return best, used / a.size
+    s = float(rule.max_shift)
+    for angle in rule.rotations:
+        rl, rm = (lb, ok_b) if angle == 0 else _warped(lb, ok_b, angle, 0.0, 0.0)
+        px, py = _phase_shift(la, ok_a, rl, rm)
+        px, py = round(max(-s, min(s, px))), round(max(-s, min(s, py)))
+        for dy in (py - 1, py, py + 1):
+            for dx in (px - 1, px, px + 1):
+                if angle == 0 and abs(dx) <= 1 and abs(dy) <= 1:
+                    continue                     # tried above
+                if consider(*_correlation(la, ok_a, *_warped(lb, ok_b, angle, dx, dy),
+                                          need)):
+                    return best, used / a.size
+    return best, used / a.size
+
+
+def well_exposed(thumb, rule: GroupingRule = GroupingRule()) -> float:
+    """Fraction of a thumbnail's pixels strictly between ``rule.low`` and ``rule.high``."""
+    return float(((thumb > rule.low) & (thumb < rule.high)).mean())
 
 
 # ------------------------------------------------------------------------ grouping
@@ -241,6 +328,7 @@ class _Open:
     reasons: list = field(default_factory=list)
     unsure_start: bool = False      # may belong to the session before it
     unsure_join: bool = False       # a frame joined by time alone
+    blank: bool = False             # only frames too dark or too bright to compare
 
     @property
     def end(self) -> float:
@@ -272,6 +360,91 @@ def _verdict(best, rule: GroupingRule) -> str:
     return "differ" if best[0] < rule.differ else "between"
 
 
+def _blank(thumb, rule: GroupingRule) -> str | None:
+    """``"dark"`` or ``"bright"`` for a thumbnail with too few well-exposed pixels to
+    tell scenes apart (fewer than ``rule.min_visible``), None otherwise (or unreadable)."""
+    if thumb is None or well_exposed(thumb, rule) >= rule.min_visible:
+        return None
+    return "dark" if float(np.median(thumb)) <= rule.low else "bright"
+
+
+def _continues(f, thumb, side: str, s: _Open, rule: GroupingRule):
+    """Whether blank frame ``f`` extends session ``s`` past its darkest (``side`` dark)
+    or brightest frame by at most ``rule.continue_stops``, with its few visible pixels
+    where that frame is brightest (darkest): a monotone response orders pixels alike at
+    every exposure.  Returns ``(stops, nearest frame, rank)`` or None."""
+    e = f.relative_exposure
+    k = min(range(len(s.frames)), key=lambda i: s.frames[i].relative_exposure
+            * (1 if side == "dark" else -1))
+    g = s.frames[k]
+    stops = math.log2(g.relative_exposure / e) * (1 if side == "dark" else -1)
+    if not 0 < stops <= rule.continue_stops or s.thumbs[k] is None:
+        return None
+    other = s.thumbs[k]
+    if other.shape != thumb.shape:
+        return None
+    seen = thumb > rule.low if side == "dark" else thumb < rule.high
+    rank = None
+    if int(seen.sum()) >= 3:         # the visible pixels: where g is brightest (darkest)?
+        order = np.argsort(np.argsort(other.ravel(), kind="stable"), kind="stable")
+        pct = order.reshape(other.shape)[seen].mean() / max(1, other.size - 1)
+        rank = float(pct if side == "dark" else 1.0 - pct)
+        if rank < 0.5:
+            return None
+    return stops, g, rank
+
+
+def _join_blank(f, thumb, side, recent, rule: GroupingRule) -> bool:
+    """Put a blank frame into the most recent session it continues; False if none."""
+    for s in reversed(recent):
+        if s.blank or s.has_exposure(f.relative_exposure):
+            continue
+        hit = _continues(f, thumb, side, s, rule)
+        if hit is None:
+            continue
+        stops, g, rank = hit
+        s.frames.append(f)
+        s.thumbs.append(thumb)
+        s.reasons.append(
+            f"{f.path.name}: too {side} to compare ({well_exposed(thumb, rule):.1%} of "
+            f"its pixels well exposed); continues the exposures of {g.path.name} "
+            f"({stops:.2f} stops {'darker' if side == 'dark' else 'brighter'}"
+            + (f", its visible pixels at rank {rank:.2f} there" if rank is not None
+               else "") + f"), the most recent session it continues "
+            f"({max(0.0, f.time - s.end):.0f} s after its last frame)")
+        s.unsure_join = True
+        return True
+    return False
+
+
+def _absorb_blanks(open_: list, rule: GroupingRule) -> None:
+    """Sessions of blank frames only (a bracket begun at an extreme) join the session
+    nearest in time that they continue (:func:`_continues`, darkest or brightest
+    first)."""
+    for s in [x for x in open_ if x.blank]:
+        side = _blank(s.thumbs[0], rule) or "dark"
+        chain = sorted(zip(s.frames, s.thumbs), key=lambda p: p[0].relative_exposure,
+                       reverse=side == "dark")
+        best = None
+        for t in open_:
+            if t is s or t.blank or any(t.has_exposure(g.relative_exposure)
+                                        for g in s.frames):
+                continue
+            gap = max(s.frames[0].time - t.end, t.frames[0].time - s.end)
+            hit = _continues(chain[0][0], chain[0][1], side, t, rule)
+            if gap <= rule.window and hit is not None and all(
+                    0 < math.log2(a[0].relative_exposure / b[0].relative_exposure)
+                    * (1 if side == "dark" else -1) <= rule.continue_stops
+                    for a, b in zip(chain, chain[1:])) and (best is None or gap < best[0]):
+                best = (gap, t, hit)
+        if best is not None:
+            _, t, (stops, g, _) = best
+            _merge(t, s, open_, f"{s.frames[0].path.name} (too {side} to compare) and "
+                   f"the frames with it continue the exposures of {g.path.name} "
+                   f"({stops:.2f} stops), the nearest session in time: one session")
+            t.unsure_join = True
+
+
 def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
     """Put frame ``f`` into an open session (or a new one), writing down why."""
     open_.sort(key=lambda s: s.end)
@@ -297,6 +470,9 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
                 _merge(s, other, open_, f"{name} also shows the scene of "
                                         f"{ob[1].path.name} ({ob[0]:.3f}): one session")
         return
+    side = _blank(thumb, rule)
+    if side is not None and _join_blank(f, thumb, side, recent, rule):
+        return
     last = open_[-1] if open_ else None
     gap = None if last is None else f.time - last.end
     entry = next((x for x in scored if x[0] is last), None)
@@ -308,13 +484,15 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
                 f"thumbnail correlation {entry[1][0]:.3f} between the thresholds")
         last.frames.append(f)
         last.thumbs.append(thumb)
+        last.blank = last.blank and side is not None
         last.reasons.append(f"{name}: {what}, joined by time ({gap:.1f} s after the "
                             "previous frame)")
         last.unsure_join = True
         return
     open_.append(_Open(frames=[f], thumbs=[thumb],
                        reasons=[f"{name}: starts a session ({_why_new(scored, gap, rule)})"],
-                       unsure_start=any(x[2] in ("unknown", "between") for x in scored)))
+                       unsure_start=any(x[2] in ("unknown", "between") for x in scored),
+                       blank=side is not None))
 
 
 def _why_new(scored, gap, rule: GroupingRule) -> str:
@@ -343,20 +521,29 @@ def _merge(into: _Open, other: _Open, open_: list, why: str) -> None:
     into.thumbs = [p[1] for p in pairs]
     into.reasons += other.reasons + [why]
     into.unsure_join = into.unsure_join or other.unsure_join
+    into.blank = into.blank and other.blank
     open_.remove(other)
 
 
-def group_by_content(frames: Sequence[Any], thumbs: Sequence[np.ndarray | None],
-                     rule: GroupingRule = GroupingRule()
+def group_by_content(frames: Sequence[Any], thumbs, rule: GroupingRule = GroupingRule()
                      ) -> tuple[list[ContentGroup], list[tuple[Path, str]]]:
     """Group frames into bracketed sessions by what they show (time as a hint).
+
+    Per optical setup (:func:`setup_key`), frames are placed in capture order
+    (:func:`_place`); time orders them and bounds the search (a session stays open
+    ``rule.window`` seconds, the ``rule.open_sessions`` most recent); what the frames
+    show decides.  A session that can no longer be joined is closed and its thumbnails
+    dropped, so that at most the open sessions' thumbnails are held at once when
+    ``thumbs`` is a function (read lazily).
 
     Parameters
     ----------
     frames : sequence of FrameInfo
         With exposure times.
-    thumbs : sequence
-        :func:`thumbnail` of each frame (None where unreadable).
+    thumbs : sequence or callable
+        :func:`thumbnail` of each frame (None where unreadable), or a function of the
+        frame's index in ``frames`` that returns it (called once per frame, in capture
+        order per setup).
     rule : GroupingRule
 
     Returns
@@ -365,19 +552,34 @@ def group_by_content(frames: Sequence[Any], thumbs: Sequence[np.ndarray | None],
         Ordered by camera, then time (:func:`.discover.sessions_from_groups` names them).
     unassigned : list of (pathlib.Path, str)
     """
+    thumb_of = thumbs if callable(thumbs) else thumbs.__getitem__
     by_setup: dict = {}
-    for f, t in zip(frames, thumbs):
-        by_setup.setdefault(setup_key(f), []).append((f, t))
+    for i, f in enumerate(frames):
+        by_setup.setdefault(setup_key(f), []).append(i)
     built = []
+
+    def close(sessions):
+        for x in sessions:
+            x.thumbs = []                       # never compared again: drop them
+        built.extend(sessions)
+
     for key in sorted(by_setup, key=repr):
         open_: list = []
-        for f, t in sorted(by_setup[key], key=lambda p: (p[0].time, p[0].path.name)):
-            _place(f, t, open_, rule)
-            if len(open_) > rule.open_sessions:    # never compared again: closed
-                open_.sort(key=lambda s: s.end)
-                built += open_[:-rule.open_sessions]
-                del open_[:-rule.open_sessions]
-        built += open_
+        order = sorted(by_setup[key], key=lambda i: (frames[i].time, frames[i].path.name))
+        for i in order:
+            f = frames[i]
+            old = [x for x in open_ if f.time - x.end > rule.window]
+            if old or len(open_) > rule.open_sessions:
+                _absorb_blanks(open_, rule)
+                open_.sort(key=lambda x: x.end)
+                done = [x for x in open_ if f.time - x.end > rule.window]
+                done += [x for x in open_[:max(0, len(open_) - rule.open_sessions)]
+                         if x not in done]
+                close(done)
+                open_[:] = [x for x in open_ if x not in done]
+            _place(f, thumb_of(i), open_, rule)
+        _absorb_blanks(open_, rule)
+        close(open_)
     return _groups(built)
 
 
