@@ -81,6 +81,9 @@ class GroupingRule:
         A frame too dark or too bright to compare (fewer than ``min_visible`` of its
         pixels well exposed) continues a session whose darkest (brightest) frame is at
         most this many stops brighter (darker), in the frame's direction.
+    continue_rank : float
+        ... and whose pixels it still shows (not black, not white) are, on average, at
+        least at this rank (0-1) among the brightest (darkest) of that frame's.
     low, high : int
         8-bit codes strictly between which a thumbnail pixel is well exposed.
     open_sessions : int
@@ -98,6 +101,7 @@ class GroupingRule:
     rotations: tuple = (0.0, -1.5, 1.5, -3.0, 3.0)
     min_visible: float = 0.05
     continue_stops: float = 2.1
+    continue_rank: float = 0.8
     low: int = 6
     high: int = 249
     open_sessions: int = 4
@@ -386,10 +390,12 @@ def _continues(f, thumb, side: str, s: _Open, rule: GroupingRule):
     seen = thumb > rule.low if side == "dark" else thumb < rule.high
     rank = None
     if int(seen.sum()) >= 3:         # the visible pixels: where g is brightest (darkest)?
-        order = np.argsort(np.argsort(other.ravel(), kind="stable"), kind="stable")
-        pct = order.reshape(other.shape)[seen].mean() / max(1, other.size - 1)
+        ref = np.sort(other.ravel())             # mid-rank of ties (clipped codes)
+        v = other[seen]
+        pct = float((np.searchsorted(ref, v, "left") + np.searchsorted(ref, v, "right"))
+                    .mean()) / (2.0 * other.size)
         rank = float(pct if side == "dark" else 1.0 - pct)
-        if rank < 0.5:
+        if rank < rule.continue_rank:
             return None
     return stops, g, rank
 
@@ -463,6 +469,7 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
         s, best, _ = matches[0]
         s.frames.append(f)
         s.thumbs.append(thumb)
+        s.blank = s.blank and _blank(thumb, rule) is not None
         s.reasons.append(f"{name}: shows the scene of {best[1].path.name} "
                          f"(thumbnail correlation {best[0]:.3f})")
         for other, ob, _ in matches[1:]:
