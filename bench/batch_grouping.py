@@ -33,6 +33,7 @@ import argparse
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 import types
@@ -60,6 +61,7 @@ def _before():
         return None
     mod = types.ModuleType("selfcal.batch._grouping_before")
     mod.__package__ = "selfcal.batch"
+    sys.modules[mod.__name__] = mod           # dataclasses look their module up
     exec(compile(text, "grouping@" + BEFORE, "exec"), mod.__dict__)  # noqa: S102
     return mod
 
