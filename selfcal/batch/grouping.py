@@ -72,7 +72,9 @@ class GroupingRule:
         moves by a few per cent of the frame).
     rotations : tuple of float
         Turns (degrees) of one thumbnail tried when the frames do not agree as they are
-        (a phone bracket turns by a degree or two).
+        (a phone bracket turns by a degree or two), the first one 0.
+    rotate_above : float
+        Turns are tried only when the best translation reaches this correlation.
     min_visible : float
         A frame with fewer than this fraction of its pixels well exposed is too dark or
         too bright to tell scenes apart: it joins a session it agrees with, or else one
@@ -99,6 +101,7 @@ class GroupingRule:
     min_overlap: float = 0.01
     max_shift: int = 8
     rotations: tuple = (0.0, -1.5, 1.5, -3.0, 3.0)
+    rotate_above: float = 0.3
     min_visible: float = 0.05
     continue_stops: float = 2.1
     continue_rank: float = 0.8
@@ -200,13 +203,16 @@ def _correlation(la, ok_a, lb, ok_b, need):
     """Pearson correlation of two log thumbnails over the pixels well exposed in both
     (None below ``need`` pixels), and that pixel count."""
     m = ok_a & ok_b
-    n = int(m.sum())
+    n = int(np.count_nonzero(m))
     if n < need:
         return None, n
     x, y = la[m].astype(np.float64), lb[m].astype(np.float64)
-    x, y = x - x.mean(), y - y.mean()
-    d = math.sqrt(float((x * x).sum()) * float((y * y).sum()))
-    return (float((x * y).sum()) / d if d > 0 else 0.0), n
+    sx, sy = float(x.sum()), float(y.sum())
+    sxx = float(np.dot(x, x)) - sx * sx / n
+    syy = float(np.dot(y, y)) - sy * sy / n
+    sxy = float(np.dot(x, y)) - sx * sy / n
+    d = math.sqrt(max(sxx, 0.0) * max(syy, 0.0))
+    return (sxy / d if d > 0 else 0.0), n
 
 
 def _warped(lb, ok_b, angle, dx, dy):
@@ -242,7 +248,7 @@ def _phase_shift(la, ok_a, lb, ok_b):
     return dx, dy
 
 
-def similarity(a, b, rule: GroupingRule = GroupingRule()):
+def similarity(a, b, rule: GroupingRule = GroupingRule(), *, register: bool = True):
     """How well two thumbnails agree as one scene at two exposures, after registration.
 
     The correlation of log codes over the pixels well exposed in both (codes strictly
@@ -252,7 +258,9 @@ def similarity(a, b, rule: GroupingRule = GroupingRule()):
     moved by up to a pixel; then, for each turn in ``rule.rotations`` (degrees), by the
     translation phase correlation finds ([Kuglin1975], at most ``rule.max_shift``
     pixels each way) and the pixel around it -- a handheld phone bracket moves and turns
-    a little between frames.  A moved comparison counts only over at least
+    a little between frames (the turns only when the translation alone reaches
+    ``rule.rotate_above``; none of this search with ``register`` False).  A moved
+    comparison counts only over at least
     ``rule.min_visible`` of the pixels (the best of many small overlaps agrees by
     chance).  The registration search is ours.
 
@@ -288,23 +296,34 @@ def similarity(a, b, rule: GroupingRule = GroupingRule()):
     if consider(*_correlation(la, ok_a, lb, ok_b, need), moved=False):
         return best, used / a.size
     for dy, dx in ((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx):
-        if consider(*_correlation(la, ok_a, *_warped(lb, ok_b, 0.0, dx, dy), need)):
+        if consider(*_shifted_correlation(la, ok_a, lb, ok_b, dy, dx, need)):
             return best, used / a.size
-    if not (ok_a.sum() >= moved_need and ok_b.sum() >= moved_need):
+    if not register or not (ok_a.sum() >= moved_need and ok_b.sum() >= moved_need):
         return best, used / a.size
-    s = float(rule.max_shift)
+    s = int(rule.max_shift)
     for angle in rule.rotations:
+        if angle != 0 and (best is None or best < rule.rotate_above):
+            break                                # not even near: no turn will do
         rl, rm = (lb, ok_b) if angle == 0 else _warped(lb, ok_b, angle, 0.0, 0.0)
         px, py = _phase_shift(la, ok_a, rl, rm)
-        px, py = round(max(-s, min(s, px))), round(max(-s, min(s, py)))
+        px, py = max(-s, min(s, round(px))), max(-s, min(s, round(py)))
         for dy in (py - 1, py, py + 1):
             for dx in (px - 1, px, px + 1):
                 if angle == 0 and abs(dx) <= 1 and abs(dy) <= 1:
                     continue                     # tried above
-                if consider(*_correlation(la, ok_a, *_warped(lb, ok_b, angle, dx, dy),
-                                          need)):
+                if consider(*_shifted_correlation(la, ok_a, rl, rm, dy, dx, need)):
                     return best, used / a.size
     return best, used / a.size
+
+
+def _shifted_correlation(la, ok_a, lb, ok_b, dy, dx, need):
+    """:func:`_correlation` of ``a`` and ``b`` moved by whole pixels ``(dx, dy)``."""
+    h, w = la.shape
+    if abs(dy) >= h or abs(dx) >= w:
+        return None, 0
+    sa = (slice(max(dy, 0), h + min(dy, 0)), slice(max(dx, 0), w + min(dx, 0)))
+    sb = (slice(max(-dy, 0), h + min(-dy, 0)), slice(max(-dx, 0), w + min(-dx, 0)))
+    return _correlation(la[sa], ok_a[sa], lb[sb], ok_b[sb], need)
 
 
 def well_exposed(thumb, rule: GroupingRule = GroupingRule()) -> float:
@@ -344,15 +363,21 @@ class _Open:
 
 
 def _compare(f, thumb, s: _Open, rule: GroupingRule):
-    """Best correlation of ``f`` with the frames of ``s`` nearest in exposure."""
+    """Best correlation of ``f`` with the frames of ``s`` nearest in exposure (the
+    whole registration search against the nearest one that shows enough, the small
+    one against the others)."""
     e = f.relative_exposure
     near = sorted(range(len(s.frames)),
                   key=lambda k: abs(math.log(s.frames[k].relative_exposure / e)))
-    best = None
+    best, searched = None, False
     for k in near[:rule.neighbours]:
-        c, _ = similarity(thumb, s.thumbs[k], rule)
+        full = not searched and _blank(s.thumbs[k], rule) is None
+        searched = searched or full
+        c, _ = similarity(thumb, s.thumbs[k], rule, register=full)
         if c is not None and (best is None or c > best[0]):
             best = (c, s.frames[k])
+        if best is not None and best[0] >= rule.match:
+            break
     return best
 
 
