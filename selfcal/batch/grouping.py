@@ -1,29 +1,42 @@
 """Sessions by what the frames show: content-based grouping of a camera's frames.
 
 A bracket is frames of one scene at several exposures.  The clock alone does not find
-it: a photographer who sets each shutter speed by hand takes 5-90 s between shots (and
-may pause for minutes mid-bracket), while two scenes can be shot 5 s apart.  So frames
-are grouped by what they show, with time as a hint (:func:`group_by_content`):
+it: a photographer who sets each shutter speed by hand takes 10-120 s between shots (a
+compact's 40-frame bracket takes half an hour), the last frame of a bracket may come
+half a minute late, while two scenes can be shot 5 s apart.  So frames are grouped by
+what they show; time only orders them and bounds the search (:func:`group_by_content`):
 
 * frames of one *optical setup* only (camera body and picture settings, image size,
-  lens, focal length: :func:`setup_key`);
-* a frame joins an open session of that setup when its thumbnail agrees with the
-  session's frames nearest in exposure, after a small shift (:func:`similarity`: the
-  correlation of log codes over the pixels well exposed in both -- a monotone response
-  makes it near 1 for one scene at two exposures, whatever the exposure ratio);
-* when the thumbnails cannot be compared (too few pixels well exposed in both: a night
-  scene's shortest exposures, or a frame whose pixels cannot be read), the time rule of
-  :func:`.discover.group_sessions` decides, and the decision is marked unsure;
+  lens, focal length: :func:`setup_key`), in capture order;
+* a frame joins an open session of that setup (one whose last frame is at most
+  ``window`` old, the ``open_sessions`` most recent) when its thumbnail agrees with the
+  session's frames nearest in exposure (:func:`similarity`: the correlation of log codes
+  over the pixels well exposed in both -- a monotone response makes it near 1 for one
+  scene at two exposures, whatever the exposure ratio -- after registration: a small
+  shift, then phase correlation [Kuglin1975] under a few small turns, for handheld
+  phone brackets);
+* a frame too dark or too bright to tell scenes apart (fewer than ``min_visible`` of
+  its pixels well exposed: the ends of a long bracket) joins the most recent session
+  whose exposures it continues, at most ``continue_stops`` past its darkest (brightest)
+  frame, its few visible pixels where that frame is brightest (darkest); a session of
+  such frames alone (a bracket begun at an end) joins the one nearest in time that it
+  continues; these decisions are marked unsure;
+* only when a thumbnail cannot be read (a truncated file), or the agreement is between
+  the thresholds, does the time rule of :func:`.discover.group_sessions` decide (and
+  the decision is marked unsure);
 * a frame never joins a session that has its exposure already (the next bracket began),
   and two open sessions that a frame agrees with both are one (a pause mid-bracket left
   a frame that no neighbour in exposure could vouch for).
 
-Every decision is written down (:attr:`ContentGroup.reasons`, then
-:attr:`.discover.Session.reasons`), and a session any of
-whose decisions was by time alone or near the thresholds is ``unsure``.  All of this is
-ours; the thresholds were chosen on a simulated tuning card
-(:func:`.simulate.write_mixed_card`, seed 11) and are reported on another (seed 23) and
-on a real card (``python3 -m bench.batch_grouping``).
+Thumbnails may be read lazily (``thumbs`` a function): a closed session drops its own,
+so the search holds the open sessions' thumbnails only.  Every decision is written down
+(:attr:`ContentGroup.reasons`, then :attr:`.discover.Session.reasons`), and a session any
+of whose decisions was by time alone, by continuation or near the thresholds is
+``unsure``.  All of this is ours except the phase correlation; the thresholds were
+chosen on simulated tuning cards (:func:`selfcal.sim.hard_cards.write_hard_card` and
+:func:`selfcal.sim.mixed_cards.write_mixed_card`, seeds < 1000) and are reported on
+held-out seeds and on a real card (``python3 -m bench.batch_grouping``; the evidence is
+in ``docs/decisions.md``, "Sessions by content").
 """
 
 from __future__ import annotations
