@@ -37,7 +37,7 @@ import numpy as np
 
 from .camera import default_pipeline
 from .cards import SimulatedBody, SimulatedLibrary, SimulatedSession, default_bodies
-from .mixed_cards import _Writer, mixed_scene
+from .mixed_cards import CardWriter, mixed_scene
 from .stacks import simulate_stack
 from .tone import ToneCurve
 
@@ -202,7 +202,7 @@ def write_hard_card(root, *, seed: int = 0, events_per_body: int = 5, height: in
                           seed * 7919 + k, size, jpeg_quality)
         stamp = datetime(1970, 1, 1) + timedelta(seconds=round(when, 2))
         bias = round(float(np.log2(t * scales[s] * 4)) * 3) / 3
-        path = _Writer(root, body, per_folder, counters, b).write(data, stamp, t, mode, bias)
+        path = CardWriter(root, body, per_folder, counters, b).write(data, stamp, t, mode, bias)
         truth.setdefault((b, s), []).append((path, t, stamp))
     lib = SimulatedLibrary(root=root)
     for (b, s), frames in sorted(truth.items(), key=lambda x: x[1][0][2]):
