@@ -306,7 +306,8 @@ def similarity(a, b, rule: GroupingRule = GroupingRule(), *, register: bool = Tr
             best, used = c, n
         return best is not None and best >= rule.match
 
-    if consider(*_correlation(la, ok_a, lb, ok_b, need), moved=False):
+    c0, n0 = _correlation(la, ok_a, lb, ok_b, need)
+    if consider(c0, n0, moved=False):
         return best, used / a.size
     for dy, dx in ((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx):
         if consider(*_shifted_correlation(la, ok_a, lb, ok_b, dy, dx, need)):
