@@ -91,7 +91,8 @@ def choose_copies(sessions: Sequence, copies: dict) -> list:
     For a session with copied frames, the copy folder (the path each copy of a frame
     does not share with the others) that holds most of its frames is chosen (ties: the
     first by name); each frame is taken from there when it is there.  The sessions'
-    frames are replaced in place and a reason per copied frame is added.
+    frames are replaced in place, and a reason says where the frames were taken from
+    and which copies were skipped.
     """
     skipped = []
     for s in sessions:
@@ -106,17 +107,23 @@ def choose_copies(sessions: Sequence, copies: dict) -> list:
             for root in {r for r, _ in o}:
                 count[root] = count.get(root, 0) + 1
         best = min(count, key=lambda r: (-count[r], str(r)))
-        frames = []
+        frames: list = []
+        told: dict = {}
         for f, o in zip(s.frames, options):
             chosen = next((a for r, a in o if r == best), o[0][1])
             frames.append(chosen)
-            others = [a.path for _, a in o if a is not chosen]
-            skipped += [(p, chosen.path) for p in others]
+            others = [(r, a.path) for r, a in o if a is not chosen]
+            skipped += [(p, chosen.path) for _, p in others]
             if others:
-                s.reasons.append(f"{chosen.path.name}: taken from {chosen.path.parent}; "
-                                 f"the same file (camera, capture time, size, first "
-                                 f"{PREFIX_BYTES // 1024} kB) skipped in "
-                                 + ", ".join(str(p.parent) for p in others))
+                key = (next(r for r, a in o if a is chosen), tuple(r for r, _ in others))
+                told.setdefault(key, []).append(chosen.path.name)
+        for (root, elsewhere), names in told.items():
+            s.reasons.append(
+                f"copies: {len(names)} frame{'s' if len(names) > 1 else ''} ("
+                + (names[0] if len(names) == 1 else f"{names[0]} .. {names[-1]}")
+                + f") taken from {root}; the same files (camera, capture time, size, "
+                f"first {PREFIX_BYTES // 1024} kB) skipped in "
+                + ", ".join(map(str, elsewhere)))
         s.frames = frames
     used = {f.path for s in sessions for f in s.frames}
     for kept, others in copies.items():         # copies of frames in no session
