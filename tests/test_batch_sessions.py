@@ -9,7 +9,6 @@ seed is checked here too.  No Dask needed.
 from __future__ import annotations
 
 import gc
-import math
 import weakref
 
 import numpy as np
@@ -161,18 +160,25 @@ def test_dry_run_gives_every_frame_its_reason_and_names_the_copies(copied, tmp_p
     assert not (tmp_path / "out").exists()
 
 
-def test_a_blank_frame_continues_only_in_its_direction(hard):
-    """The darkest frames of a long bracket join it by continuing its exposures."""
+@pytest.mark.parametrize("order", ["as shot", "darkest first", "brightest first"])
+def test_a_long_bracket_with_black_or_white_ends_is_one_session(hard, order):
+    """The frames too dark or bright to compare join the bracket they continue, also
+    when the bracket begins with them (30 s between frames: the clock does not help)."""
+    from dataclasses import replace
+
     long = max(hard.sessions, key=lambda s: len(s.frames))
     infos = [read_frame_info(p) for p in long.frames]
-    thumbs = [thumbnail(f.path) for f in infos]
-    if all(well_exposed(t) >= GroupingRule().min_visible for t in thumbs):
+    thumbs = {f.path: thumbnail(f.path) for f in infos}
+    if all(well_exposed(t) >= GroupingRule().min_visible for t in thumbs.values()):
         pytest.skip("this card's long bracket shows enough at every exposure")
-    groups, loose = group_by_content(infos, thumbs)
+    if order != "as shot":
+        infos = sorted(infos, key=lambda f: f.relative_exposure,
+                       reverse=order == "brightest first")
+        infos = [replace(f, time=1e9 + 30.0 * k) for k, f in enumerate(infos)]
+    groups, loose = group_by_content(infos, [thumbs[f.path] for f in infos])
     assert [len(g.frames) for g in groups] == [len(infos)] and not loose
     cont = [r for r in groups[0].reasons if "to compare" in r]
     assert cont and groups[0].unsure
     for r in cont:                      # stops past the session's end, in its direction
         stops = float(r.split("(", 2)[2].split(" stops")[0])
         assert 0 < stops <= GroupingRule().continue_stops + 1e-9
-    assert all(math.isfinite(f.relative_exposure) for f in infos)

@@ -464,30 +464,34 @@ def _join_blank(f, thumb, side, recent, rule: GroupingRule) -> bool:
 
 def _absorb_blanks(open_: list, rule: GroupingRule) -> None:
     """Sessions of blank frames only (a bracket begun at an extreme) join the session
-    nearest in time that they continue (:func:`_continues`, darkest or brightest
-    first)."""
-    for s in [x for x in open_ if x.blank]:
-        side = _blank(s.thumbs[0], rule) or "dark"
-        chain = sorted(zip(s.frames, s.thumbs), key=lambda p: p[0].relative_exposure,
-                       reverse=side == "dark")
-        best = None
-        for t in open_:
-            if t is s or t.blank or any(t.has_exposure(g.relative_exposure)
-                                        for g in s.frames):
-                continue
-            gap = max(s.frames[0].time - t.end, t.frames[0].time - s.end)
-            hit = _continues(chain[0][0], chain[0][1], side, t, rule)
-            if gap <= rule.window and hit is not None and all(
-                    0 < math.log2(a[0].relative_exposure / b[0].relative_exposure)
-                    * (1 if side == "dark" else -1) <= rule.continue_stops
-                    for a, b in zip(chain, chain[1:])) and (best is None or gap < best[0]):
-                best = (gap, t, hit)
-        if best is not None:
-            _, t, (stops, g, _) = best
-            _merge(t, s, open_, f"{s.frames[0].path.name} (too {side} to compare) and "
-                   f"the frames with it continue the exposures of {g.path.name} "
-                   f"({stops:.2f} stops), the nearest session in time: one session")
-            t.unsure_join = True
+    nearest in time that they continue (:func:`_continues`), the blank session nearest
+    in exposure to its session first, again until none does (each merge moves a
+    session's end)."""
+    while True:
+        options = []
+        for s in (x for x in open_ if x.blank):
+            side = _blank(s.thumbs[0], rule) or "dark"
+            chain = sorted(zip(s.frames, s.thumbs), key=lambda p: p[0].relative_exposure,
+                           reverse=side == "dark")
+            steps_ok = all(0 < math.log2(a[0].relative_exposure / b[0].relative_exposure)
+                           * (1 if side == "dark" else -1) <= rule.continue_stops
+                           for a, b in zip(chain, chain[1:]))
+            for t in open_:
+                if not steps_ok or t is s or t.blank or any(
+                        t.has_exposure(g.relative_exposure) for g in s.frames):
+                    continue
+                gap = max(s.frames[0].time - t.end, t.frames[0].time - s.end)
+                hit = _continues(chain[0][0], chain[0][1], side, t, rule)
+                if gap <= rule.window and hit is not None:
+                    options.append((hit[0], gap, id(s), s, t, hit, side, chain))
+        if not options:
+            return
+        stops, _, _, s, t, (_, g, _), side, chain = min(options, key=lambda o: o[:3])
+        _merge(t, s, open_, f"{chain[0][0].path.name} (too {side} to compare)"
+               + (" and the frames with it" if len(chain) > 1 else "")
+               + f" continue the exposures of {g.path.name} ({stops:.2f} stops), the "
+               "nearest session in time: one session")
+        t.unsure_join = True
 
 
 def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
@@ -501,7 +505,10 @@ def _place(f, thumb, open_: list, rule: GroupingRule) -> None:
         if any(x[2] == "match" for x in scored) and not s.unsure_start:
             continue                     # placed; only a doubtful start may be bridged
         best = _compare(f, thumb, s, rule)
-        scored.append((s, best, _verdict(best, rule)))
+        verdict = _verdict(best, rule)
+        if s.blank and verdict == "differ":
+            verdict = "unknown"          # a frame that shows almost nothing cannot differ
+        scored.append((s, best, verdict))
     matches = sorted((x for x in scored if x[2] == "match"), key=lambda x: -x[1][0])
     name = f.path.name
     if matches:
