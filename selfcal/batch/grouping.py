@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-#: Frames whose thumbnails cannot be compared are one session when one begins within this
+#: Frames whose thumbnails cannot be read are one session when one begins within this
 #: many seconds of the previous one's end (start + exposure time); with ``--by-time``
 #: (:func:`.discover.group_sessions`), a larger gap starts a new session.
 DEFAULT_MAX_GAP = 10.0
@@ -64,13 +64,14 @@ THUMB_WIDTH = 64
 
 @dataclass(frozen=True)
 class GroupingRule:
-    """The thresholds of :func:`group_by_content`.
+    """The thresholds of :func:`group_by_content` (ours; the evidence for each value is
+    in ``docs/decisions.md``, "Sessions by content").
 
     Attributes
     ----------
     max_gap : float
         Seconds: frames this close (end of one to start of the next) whose thumbnails
-        cannot be compared are one session.
+        cannot be read, or agree between ``differ`` and ``match``, are one session.
     window : float
         Seconds: a session stays open this long after its last frame (a manual bracket's
         pauses are shorter).
