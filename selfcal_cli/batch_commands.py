@@ -103,22 +103,27 @@ def _say_unassigned(unassigned) -> None:
 
 
 def _say_dry_run(library) -> None:
-    """The sessions ``selfcal batch`` would make, with the grouping's reasons."""
+    """The sessions ``selfcal batch`` would make, with the grouping's reason for every
+    frame (why it joined or started its session), the files in none and the copies
+    skipped."""
     sessions = library.sessions
     unsure = sum(s.unsure for s in sessions)
+    copies = getattr(library, "copies", [])
     say(f"dry run: {len(sessions)} sessions, {len(library.cameras)} cameras, "
         f"{sum(len(s.frames) for s in sessions)} frames in sessions, "
-        f"{len(library.unassigned)} files in none" + (f"; {unsure} unsure" if unsure else ""))
+        f"{len(library.unassigned)} files in none" + (f"; {unsure} unsure" if unsure else "")
+        + (f"; {len(copies)} copies skipped" if copies else ""))
     for s in sessions:
         times = [f.exposure_time for f in s.frames]
         say(f"  {s.id}: {len(s.frames)} frames, {min(times):.3g}-{max(times):.3g} s, "
             f"{s.frames[0].path.name} .. {s.frames[-1].path.name}"
             + ("  [unsure]" if s.unsure else ""))
         for why in s.reasons:
-            if s.unsure or "starts" in why:
-                say(f"      {why}")
+            say(f"      {why}")
     for path, why in library.unassigned:
         say(f"  not in a session: {path}: {why}")
+    for skipped, kept in copies:
+        say(f"  copy skipped: {skipped} (the same file as {kept})")
 
 
 def _nothing_to_do(unassigned, roots) -> int:

@@ -254,7 +254,7 @@ class Session:
     frames : list of FrameInfo
         In capture order.
     reasons : list of str
-        Why each frame is in it (:mod:`.grouping`), empty for the time rule.
+        Why each frame is in it (:mod:`.grouping`, or the time rule).
     unsure : bool
         Some decision was by time alone or near a threshold (:mod:`.grouping`).
     """
@@ -307,11 +307,14 @@ class Library:
     unassigned : list of (pathlib.Path, str)
         Files in no session, with the reason.
     roots : list of pathlib.Path
+    copies : list of (pathlib.Path, pathlib.Path)
+        Files skipped as copies of another (:mod:`.copies`): ``(skipped, kept)``.
     """
 
     sessions: list = field(default_factory=list)
     unassigned: list = field(default_factory=list)
     roots: list = field(default_factory=list)
+    copies: list = field(default_factory=list)
 
     @property
     def cameras(self) -> dict:
@@ -395,6 +398,10 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
     workers : int, optional
         Threads reading EXIF and thumbnails (default: up to 8, one per core).
 
+    Frames that are copies of one file in several folders are used once, each session
+    from one copy (:mod:`.copies`; the skipped copies are in :attr:`Library.copies` and
+    the sessions' reasons).
+
     Returns
     -------
     Library
@@ -406,6 +413,7 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
     """
     from dataclasses import replace
 
+    from .copies import choose_copies, collapse_copies
     from .grouping import GroupingRule, group_by_content, read_frames
 
     roots = [Path(r) for r in roots]
@@ -423,15 +431,17 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
             continue
         infos.append(info)
         thumbs.append(thumb)
+    infos, thumbs, copies = collapse_copies(infos, thumbs)
     if by_content:
         rule = replace(rule or GroupingRule(), max_gap=max_gap)
         groups, loose = group_by_content(infos, thumbs, rule)
         sessions = sessions_from_groups(groups)
     else:
         sessions, loose = group_sessions(infos, max_gap=max_gap)
+    skipped = choose_copies(sessions, copies)
     unassigned += loose
     unassigned.sort(key=lambda x: str(x[0]))
-    return Library(sessions=sessions, unassigned=unassigned, roots=roots)
+    return Library(sessions=sessions, unassigned=unassigned, roots=roots, copies=skipped)
 
 
 def _starts_new(session: list, f: FrameInfo, max_gap: float) -> bool:
@@ -480,7 +490,11 @@ def group_sessions(frames: Sequence[FrameInfo], *, max_gap: float = DEFAULT_MAX_
                 continue
             stamp = _iso(g[0].time)[:19].replace("-", "").replace(":", "").replace("T", "-")
             sid = f"{camera}-{stamp}-{_slug(g[0].path.stem)}"
-            sessions.append(Session(id=sid, camera=camera, frames=g))
+            reasons = [f"{g[0].path.name}: starts a session (by time)"] + [
+                f"{f.path.name}: {f.time - (p.time + (p.exposure_time or 0.0)):.1f} s after "
+                f"the previous frame (<= {max_gap:g} s), an exposure the session has not"
+                for p, f in zip(g, g[1:])]
+            sessions.append(Session(id=sid, camera=camera, frames=g, reasons=reasons))
     ids = [s.id for s in sessions]
     for s in sessions:
         if ids.count(s.id) > 1:      # same camera, same second, same first name

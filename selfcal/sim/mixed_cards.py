@@ -74,8 +74,9 @@ def _bracket(rng, kind: str) -> list:
     return speeds[start::-1] + speeds[start + 1:]             # down, then up
 
 
-class _Writer:
-    """Writes frames of one body: numbering, folders, EXIF."""
+class CardWriter:
+    """Writes the frames of one body to a card: numbering per body, ``DCIM/1NNSIMCM``
+    folders of ``per_folder`` files, EXIF (exposure mode and bias set per frame)."""
 
     def __init__(self, root, body, per_folder, counters, index):
         self.root, self.body, self.per_folder = root, body, per_folder
@@ -201,7 +202,7 @@ def write_mixed_card(root, *, seed: int = 0, events_per_body: int = 6, bodies=No
                           (height, width), jpeg_quality)
         stamp = datetime(1970, 1, 1) + timedelta(seconds=round(when, 2))
         bias = round(float(np.log2(t * scales[s] * 4)) * 3) / 3
-        path = _Writer(root, body, per_folder, counters, b).write(data, stamp, t, mode, bias)
+        path = CardWriter(root, body, per_folder, counters, b).write(data, stamp, t, mode, bias)
         truth.setdefault((b, s), []).append((path, t, stamp))
     for (b, s), frames in sorted(truth.items(), key=lambda x: x[1][0][2]):
         lib.sessions.append(SimulatedSession(
