@@ -79,10 +79,10 @@ SECTIONS = (
     ("vignetting", "Vignetting self-calibrated", "Vignetting self-calibrated from handheld "
      "brackets (simulated, with truth): the map against the truth, the response with and "
      "without the joint fit, tripods said not observable.",
-     ("python3 -m bench.vignetting --split held-out --jobs 2",)),
+     ("python3 -m bench.vignetting --split held-out --jobs 1",)),
     ("vignetting_merge", "Merge through a vignetting lens", "The merge of handheld brackets "
      "through a vignetting lens: corner against centre, the falloff's bias, σ.",
-     ("python3 -m bench.vignetting_merge --split held-out --jobs 2",)),
+     ("python3 -m bench.vignetting_merge --split held-out --jobs 1",)),
     ("vignetting_real", "Vignetting on real frames", "Which vignetting each real stack gets "
      "(self, lens database, none) and the self-calibrated falloff of the real panoramas.",
      ("python3 -m bench.vignetting_real --skip-ntu",)),
@@ -114,6 +114,10 @@ SECTIONS = (
      ("python3 -m bench.batch",)),
     ("batch_grouping", "Batch: sessions by content", "`selfcal batch`: sessions by content on real and simulated cards.",
      ("python3 -m bench.batch_grouping",)),
+    ("batch_sessions_scale", "Batch: the session search at scale", "The session search on "
+     "10⁴ and 10⁵ simulated frames (one process): time and peak memory, beside the grouping "
+     "before issue 37.",
+     ("python3 -m bench.batch_sessions_scale",)),
     ("batch_scale", "Batch at scale", "`selfcal batch` at scale: discovery of 10⁵ files, scheduler overhead.",
      ("python3 -m bench.batch_scale",)),
 )
