@@ -45,6 +45,7 @@ from ..errors import CalibrationError, SelfcalError, SelfcalWarning
 from ..io.model_file import jsonable
 from .camera_plot import camera_plot_writers, own_curve
 from .grouping import DEFAULT_MAX_GAP
+from .raw_camera import RAW_COLUMNS, RawLibraryOptions, raw_camera_columns
 from .pooled import (POOL_SAMPLES, POOL_SESSIONS, SessionSamples, agreement_with, disagrees,
                      pooled_calibration, session_samples, shared_model)
 
@@ -93,6 +94,9 @@ class BatchOptions:
         reference reading (``selfcal merge --reading ... --save-scale``), applied to every
         session of that camera (before ``luminance``).  A key matches a session's camera
         label (``make model #serial``) or its EXIF model, ignoring case.
+    raw_library : RawLibraryOptions or None
+        The RAW-path model per camera from its RAW+JPEG pairs (:mod:`.raw_camera`); None:
+        none is fitted.
     """
 
     linearize: bool = False
@@ -105,6 +109,7 @@ class BatchOptions:
     max_gap: float = DEFAULT_MAX_GAP
     luminance: str | None = None
     camera_scales: dict = field(default_factory=dict)
+    raw_library: RawLibraryOptions | None = field(default_factory=RawLibraryOptions)
 
     def luminance_for(self, camera_label: str) -> object:
         """The luminance option of a session of ``camera_label``: its camera's scale when
@@ -591,8 +596,9 @@ def _csv_text(rows, columns) -> str:
     return buf.getvalue()
 
 
-def camera_rows(cameras: dict, fits: dict, rows) -> list:
-    """The per-camera summary: sessions, pooled, flagged, failed, model, fit time."""
+def camera_rows(cameras: dict, fits: dict, rows, raw_fits: dict | None = None) -> list:
+    """The per-camera summary: sessions, pooled, flagged, failed, model, fit time; the
+    RAW-path model and its leave-one-scene-out errors (:func:`.raw_camera.raw_camera_columns`)."""
     by_camera: dict = {}
     for r in rows:
         by_camera.setdefault(r["camera"], []).append(r)
@@ -614,7 +620,8 @@ def camera_rows(cameras: dict, fits: dict, rows) -> list:
             "residual_rms_log": fit.residual_rms_log if fit else None,
             "fit_error": fit.error if fit else "",
             "fit_seconds": round(fit.seconds, 3) if fit else None,
-            "fit_reused": bool(fit and fit.reused)})
+            "fit_reused": bool(fit and fit.reused),
+            **raw_camera_columns((raw_fits or {}).get(cam))})
     return out
 
 
@@ -627,7 +634,7 @@ MANIFEST_COLUMNS = ["session", "status", "error", "camera", "camera_label", "len
 CAMERA_COLUMNS = ["camera", "camera_label", "lenses", "sessions", "ok", "skipped", "failed",
                   "pooled_fit", "model_file", "pooled_sessions", "flagged_sessions",
                   "alone_sessions", "residual_rms_log", "fit_error", "fit_seconds",
-                  "fit_reused", "plot"]
+                  "fit_reused", *RAW_COLUMNS, "plot"]
 
 
 def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:
