@@ -133,6 +133,11 @@ class LibraryFit:
     folds : int
     loso_forward, loso_backward, training_forward, training_backward : float
         Means over the scenes (each scene weighs the same).
+    fold_of : dict
+        Scene → its fold.
+    fold_models : dict
+        Fold → the model fitted without it at the chosen λ (with ``keep_fold_models``;
+        else empty): to score held-out scenes on more than their samples.
     """
 
     model: PipelineModel
@@ -144,6 +149,8 @@ class LibraryFit:
     loso_backward: float = float("nan")
     training_forward: float = float("nan")
     training_backward: float = float("nan")
+    fold_of: dict = field(default_factory=dict)
+    fold_models: dict = field(default_factory=dict)
 
     def __post_init__(self):
         for name in ("loso_forward", "loso_backward", "training_forward",
@@ -198,7 +205,7 @@ def _fit(parts: list, smoothness: float, options: LibraryOptions, seed: int):
 
 def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSamples],
                          options: LibraryOptions | None = None, *, seed: int = 0,
-                         progress=None) -> LibraryFit:
+                         keep_fold_models: bool = False, progress=None) -> LibraryFit:
     """Fit one RAW-path model to many scenes' pairs; λ and errors by leave-one-scene-out.
 
     :func:`selfcal.pipeline.fit_pipeline` ([Gong2018] §3.2-3.5 with [Lin2011] Eq. 10-11)
@@ -216,6 +223,8 @@ def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSample
     options : LibraryOptions, optional
     seed : int
         Seeds the subsampling and every fit (the same input gives the same model).
+    keep_fold_models : bool
+        Keep the fold models of the chosen λ (:attr:`LibraryFit.fold_models`).
     progress : callable, optional
         ``progress("library", done, total, detail)`` after each fit.
 
@@ -260,12 +269,15 @@ def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSample
     grid = tuple(float(v) for v in options.smoothness_grid)
     total, done = len(grid) * n_folds + 1, 0
     held: dict = {}           # λ -> per scene (forward, backward)
+    fold_models: dict = {}    # (λ, fold) -> model, with keep_fold_models
     for lam in grid:
         errs = [None] * len(parts)
         for f in range(n_folds):
             model = _fit([p for p, g in zip(parts, fold_of) if g != f], lam, options, seed)
             for k in np.flatnonzero(fold_of == f):
                 errs[k] = pair_sample_errors(model, parts[k])
+            if keep_fold_models:
+                fold_models[(lam, f)] = model
             done += 1
             if progress is not None:
                 progress("library", done, total, f"λ={lam:g}, fold {f + 1}/{n_folds}")
@@ -286,4 +298,6 @@ def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSample
                                     "scenes": names,
                                     "candidates": [[lam, candidates[lam]] for lam in grid]}
     return LibraryFit(model=model, smoothness=best, candidates=candidates, scenes=rows,
-                      folds=n_folds)
+                      folds=n_folds, fold_of=dict(zip(names, fold_of.tolist())),
+                      fold_models={f: m for (lam, f), m in fold_models.items()
+                                   if lam == best})
