@@ -157,13 +157,25 @@ def plan_raw_cameras(plans, out_dir, options: RawLibraryOptions | None) -> dict:
     return out
 
 
-def _scene_samples(plan: RawCameraPlan, options: RawLibraryOptions, seed: int, fit):
-    """Each scene's joined pair samples; scenes whose pairs cannot be read or registered,
-    or give fewer than 30 samples, are left out (``fit.skipped``: scene → the error)."""
+def raw_camera_samples(plan: RawCameraPlan, options: RawLibraryOptions, seed: int = 0
+                       ) -> tuple[dict, dict]:
+    """Each scene's joined pair samples, as :func:`fit_raw_camera` fits them.
+
+    :func:`selfcal.pipeline.pairs.collect_pair_samples` of the scene's pairs (twice
+    ``options.fit.scene_samples`` drawn, the library fit subsamples them).  Scenes whose
+    pairs cannot be read or registered, or give fewer than 30 samples, are left out.
+
+    Returns
+    -------
+    scenes : dict
+        Session id → :class:`~selfcal.pipeline.pairs.PairSamples`.
+    skipped : dict
+        Session id → why it was left out.
+    """
     from ..pipeline.pairs import collect_pair_samples
 
     per_scene = 2 * int(options.fit.scene_samples)
-    scenes = {}
+    scenes, skipped = {}, {}
     for sid, pairs in plan.scenes:
         try:
             samples, _ = collect_pair_samples([r for r, _ in pairs], [j for _, j in pairs],
@@ -174,8 +186,8 @@ def _scene_samples(plan: RawCameraPlan, options: RawLibraryOptions, seed: int, f
                                        "small, clipped or textured")
             scenes[sid] = samples
         except Exception as exc:  # one scene's failure never stops the others
-            fit.skipped[sid] = _error_text(exc)
-    return scenes
+            skipped[sid] = _error_text(exc)
+    return scenes, skipped
 
 
 def fit_raw_camera(plan: RawCameraPlan, options: RawLibraryOptions, seed: int = 0
@@ -197,7 +209,7 @@ def fit_raw_camera(plan: RawCameraPlan, options: RawLibraryOptions, seed: int = 
     fit = RawCameraFit(camera=plan.camera, label=plan.label,
                        worker=f"{socket.gethostname()}:{os.getpid()}")
     try:
-        scenes = _scene_samples(plan, options, seed, fit)
+        scenes, fit.skipped = raw_camera_samples(plan, options, seed)
         fit.scenes = list(scenes)
         if len(scenes) < 2:
             raise CalibrationError(f"{len(scenes)} of its {len(plan.scenes)} scenes gave samples; "
