@@ -17,6 +17,7 @@ camera pipeline.  Citation keys are those of ``docs/references.md``.  Its module
 * :mod:`selfcal.pipeline.dense` -- dense 3-D tables baked for whole images;
 * :mod:`selfcal.pipeline.trust` -- how far from its training colours a model is used;
 * :mod:`selfcal.pipeline.pairs` -- RAW+JPEG pairs, registered and sampled;
+* :mod:`selfcal.pipeline.library` -- one model from many scenes' pairs, by leave-one-scene-out;
 * :mod:`selfcal.pipeline.registration` -- where a camera's JPEG lies on its raw;
 * :mod:`selfcal.pipeline.nus` -- the NUS in-camera model files ([Kim2012]);
 * :mod:`selfcal.pipeline.nus_render` -- an NUS model's render table;

@@ -22,6 +22,7 @@ three per-channel tone curves.  The modules follow a frame through the camera:
 * :mod:`selfcal.sim.cards` -- simulated memory cards of many sessions (``selfcal batch``);
 * :mod:`selfcal.sim.mixed_cards` -- cards as photographers fill them: bursts, manual
   brackets, scenes mixed;
+* :mod:`selfcal.sim.raw_cards` -- a card of RAW+JPEG brackets of many scenes (DNG + JPEG);
 * :mod:`selfcal.sim.scoring` -- scores against the simulator's truth;
 * :mod:`selfcal.sim.luminance` -- the absolute calibration of a simulated camera (cd/m²).
 

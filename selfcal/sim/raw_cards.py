@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cards import SimulatedBody, _write_session, default_bodies
+from .cards import SimulatedBody, write_session, default_bodies
 from .scenes import make_scene
 from .stacks import simulate_stack
 
@@ -119,7 +119,7 @@ def write_raw_card(root, *, n_scenes: int = 10, body: SimulatedBody | None = Non
         stack = simulate_stack(scene, body.pipeline, list(times), seed=s_seed,
                                jpeg_quality=jpeg_quality)
         when = start + timedelta(seconds=120 * k)
-        frames = _write_session(root, body, counter, stack, when, 999, mid)
+        frames = write_session(root, body, counter, stack, when, 999, mid)
         counter += len(frames)
         raws = []
         for path, raw in zip(frames, stack.raws):
