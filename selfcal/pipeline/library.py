@@ -246,7 +246,7 @@ def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSample
     >>> cam = sim.default_pipeline(seed=1)
     >>> pairs = [sim.simulate_raw_jpeg_pair(seed=s, pipeline=cam) for s in range(3)]
     >>> scenes = [collect_pair_samples([p["raw"]], [p["rendered"]])[0] for p in pairs]
-    >>> fit = fit_pipeline_library(scenes, LibraryOptions(smoothness_grid=(1e-5,)))
+    >>> fit = fit_pipeline_library(scenes, LibraryOptions(smoothness_grid=(1e-5,), scene_samples=300))
     >>> fit.loso_forward < 6 and fit.folds == 3
     True
     """
