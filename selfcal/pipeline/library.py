@@ -43,7 +43,7 @@ __all__ = ["LibraryOptions", "LibraryFit", "SceneErrors", "fit_pipeline_library"
 
 #: λ of the forward tone curves ([Gong2018] Eq. 9) tried by leave-one-scene-out (tuned on
 #: simulated cards, seeds < 1000: docs/decisions.md, "RAW+JPEG libraries").
-SMOOTHNESS_GRID = (1e-5, 1e-4, 1e-3)
+SMOOTHNESS_GRID = (1e-5, 1e-3)
 #: Samples drawn from each scene (all pairs of the scene together).
 SCENE_SAMPLES = 2000
 #: Folds of the leave-one-scene-out at most (more scenes share folds).
