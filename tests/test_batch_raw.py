@@ -23,11 +23,19 @@ from selfcal.batch.raw_camera import (RAW_COLUMNS, RAW_MODEL, RawLibraryOptions,
                                       plan_raw_cameras, raw_camera_samples)
 from selfcal.batch.run import plan_batch
 from selfcal.batch.discover import discover
+from selfcal.pipeline import PipelineOptions
 from selfcal.pipeline.library import LibraryOptions, fit_pipeline_library
 from selfcal.sim.raw_cards import raw_card_scene, write_raw_card
 
-RAW = RawLibraryOptions(fit=LibraryOptions(smoothness_grid=(1e-5, 1e-3), scene_samples=500))
+# small fits (few samples, three matrix sets) keep the tests fast; the bench runs the defaults
+RAW = RawLibraryOptions(fit=LibraryOptions(
+    smoothness_grid=(1e-5, 1e-3), scene_samples=300,
+    pipeline=PipelineOptions(n_sets=3, backward="lut")))
 OPTIONS = BatchOptions(raw_library=RAW)
+#: One λ: the unwritable-output test needs a fit, not a choice.
+ONE = BatchOptions(raw_library=RawLibraryOptions(fit=LibraryOptions(
+    smoothness_grid=(1e-5,), scene_samples=300,
+    pipeline=PipelineOptions(n_sets=3, backward="lut"))))
 
 
 @pytest.fixture(scope="module")
@@ -134,19 +142,19 @@ def test_a_rerun_reuses_the_camera_model(batch, card):
 
 def test_an_unwritable_model_fails_its_fit_cleanly_and_the_rerun_writes_it(card, tmp_path):
     out = tmp_path / "out"
-    plans, _ = plan_batch(discover([card.root]), out, OPTIONS)
+    plans, _ = plan_batch(discover([card.root]), out, ONE)
     camera = plans[0].camera
     blocked = out / "cameras" / camera / RAW_MODEL
     blocked.mkdir(parents=True)                   # a folder where the model goes
     (blocked / "keep").write_text("not empty: the sweep of leftovers keeps it")
-    first = run_batch([card.root], out, scheduler="serial", options=OPTIONS)
+    first = run_batch([card.root], out, scheduler="serial", options=ONE)
     cam = first.cameras[0]
     assert {r["status"] for r in first.rows} == {"ok"}      # the sessions are not hurt
     assert cam["raw_model_file"] == "" and str(blocked) in cam["raw_fit_error"]
     assert not (out / "cameras" / camera / "raw_camera.json").exists()
     assert [p for p in out.rglob(".*") if p.is_file()] == []
     shutil.rmtree(blocked)
-    second = run_batch([card.root], out, scheduler="serial", options=OPTIONS)
+    second = run_batch([card.root], out, scheduler="serial", options=ONE)
     assert second.cameras[0]["raw_fit_error"] == "" and blocked.is_file()
     assert not second.cameras[0]["raw_fit_reused"]
     assert {r["status"] for r in second.rows} == {"skipped"}
