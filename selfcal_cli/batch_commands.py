@@ -12,6 +12,7 @@ import signal
 import sys
 import threading
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 from .common import EPILOG, EXIT_OK, check_output_folder, int_range, say, warn
@@ -146,6 +147,8 @@ def cmd_batch(args) -> int:
                            max_gap=args.max_gap,
                            luminance=None if args.luminance == "none" else args.luminance,
                            camera_scales=dict(args.luminance_scale))
+    if args.no_raw_library:
+        options = replace(options, raw_library=None)
     previous = _terminate_as_interrupt()
     try:
         result = run_batch(
@@ -273,6 +276,8 @@ def register(sub) -> None:
                         "selfcal merge --reading ... --save-scale); repeat per camera")
     p.add_argument("--no-pool", action="store_true",
                    help="fit every session alone (no per-camera curve)")
+    p.add_argument("--no-raw-library", action="store_true",
+                   help="fit no RAW-path model per camera from its RAW+JPEG pairs")
     p.add_argument("--max-gap", type=_positive_seconds, default=DEFAULT_MAX_GAP,
                    metavar="S", help="seconds within which frames whose thumbnails cannot "
                                      "be compared are one session; with --by-time, the "

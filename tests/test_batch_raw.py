@@ -158,3 +158,38 @@ def test_an_unwritable_model_fails_its_fit_cleanly_and_the_rerun_writes_it(card,
     assert second.cameras[0]["raw_fit_error"] == "" and blocked.is_file()
     assert not second.cameras[0]["raw_fit_reused"]
     assert {r["status"] for r in second.rows} == {"skipped"}
+
+
+def test_a_raw_fit_lost_on_the_cluster_is_recorded_and_the_rerun_fits_it(card, tmp_path,
+                                                                         monkeypatch):
+    """A RAW-path task that dies (as with its worker) fails that fit only: the sessions
+    finish, the camera row says why, nothing is written for it, and a rerun fits it."""
+    from selfcal.batch import cluster
+
+    def dies(*args):
+        raise RuntimeError("worker lost")
+
+    out = tmp_path / "out"
+    monkeypatch.setattr(cluster, "fit_raw_camera", dies)
+    first = run_batch([card.root], out, scheduler="serial", options=ONE)
+    assert {r["status"] for r in first.rows} == {"ok"}
+    cam = first.cameras[0]
+    assert "failed on the cluster" in cam["raw_fit_error"] and "worker lost" in \
+        cam["raw_fit_error"]
+    assert not (out / "cameras" / cam["camera"] / RAW_MODEL).exists()
+    monkeypatch.undo()
+    second = run_batch([card.root], out, scheduler="serial", options=ONE)
+    assert second.cameras[0]["raw_fit_error"] == ""
+    assert (out / "cameras" / cam["camera"] / RAW_MODEL).is_file()
+    assert {r["status"] for r in second.rows} == {"skipped"}
+
+
+def test_cli_batch_can_leave_the_raw_library_out(card, tmp_path, capsys):
+    from selfcal_cli.main import main
+
+    out = tmp_path / "out"
+    main(["batch", str(card.root), "-o", str(out), "--scheduler", "serial",
+          "--no-raw-library"])
+    row = _camera_rows(out)[0]
+    assert row["raw_model_file"] == "" and row["raw_scenes"] is None
+    assert not list(out.rglob(RAW_MODEL))
