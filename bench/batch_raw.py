@@ -28,9 +28,16 @@ Protocol per card (every error against the truth, over every pixel of a scene):
   pooled training  the final pooled model scored on each of its training scenes;
   single unseen    one pair fitted the way selfcal.calibrate_pipeline does (default
                    options), scored on every other scene; mean over the training pairs
-                   (the first pair of each scene; on sim cards every other scene).
-Forward: raw -> rendered RMSE, 0-255, against the camera's continuous rendering; backward:
-JPEG -> raw RMSE (raw in [0, 1]) over pixels with no JPEG channel at 0 or 255.  Targets
+                   (the first pair of each scene; on sim cards of the first six scenes,
+                   one of each kind).
+The errors are taken in the camera's gamut: pixels whose raw has no channel at or above
+0.98 and whose true rendering has no channel within half a code of 0 or 255.  Outside it
+the camera clipped, the samples (block means without clipped blocks, as the batch takes
+them) say nothing, and every model extrapolates: on the outdoor-saturated scenes that is
+two thirds of the pixels, 40-50 codes off for the pooled and the single model alike, which
+would swamp the comparison (the all-pixel forward errors are printed beside).  Forward:
+raw -> rendered RMSE, 0-255, against the camera's continuous rendering; backward: JPEG ->
+raw RMSE (raw in [0, 1]) over those pixels, without a JPEG channel at 0 or 255.  Targets
 (issue 37): pooled LOSO forward <= 1.5 x pooled training; <= 0.5 x single unseen;
 backward pooled LOSO no worse than single unseen.
 
@@ -72,15 +79,20 @@ def rmse(a, b, mask=None):
 
 
 def score(model, pairs):
-    """Forward (0-255) and backward (raw) RMSE of ``model`` over a scene's pairs."""
-    f, b = [], []
+    """Forward (0-255) and backward (raw) RMSE of ``model`` over a scene's pairs, in the
+    camera's gamut (see the module notes), and forward over all pixels."""
+    f, b, f_all = [], [], []
     for p in pairs:
         raw, codes, truth = (p["raw"].reshape(-1, 3), p["rendered"].reshape(-1, 3),
                              p["truth"].reshape(-1, 3))
-        f.append(rmse(np.asarray(model.render(raw)).reshape(-1, 3), truth) * 255)
-        ok = ~((codes == 0) | (codes == 255)).any(axis=1)
+        fwd = np.asarray(model.render(raw)).reshape(-1, 3)
+        gamut = (raw.max(axis=1) < 0.98) & ((truth >= 0.5 / 255)
+                                            & (truth <= 254.5 / 255)).all(axis=1)
+        f.append(rmse(fwd, truth, gamut) * 255)
+        f_all.append(rmse(fwd, truth) * 255)
+        ok = gamut & ~((codes == 0) | (codes == 255)).any(axis=1)
         b.append(rmse(np.asarray(model.to_raw(codes)).reshape(-1, 3), raw, ok))
-    return float(np.mean(f)), float(np.mean(b))
+    return float(np.mean(f)), float(np.mean(b)), float(np.mean(f_all))
 
 
 def sim_card(seed, cache: Path):
@@ -164,7 +176,7 @@ def tuning(cache):
     print(table(["card"] + [f"λ={lam:g}" for lam in WIDE_GRID] + ["chosen"], rows))
 
 
-def report_card(name, scenes, grid, single_every):
+def report_card(name, scenes, grid, n_single):
     lib = pooled(scenes, grid)
     names = list(scenes)
     loso, train = {}, {}
@@ -172,9 +184,7 @@ def report_card(name, scenes, grid, single_every):
         loso[n] = score(lib.fold_models[lib.fold_of[n]], scenes[n])
         train[n] = score(lib.model, scenes[n])
     single, rows = {}, []
-    for i, a in enumerate(names):
-        if i % single_every:
-            continue
+    for a in names[:n_single]:
         t0 = time.perf_counter()
         m = single_pair_model(scenes[a][0])
         print(f"  single-pair fit {a}: {time.perf_counter() - t0:.0f} s", file=sys.stderr)
@@ -184,16 +194,21 @@ def report_card(name, scenes, grid, single_every):
         s_f = np.mean([v[0] for v in per_scene_single[n]])
         s_b = np.mean([v[1] for v in per_scene_single[n]])
         own = next((x for x in lib.scenes if x.scene == n))
+        s_a = np.mean([v[2] for v in per_scene_single[n]])
         rows.append([n, f"{loso[n][0]:.2f}", f"{train[n][0]:.2f}", f"{s_f:.2f}",
                      f"{loso[n][1]:.4f}", f"{train[n][1]:.4f}", f"{s_b:.4f}",
+                     f"{loso[n][2]:.2f} / {train[n][2]:.2f} / {s_a:.2f}",
                      f"{own.loso_forward:.2f} / {own.training_forward:.2f}"])
     lf = np.mean([v[0] for v in loso.values()])
     tf = np.mean([v[0] for v in train.values()])
     lb = np.mean([v[1] for v in loso.values()])
     sf = np.mean([v[0] for a in single for v in single[a].values()])
     sb = np.mean([v[1] for a in single for v in single[a].values()])
+    alls = (np.mean([v[2] for v in loso.values()]), np.mean([v[2] for v in train.values()]),
+            np.mean([v[2] for a in single for v in single[a].values()]))
     rows.append(["mean", f"{lf:.2f}", f"{tf:.2f}", f"{sf:.2f}", f"{lb:.4f}",
                  f"{np.mean([v[1] for v in train.values()]):.4f}", f"{sb:.4f}",
+                 " / ".join(f"{v:.2f}" for v in alls),
                  f"{lib.loso_forward:.2f} / {lib.training_forward:.2f}"])
     print(f"\n### {name}: {len(names)} scenes, λ chosen {lib.smoothness:g} "
           f"(LOSO forward on samples per λ: "
@@ -201,6 +216,7 @@ def report_card(name, scenes, grid, single_every):
           + f"); single pairs: {len(single)} training choices\n")
     print(table(["scene", "fwd pooled LOSO", "fwd pooled training", "fwd single unseen",
                  "bwd pooled LOSO", "bwd pooled training", "bwd single unseen",
+                 "fwd all pixels: LOSO / training / single",
                  "manifest (samples): LOSO / training fwd"], rows))
     ok = (lf <= 1.5 * tf, lf <= 0.5 * sf, lb <= sb)
     print(f"\n{name}: pooled LOSO / training forward = {lf / tf:.2f} (target <= 1.5: "
@@ -232,9 +248,9 @@ def main(argv=None):
         print(f"## RAW+JPEG library against one pair (λ grid {SMOOTHNESS_GRID})")
         if "sim" in only:
             for seed in REPORT_SEEDS:
-                report_card(f"sim-{seed}", sim_card(seed, args.cache), SMOOTHNESS_GRID, 2)
+                report_card(f"sim-{seed}", sim_card(seed, args.cache), SMOOTHNESS_GRID, 6)
         if "nus" in only:
-            report_card("nus-d7000", nus_card(args.cache), SMOOTHNESS_GRID, 1)
+            report_card("nus-d7000", nus_card(args.cache), SMOOTHNESS_GRID, 9)
     print(f"\n(total {time.perf_counter() - t0:.0f} s)")
 
 
