@@ -37,6 +37,7 @@ Examples
 
 from .clipped import ClippedCorrection, clipped_pixel_correction
 from .fit import PipelineOptions, fit_pipeline
+from .library import LibraryFit, LibraryOptions, fit_pipeline_library
 from .lattice import LatticeLUT, LatticeOptions, highlight_stretch, lattice_regression_lut
 from .matrix import fibonacci_sphere, rank_based_matrix, row_scales
 from .model import BackwardStages, ForwardStages, PipelineModel
@@ -47,6 +48,9 @@ from .trust import TrainingColours
 
 __all__ = [
     "fit_pipeline",
+    "fit_pipeline_library",
+    "LibraryOptions",
+    "LibraryFit",
     "PipelineOptions",
     "PipelineModel",
     "ForwardStages",
