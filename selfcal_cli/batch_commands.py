@@ -84,6 +84,7 @@ def _say_summary(result) -> None:
             + (f", {flagged} flagged (fitted alone)" if flagged else "")
             + (f", {cam['alone_sessions']} fitted alone" if cam["alone_sessions"]
                and cam["alone_sessions"] != flagged else ""))
+        _say_raw_model(cam)
     _say_unassigned(result.unassigned)
     unsure = sum(bool(r.get("grouping_unsure")) for r in result.rows)
     if unsure:
@@ -93,6 +94,16 @@ def _say_summary(result) -> None:
         say(f"failed: {row['session']}: {row['error']}")
     for path in result.files:
         say(f"wrote {path}")
+
+
+def _say_raw_model(cam) -> None:
+    """The camera's RAW-path model from its RAW+JPEG pairs, where it has one (or why not)."""
+    if cam.get("raw_model_file"):
+        say(f"    RAW-path model from {len(cam['raw_scenes'])} scenes' RAW+JPEG pairs: "
+            f"forward {cam['raw_loso_forward']:.2f} codes on scenes left out "
+            f"({cam['raw_training_forward']:.2f} on its own); {cam['raw_model_file']}")
+    elif cam.get("raw_fit_error"):
+        say(f"    no RAW-path model: {cam['raw_fit_error']}")
 
 
 def _say_unassigned(unassigned) -> None:
@@ -166,7 +177,7 @@ def cmd_batch(args) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-    if not result.rows:
+    if not result.rows and not result.files:
         return _nothing_to_do(result.unassigned, args.roots)
     _say_summary(result)
     if result.failed:

@@ -193,3 +193,18 @@ def test_cli_batch_can_leave_the_raw_library_out(card, tmp_path, capsys):
     row = _camera_rows(out)[0]
     assert row["raw_model_file"] == "" and row["raw_scenes"] is None
     assert not list(out.rglob(RAW_MODEL))
+
+
+def test_a_card_of_single_raw_jpeg_shots_gets_its_camera_model(tmp_path, capsys):
+    """No bracket, so no session: each RAW+JPEG shot is a scene of its camera's library."""
+    from selfcal_cli.main import main
+
+    card = write_raw_card(tmp_path / "card", n_scenes=3, lone=3)
+    out = tmp_path / "out"
+    assert main(["batch", str(card.root), "-o", str(out), "--scheduler", "serial"]) == 0
+    said = "".join(capsys.readouterr())
+    assert "RAW-path model from 3 scenes" in said and "nothing to do" not in said
+    row = _camera_rows(out)[0]
+    assert row["sessions"] == 0 and len(row["raw_scenes"]) == 3
+    assert all(s.startswith("pair-") for s in row["raw_scenes"])
+    assert (out / "cameras" / row["camera"] / RAW_MODEL).is_file()

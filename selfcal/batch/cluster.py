@@ -327,10 +327,10 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
     library = discover(roots, exclude=[out_dir], max_gap=options.max_gap,
                        by_content=options.by_content)
     plans, cameras = plan_batch(library, out_dir, options)
-    if not plans:              # nothing to do: nothing written, nothing started
+    raw = _earlier_raw_work(plans, out_dir, options, redo, library.lone_pairs)
+    if not plans and not (raw[0] or raw[1]):  # nothing to do: nothing written or started
         return BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     fits, rows, todo = _earlier_work(plans, cameras, options, redo)
-    raw = _earlier_raw_work(plans, out_dir, options, redo)
     result = BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     if progress is not None:
         progress("sessions", len(rows), len(plans), "")
@@ -415,10 +415,10 @@ def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
     return fits, rows, todo
 
 
-def _earlier_raw_work(plans, out_dir, options: BatchOptions, redo: bool):
+def _earlier_raw_work(plans, out_dir, options: BatchOptions, redo: bool, lone_pairs=()):
     """The RAW-path camera fits to do (:mod:`.raw_camera`) and those to reuse:
     ``(plans to do, {camera: reused fit})``."""
-    raw_plans = plan_raw_cameras(plans, out_dir, options.raw_library)
+    raw_plans = plan_raw_cameras(plans, out_dir, options.raw_library, lone_pairs)
     reused = {} if redo else {c: f for c, p in raw_plans.items()
                               if (f := reusable_raw_camera_fit(p)) is not None}
     return [p for c, p in raw_plans.items() if c not in reused], reused

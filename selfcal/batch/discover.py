@@ -307,11 +307,16 @@ class Library:
     unassigned : list of (pathlib.Path, str)
         Files in no session, with the reason.
     roots : list of pathlib.Path
+    lone_pairs : list of FrameInfo
+        Frames in no session that have a raw beside them (single RAW+JPEG shots: each a
+        scene of its camera's RAW-path library, :mod:`.raw_camera`); also in
+        ``unassigned``.
     """
 
     sessions: list = field(default_factory=list)
     unassigned: list = field(default_factory=list)
     roots: list = field(default_factory=list)
+    lone_pairs: list = field(default_factory=list)
 
     @property
     def cameras(self) -> dict:
@@ -431,7 +436,9 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
         sessions, loose = group_sessions(infos, max_gap=max_gap)
     unassigned += loose
     unassigned.sort(key=lambda x: str(x[0]))
-    return Library(sessions=sessions, unassigned=unassigned, roots=roots)
+    loose_paths = {p for p, _ in loose}
+    lone = [f for f in infos if f.raw is not None and f.path in loose_paths]
+    return Library(sessions=sessions, unassigned=unassigned, roots=roots, lone_pairs=lone)
 
 
 def _starts_new(session: list, f: FrameInfo, max_gap: float) -> bool:

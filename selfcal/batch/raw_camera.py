@@ -5,13 +5,13 @@ Where a camera's frames come with raws (``IMG_0001.JPG`` + ``IMG_0001.CR2``: pai
 the pairs of many sessions (:func:`selfcal.pipeline.library.fit_pipeline_library`: the
 rank-based model of [Gong2018] §3 with the RBF ``h⁻¹`` of [Lin2011] §6, the scenes as
 groups, λ of the tone curves and the errors by leave-one-scene-out).  A scene is a
-session of the batch (a bracket of one scene).  The camera key (:func:`.discover.camera_key`)
+session of the batch (a bracket of one scene), or a single RAW+JPEG shot that is in no
+session (:attr:`.discover.Library.lone_pairs`).  The camera key (:func:`.discover.camera_key`)
 holds the body and the picture settings EXIF gives (CustomRendered, Contrast, Saturation,
 Sharpness, EXIF 2.32): where those change, the pairs go to different models.  Picture
 styles that only a maker note records (Canon Picture Style, Sony Creative Style, Fuji
 film simulation, Nikon Picture Control) are *not* read: frames that differ only there
-share a model.  Lone RAW+JPEG frames (in no bracket) are not in any session and are not
-used.  All of this is ours.
+share a model.  All of this is ours.
 
 The task (:func:`fit_raw_camera`) runs wherever the executor puts it, reads its pairs
 itself, never raises, and writes together (:class:`selfcal.io.StagedOutputs`)::
@@ -134,26 +134,45 @@ def _spread(items, k: int) -> list:
     return [items[i] for i in idx]
 
 
-def plan_raw_cameras(plans, out_dir, options: RawLibraryOptions | None) -> dict:
+def _lone_scene(info) -> tuple:
+    """A single RAW+JPEG shot as a scene: ``(start, id, label, ((raw, rendered),))``; the
+    id is ``pair-<stem>-<hash of its path>`` (unique in a library)."""
+    import hashlib
+    from datetime import datetime, timedelta
+
+    digest = hashlib.sha1(str(info.path).encode()).hexdigest()[:6]
+    start = (datetime(1970, 1, 1) + timedelta(seconds=info.time or 0.0)).isoformat(
+        timespec="milliseconds")
+    return (start, f"pair-{info.path.stem.lower()}-{digest}", info.camera_label,
+            ((str(info.raw), str(info.path)),))
+
+
+def plan_raw_cameras(plans, out_dir, options: RawLibraryOptions | None,
+                     lone_pairs=()) -> dict:
     """Camera key → :class:`RawCameraPlan` for every known camera with RAW+JPEG pairs in
-    two sessions or more (none when ``options`` is None: the RAW path is off)."""
+    two scenes or more: its sessions with raws, and its single RAW+JPEG shots
+    (``lone_pairs``, :attr:`.discover.Library.lone_pairs`), one scene each.  None when
+    ``options`` is None (the RAW path is off)."""
     if options is None:
         return {}
     by_camera: dict = {}
     for p in plans:
         pairs = session_pairs(p)
         if pairs and not p.camera.startswith("unknown"):
-            by_camera.setdefault(p.camera, []).append((p, pairs))
+            by_camera.setdefault(p.camera, []).append((p.start, p.id, p.camera_label, pairs))
+    for info in lone_pairs:
+        if not info.camera.startswith("unknown"):
+            by_camera.setdefault(info.camera, []).append(_lone_scene(info))
     out = {}
     for camera, items in by_camera.items():
         if len(items) < 2:
             continue
-        items = _spread(sorted(items, key=lambda x: (x[0].start, x[0].id)),
+        items = _spread(sorted(items, key=lambda x: (x[0], x[1])),
                         max(2, int(options.max_scenes)))
-        scenes = tuple((p.id, tuple(_spread(pairs, max(1, int(options.pairs_per_scene)))))
-                       for p, pairs in items)
-        out[camera] = RawCameraPlan(camera=camera, label=items[0][0].camera_label,
-                                    scenes=scenes, out_dir=str(Path(out_dir).resolve()))
+        scenes = tuple((sid, tuple(_spread(pairs, max(1, int(options.pairs_per_scene)))))
+                       for _, sid, _, pairs in items)
+        out[camera] = RawCameraPlan(camera=camera, label=items[0][2], scenes=scenes,
+                                    out_dir=str(Path(out_dir).resolve()))
     return out
 
 

@@ -602,12 +602,13 @@ def camera_rows(cameras: dict, fits: dict, rows, raw_fits: dict | None = None) -
     by_camera: dict = {}
     for r in rows:
         by_camera.setdefault(r["camera"], []).append(r)
-    out = []
-    for cam in sorted(by_camera):
-        rs = by_camera[cam]
+    out, raw_fits = [], raw_fits or {}
+    for cam in sorted(set(by_camera) | set(raw_fits)):    # RAW+JPEG shots only: no session
+        rs = by_camera.get(cam, [])
         fit = fits.get(cam)
         out.append({
-            "camera": cam, "camera_label": rs[0]["camera_label"],
+            "camera": cam,
+            "camera_label": rs[0]["camera_label"] if rs else raw_fits[cam].label,
             "lenses": sorted({r["lens"] for r in rs if r["lens"]}),
             "sessions": len(rs), "ok": sum(r["status"] == "ok" for r in rs),
             "skipped": sum(r["status"] == "skipped" for r in rs),
@@ -621,7 +622,7 @@ def camera_rows(cameras: dict, fits: dict, rows, raw_fits: dict | None = None) -
             "fit_error": fit.error if fit else "",
             "fit_seconds": round(fit.seconds, 3) if fit else None,
             "fit_reused": bool(fit and fit.reused),
-            **raw_camera_columns((raw_fits or {}).get(cam))})
+            **raw_camera_columns(raw_fits.get(cam))})
     return out
 
 

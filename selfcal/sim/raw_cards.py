@@ -93,7 +93,7 @@ class RawCard:
 
 def write_raw_card(root, *, n_scenes: int = 10, body: SimulatedBody | None = None,
                    height: int = 96, width: int = 144, times=RAW_TIMES,
-                   jpeg_quality: int = 92, seed: int = 0,
+                   jpeg_quality: int = 92, seed: int = 0, lone: int = 0,
                    start=datetime(2024, 6, 1, 9, 0, 0)) -> RawCard:
     """Write a card dump of RAW+JPEG brackets of ``n_scenes`` scenes by one body.
 
@@ -102,6 +102,8 @@ def write_raw_card(root, *, n_scenes: int = 10, body: SimulatedBody | None = Non
     minutes after scene ``k - 1``; its frames are written as
     :func:`selfcal.sim.cards.write_library` writes them (``DCIM/1NNSIMCM``, EXIF of an
     auto bracket), each with its raw as ``<stem>.DNG`` (:func:`linear_dng`) beside it.
+    The last ``lone`` of the scenes are single shots instead (the first time of ``times``
+    alone): RAW+JPEG pairs in no bracket.
 
     Returns
     -------
@@ -116,7 +118,8 @@ def write_raw_card(root, *, n_scenes: int = 10, body: SimulatedBody | None = Non
         s_seed = 1000 * int(seed) + k
         kind = SCENE_KINDS[k % len(SCENE_KINDS)]
         scene = raw_card_scene(kind, height, width, s_seed)
-        stack = simulate_stack(scene, body.pipeline, list(times), seed=s_seed,
+        shot = list(times) if k < int(n_scenes) - int(lone) else list(times[:1])
+        stack = simulate_stack(scene, body.pipeline, shot, seed=s_seed,
                                jpeg_quality=jpeg_quality)
         when = start + timedelta(seconds=120 * k)
         frames = write_session(root, body, counter, stack, when, 999, mid)
