@@ -16,6 +16,9 @@ process per core, each with its memory limit), or the scheduler at ``scheduler``
 ``finish-<session>``
     The merge and outputs (:func:`.run.finish_session`), depending on the session's
     ``prepare`` future and its camera's fit.
+``raw-<camera>``
+    A camera with RAW+JPEG pairs in two scenes or more: its RAW-path model
+    (:func:`.raw_camera.fit_raw_camera`), depending on no other task; it reads its pairs.
 
 Priorities order the work: the pool candidates' preparation first (so that the camera
 fits start early), then the camera fits, then merges before further preparation (so that

@@ -20,6 +20,7 @@ Output layout under the batch folder::
     cameras.jsonl   cameras.csv       one row per camera
     unassigned.csv                    files in no session, with the reason
     cameras/<camera>/model.json       the shared curve;  camera.json: its summary
+    cameras/<camera>/pipeline.json    the RAW-path model (:mod:`.raw_camera`)
     sessions/<session>/radiance.exr   preview.jpg  [model.json]  [linear/*.tif]  session.json
 
 A session is skipped on a rerun when its ``session.json`` says it finished, every output
