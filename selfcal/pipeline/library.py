@@ -271,10 +271,10 @@ def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSample
     held: dict = {}           # λ -> per scene (forward, backward)
     fold_models: dict = {}    # (λ, fold) -> model, with keep_fold_models
     for lam in grid:
-        errs = [None] * len(parts)
+        errs: list = [None] * len(parts)
         for f in range(n_folds):
             model = _fit([p for p, g in zip(parts, fold_of) if g != f], lam, options, seed)
-            for k in np.flatnonzero(fold_of == f):
+            for k in np.flatnonzero(fold_of == f).tolist():
                 errs[k] = pair_sample_errors(model, parts[k])
             if keep_fold_models:
                 fold_models[(lam, f)] = model
