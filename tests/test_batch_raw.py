@@ -208,3 +208,13 @@ def test_a_card_of_single_raw_jpeg_shots_gets_its_camera_model(tmp_path, capsys)
     assert row["sessions"] == 0 and len(row["raw_scenes"]) == 3
     assert all(s.startswith("pair-") for s in row["raw_scenes"])
     assert (out / "cameras" / row["camera"] / RAW_MODEL).is_file()
+
+
+def test_other_fit_settings_fit_again(batch, card):
+    from selfcal.batch.raw_camera import reusable_raw_camera_fit
+
+    plans, _ = plan_batch(discover([card.root]), batch["out"], OPTIONS)
+    plan = next(iter(plan_raw_cameras(plans, batch["out"], RAW).values()))
+    assert reusable_raw_camera_fit(plan, RAW, OPTIONS.seed) is not None
+    assert reusable_raw_camera_fit(plan, RAW, OPTIONS.seed + 1) is None
+    assert reusable_raw_camera_fit(plan, ONE.raw_library, OPTIONS.seed) is None

@@ -423,7 +423,8 @@ def _earlier_raw_work(plans, out_dir, options: BatchOptions, redo: bool, lone_pa
     ``(plans to do, {camera: reused fit})``."""
     raw_plans = plan_raw_cameras(plans, out_dir, options.raw_library, lone_pairs)
     reused = {} if redo else {c: f for c, p in raw_plans.items()
-                              if (f := reusable_raw_camera_fit(p)) is not None}
+                              if (f := reusable_raw_camera_fit(p, options.raw_library,
+                                                               options.seed)) is not None}
     return [p for c, p in raw_plans.items() if c not in reused], reused
 
 

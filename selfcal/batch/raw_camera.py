@@ -238,7 +238,8 @@ def fit_raw_camera(plan: RawCameraPlan, options: RawLibraryOptions, seed: int = 
         fit.model_path = str(plan.model_path)
         fit.seconds = time.perf_counter() - t0
         record = {**asdict(fit), "pairs": [[sid, [list(p) for p in pairs]]
-                                           for sid, pairs in plan.scenes]}
+                                           for sid, pairs in plan.scenes],
+                  "settings": fit_settings(options, seed)}
         with StagedOutputs(force=True) as staged:
             staged.write(plan.model_path, lambda tmp: lib.model.save(tmp, force=True))
             staged.write(plan.folder / RAW_RECORD, lambda tmp: Path(tmp).write_text(
@@ -249,12 +250,23 @@ def fit_raw_camera(plan: RawCameraPlan, options: RawLibraryOptions, seed: int = 
     return fit
 
 
-def reusable_raw_camera_fit(plan: RawCameraPlan) -> RawCameraFit | None:
+def fit_settings(options: RawLibraryOptions, seed: int) -> str:
+    """What a fit was made with besides its pairs (the options and the seed), as text: a
+    rerun with other settings fits again."""
+    return f"{options!r} seed={int(seed)}"
+
+
+def reusable_raw_camera_fit(plan: RawCameraPlan, options: RawLibraryOptions | None = None,
+                            seed: int = 0) -> RawCameraFit | None:
     """The camera's RAW-path fit of an earlier run when its record lists the same pairs
-    and its model is newer than every one of them; else None."""
+    and settings (:func:`fit_settings`; not compared when ``options`` is None) and its
+    model is newer than every one of the pairs; else None."""
     try:
         record = json.loads((plan.folder / RAW_RECORD).read_text())
         pairs = tuple((sid, tuple(tuple(p) for p in ps)) for sid, ps in record.pop("pairs"))
+        settings = record.pop("settings")
+        if options is not None and settings != fit_settings(options, seed):
+            return None
         fit = RawCameraFit(**record)
         made = os.stat(fit.model_path).st_mtime
         newest = max(os.stat(f).st_mtime for f in plan.files())
