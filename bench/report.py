@@ -120,6 +120,9 @@ SECTIONS = (
      ("python3 -m bench.batch_sessions_scale",)),
     ("batch_scale", "Batch at scale", "`selfcal batch` at scale: discovery of 10⁵ files, scheduler overhead.",
      ("python3 -m bench.batch_scale",)),
+    ("batch_raw", "Batch: RAW+JPEG libraries", "One RAW-path model from a camera's RAW+JPEG "
+     "library, against one pair, on scenes it was not fitted on.",
+     ("python3 -m bench.batch_raw --split tuning", "python3 -m bench.batch_raw --split heldout")),
 )
 
 #: Tables left out here to keep the file short (script -> indices of its tables, in the

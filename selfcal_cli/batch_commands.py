@@ -13,6 +13,7 @@ import signal
 import sys
 import threading
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 from .common import EPILOG, EXIT_OK, check_output_folder, int_range, say, warn
@@ -84,6 +85,7 @@ def _say_summary(result) -> None:
             + (f", {flagged} flagged (fitted alone)" if flagged else "")
             + (f", {cam['alone_sessions']} fitted alone" if cam["alone_sessions"]
                and cam["alone_sessions"] != flagged else ""))
+        _say_raw_model(cam)
     _say_unassigned(result.unassigned)
     unsure = sum(bool(r.get("grouping_unsure")) for r in result.rows)
     if unsure:
@@ -93,6 +95,16 @@ def _say_summary(result) -> None:
         say(f"failed: {row['session']}: {row['error']}")
     for path in result.files:
         say(f"wrote {path}")
+
+
+def _say_raw_model(cam) -> None:
+    """The camera's RAW-path model from its RAW+JPEG pairs, where it has one (or why not)."""
+    if cam.get("raw_model_file"):
+        say(f"    RAW-path model from {len(cam['raw_scenes'])} scenes' RAW+JPEG pairs: "
+            f"forward {cam['raw_loso_forward']:.2f} codes on scenes left out "
+            f"({cam['raw_training_forward']:.2f} on its own); {cam['raw_model_file']}")
+    elif cam.get("raw_fit_error"):
+        say(f"    no RAW-path model: {cam['raw_fit_error']}")
 
 
 def _say_unassigned(unassigned) -> None:
@@ -160,6 +172,8 @@ def cmd_batch(args) -> int:
                            max_gap=args.max_gap,
                            luminance=None if args.luminance == "none" else args.luminance,
                            camera_scales=dict(args.luminance_scale))
+    if args.no_raw_library:
+        options = replace(options, raw_library=None)
     previous = _terminate_as_interrupt()
     try:
         result = run_batch(
@@ -178,7 +192,7 @@ def cmd_batch(args) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-    if not result.rows:
+    if not result.rows and not result.files:
         return _nothing_to_do(result.unassigned, args.roots)
     _say_summary(result)
     if result.failed:
@@ -334,6 +348,8 @@ def register(sub) -> None:
                         "selfcal merge --reading ... --save-scale); repeat per camera")
     p.add_argument("--no-pool", action="store_true",
                    help="fit every session alone (no per-camera curve)")
+    p.add_argument("--no-raw-library", action="store_true",
+                   help="fit no RAW-path model per camera from its RAW+JPEG pairs")
     p.add_argument("--max-gap", type=_positive_seconds, default=DEFAULT_MAX_GAP,
                    metavar="S", help="seconds within which frames whose thumbnails cannot "
                                      "be compared are one session; with --by-time, the "

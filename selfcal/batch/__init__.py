@@ -16,7 +16,9 @@ import Dask.  Its modules:
 * :mod:`selfcal.batch.run` -- the plan, the three kinds of task, the manifest, reruns;
 * :mod:`selfcal.batch.cluster` -- the task graph on Dask distributed (or in process);
 * :mod:`selfcal.batch.faults` -- interruption, lost workers, leftovers of killed writers;
-* :mod:`selfcal.batch.camera_plot` -- per camera body, its sessions' curves over the pooled one.
+* :mod:`selfcal.batch.camera_plot` -- per camera body, its sessions' curves over the pooled one;
+* :mod:`selfcal.batch.raw_camera` -- per camera body, one RAW-path model from its RAW+JPEG
+  pairs.
 
 Examples
 --------

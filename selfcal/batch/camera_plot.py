@@ -6,8 +6,11 @@ R, G and B curves, kept in the session's manifest row) drawn in the colour of it
 (ok, doubtful, unusable: :mod:`selfcal.response.verdict`), dashed when the pooled fit
 flagged it (it disagrees with its camera's shared curve and was fitted alone), under the
 camera's shared curve (:mod:`.pooled`, the Eq. 7-8 solver of [Lin2011] on samples pooled
-across sessions) in black.  The counts head the figure.  Ours; matplotlib, Agg backend,
-files only.
+across sessions) in black.  The counts head the figure.  Where the camera has a RAW-path
+model from its RAW+JPEG pairs (:mod:`.raw_camera`), a second panel draws each scene's
+forward error (0-255) under the model fitted without it (leave-one-scene-out) beside
+its error under the model fitted on it, with the means; the header gives the backward
+errors.  Ours; matplotlib, Agg backend, files only.
 """
 
 from __future__ import annotations
@@ -71,7 +74,32 @@ def _header(cam: dict, rows: list) -> list:
     if flagged:
         more = f" and {len(flagged) - 4} more" if len(flagged) > 4 else ""
         lines.append("flagged: " + ", ".join(flagged[:4]) + more)
+    if cam.get("raw_model_file"):
+        lines.append(f"RAW-path model from {len(cam.get('raw_scenes') or [])} scenes' "
+                     f"RAW+JPEG pairs (λ {cam.get('raw_smoothness'):g}): forward "
+                     f"{cam['raw_loso_forward']:.2f} codes on unseen scenes, "
+                     f"{cam['raw_training_forward']:.2f} on its own; backward "
+                     f"{cam['raw_loso_backward']:.4f} / {cam['raw_training_backward']:.4f}")
+    elif cam.get("raw_fit_error"):
+        lines.append(f"no RAW-path model: {cam['raw_fit_error']}")
     return lines
+
+
+def _raw_panel(ax, cam: dict) -> None:
+    """Per scene: forward error unseen (leave-one-scene-out) and on its own scene."""
+    scenes = cam.get("raw_scene_errors") or []
+    k = np.arange(len(scenes))
+    loso = [s["loso_forward"] for s in scenes]
+    train = [s["training_forward"] for s in scenes]
+    ax.bar(k - 0.2, loso, 0.4, color="tab:purple", label="scene left out")
+    ax.bar(k + 0.2, train, 0.4, color="tab:gray", label="scene in the fit")
+    ax.axhline(float(np.mean(loso)), color="tab:purple", ls="--", lw=1)
+    ax.axhline(float(np.mean(train)), color="tab:gray", ls="--", lw=1)
+    ax.set_xticks(k, [str(i + 1) for i in k], fontsize=7)
+    ax.set_xlabel("scene (camera row: raw_scenes)")
+    ax.set_ylabel("RAW-path forward RMSE, 0-255")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(loc="upper left", fontsize=8)
 
 
 def render_camera_plot(cam: dict, rows: list) -> bytes:
@@ -87,7 +115,12 @@ def render_camera_plot(cam: dict, rows: list) -> bytes:
     x = np.linspace(0.0, 1.0, CURVE_POINTS)
     header = [w for line in _header(cam, rows) for w in textwrap.wrap(line, 95)]
     top = 0.25 + 0.15 * len(header)              # inches above the axes for the text
-    fig, ax = plt.subplots(figsize=(6.4, 4.4 + top))
+    raw = bool(cam.get("raw_scene_errors"))
+    fig, axes = plt.subplots(1, 2 if raw else 1, figsize=(11.5 if raw else 6.4, 4.4 + top),
+                             squeeze=False)
+    ax = axes[0, 0]
+    if raw:
+        _raw_panel(axes[0, 1], cam)
     for flagged in (False, True):
         for verdict, colour in VERDICT_COLOURS.items():
             curves = [np.column_stack([x, r["own_curve"]]) for r in rows
@@ -111,7 +144,7 @@ def render_camera_plot(cam: dict, rows: list) -> bytes:
         ax.legend(loc="upper left", fontsize=8)
     fig.text(0.02, 1 - 0.1 / (4.4 + top), "\n".join(header), fontsize=8, ha="left",
              va="top")
-    fig.subplots_adjust(left=0.11, right=0.97, bottom=0.6 / (4.4 + top),
+    fig.subplots_adjust(left=0.11 * (0.56 if raw else 1), right=0.97, wspace=0.25, bottom=0.6 / (4.4 + top),
                         top=1 - (top + 0.1) / (4.4 + top))
     buf = _io.BytesIO()
     fig.savefig(buf, format="png", dpi=90)

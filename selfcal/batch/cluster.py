@@ -16,6 +16,9 @@ process per core, each with its memory limit), or the scheduler at ``scheduler``
 ``finish-<session>``
     The merge and outputs (:func:`.run.finish_session`), depending on the session's
     ``prepare`` future and its camera's fit.
+``raw-<camera>``
+    A camera with RAW+JPEG pairs in two scenes or more: its RAW-path model
+    (:func:`.raw_camera.fit_raw_camera`), depending on no other task; it reads its pairs.
 
 Priorities order the work: the pool candidates' preparation first (so that the camera
 fits start early), then the camera fits, then merges before further preparation (so that
@@ -40,6 +43,8 @@ from ..errors import OutputExistsError, SelfcalError
 from ..typing import PathLike, Progress
 from .discover import DEFAULT_MAX_GAP, discover
 from .faults import Journal, interrupted_rows, sweep_partial
+from .raw_camera import (fit_raw_camera, lost_raw_fit, plan_raw_cameras,
+                         reusable_raw_camera_fit)
 from .run import (MANIFEST, BatchOptions, camera_rows, finish_session, finished_row,
                   fit_camera, plan_batch, plan_row, prepare_session, reusable_camera_fit,
                   write_manifest)
@@ -59,7 +64,7 @@ NO_MALLOC_TRIM = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"
 MAX_IN_FLIGHT = 1000
 
 # task priorities (higher first)
-_PRIORITY = {"candidate": 30, "camera": 40, "finish": 20, "prepare": 10}
+_PRIORITY = {"candidate": 30, "camera": 40, "raw": 25, "finish": 20, "prepare": 10}
 
 
 class ClusterError(SelfcalError):
@@ -348,7 +353,8 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
     library = discover(roots, exclude=[out_dir], max_gap=options.max_gap,
                        by_content=options.by_content)
     plans, cameras = plan_batch(library, out_dir, options)
-    if not plans:              # nothing to do: nothing written, nothing started
+    raw = _earlier_raw_work(plans, out_dir, options, redo, library.lone_pairs)
+    if not plans and not (raw[0] or raw[1]):  # nothing to do: nothing written or started
         return BatchResult(out_dir=out_dir, unassigned=library.unassigned)
     fits, rows, todo = _earlier_work(plans, cameras, options, redo)
     result = BatchResult(out_dir=out_dir, unassigned=library.unassigned)
@@ -362,15 +368,15 @@ def run_batch(roots: Sequence[PathLike], out_dir: PathLike, *, scheduler: str | 
             "client": cluster.client, "connect_timeout": cluster.connect_timeout}
     try:
         _execute(result, spec, todo, cameras, fits, options, rows, len(plans), progress,
-                 max_in_flight=cluster.max_in_flight)
+                 max_in_flight=cluster.max_in_flight, raw=raw)
     except KeyboardInterrupt:        # Ctrl-C, or SIGTERM as the CLI turns it
         rows += interrupted_rows(todo, rows)
-        _conclude(result, list(rows), cameras, fits, plans, library)
+        _conclude(result, list(rows), cameras, fits, plans, library, raw[1])
         journal.close(remove=True)
         raise
     journal.close()
     sweep_partial(out_dir)           # what a killed worker left half-written
-    _conclude(result, list(rows), cameras, fits, plans, library)
+    _conclude(result, list(rows), cameras, fits, plans, library, raw[1])
     journal.close(remove=True)
     return result
 
@@ -388,26 +394,26 @@ class _Journaled(list):
 
 
 def _execute(result, cluster, todo, cameras, fits, options, rows, total, progress, *,
-             max_in_flight: int = MAX_IN_FLIGHT):
+             max_in_flight: int = MAX_IN_FLIGHT, raw=((), {})):
     """Start the executor (when there is work), drive the tasks, close it."""
-    if not todo:
+    if not todo and not raw[0]:
         return
     scheduler, client = cluster["scheduler"], cluster["client"]
     executor = (SerialExecutor() if scheduler == "serial" else DaskExecutor(**cluster))
     try:
         result.executor = executor.name
         _drive(executor, todo, cameras, fits, options, rows, total, progress,
-               max_in_flight=max_in_flight)
+               max_in_flight=max_in_flight, raw=raw)
         if client is None and scheduler is None:
             result.worker_memory = executor.worker_memory()
     finally:
         executor.close()
 
 
-def _conclude(result, rows, cameras, fits, plans, library):
+def _conclude(result, rows, cameras, fits, plans, library, raw_fits=None):
     """The sorted manifest, camera summary and unassigned list, written together."""
     result.rows = sorted(rows, key=lambda r: r["session"])
-    result.cameras = camera_rows(cameras, fits, result.rows)
+    result.cameras = camera_rows(cameras, fits, result.rows, raw_fits)
     inputs = [f for p in plans for f in p.frames]
     result.files = write_manifest(result.out_dir, result.rows, result.cameras,
                                   library.unassigned, inputs=inputs)
@@ -435,8 +441,18 @@ def _earlier_work(plans, cameras, options: BatchOptions, redo: bool):
     return fits, rows, todo
 
 
+def _earlier_raw_work(plans, out_dir, options: BatchOptions, redo: bool, lone_pairs=()):
+    """The RAW-path camera fits to do (:mod:`.raw_camera`) and those to reuse:
+    ``(plans to do, {camera: reused fit})``."""
+    raw_plans = plan_raw_cameras(plans, out_dir, options.raw_library, lone_pairs)
+    reused = {} if redo else {c: f for c, p in raw_plans.items()
+                              if (f := reusable_raw_camera_fit(p, options.raw_library,
+                                                               options.seed)) is not None}
+    return [p for c, p in raw_plans.items() if c not in reused], reused
+
+
 def _drive(executor, todo, cameras, fits, options, rows, total, progress, *,
-           max_in_flight: int = MAX_IN_FLIGHT):
+           max_in_flight: int = MAX_IN_FLIGHT, raw=((), {})):
     """Submit the tasks of the sessions to do and collect their rows as they finish.
 
     The pool candidates' ``prepare`` are submitted first, all of them (a camera's fit
@@ -445,7 +461,9 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress, *,
     session lets the next one in, so the scheduler and this process hold a bounded
     number of tasks however large the library.  A camera's fit is submitted when the
     last of its candidates is prepared, with the ``finish`` of its sessions under way;
-    a session without a fit to wait for is finished as soon as it is prepared.
+    a session without a fit to wait for is finished as soon as it is prepared.  The
+    RAW-path fits of ``raw`` (``(plans, fits)``: :mod:`.raw_camera`) depend on no other
+    task and are submitted first; their results go into its ``fits``.
     """
     by_id = {p.id: p for p in todo}
     waiting = {cam: {p.id for p in todo if p.camera == cam and p.pool_candidate}
@@ -463,9 +481,14 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress, *,
         tags[fut] = ("prepare", p.id)
         return fut
 
+    raw_plans, raw_fits = {p.camera: p for p in raw[0]}, raw[1]
+    raw_f = [executor.submit(fit_raw_camera, p, options.raw_library, options.seed,
+                             key=f"raw-{cam}", priority=_PRIORITY["raw"])
+             for cam, p in raw_plans.items()]
+    tags.update({f: ("raw", cam) for f, cam in zip(raw_f, raw_plans)})
     n_candidates = sum(p.camera in waiting and p.pool_candidate for p in queue)
     first = min(len(queue), n_candidates + max_in_flight)   # every candidate at once:
-    completed = executor.as_completed([prepare() for _ in range(first)])  # fits can't stall
+    completed = executor.as_completed(raw_f + [prepare() for _ in range(first)])
 
     def finish(p, camera):
         finishing.add(p.id)
@@ -491,6 +514,8 @@ def _drive(executor, todo, cameras, fits, options, rows, total, progress, *,
                 finish(by_id[name], camera_f.get(cam, fits.get(cam)))
         elif kind == "camera":
             fits[name] = _result_or(fut, None) or fits.get(name)
+        elif kind == "raw":
+            raw_fits[name] = _result_or(fut, None) or lost_raw_fit(raw_plans[name], fut)
         else:
             rows.append(_result_or(fut, None) or _lost(by_id[name], fut))
             prep_f.pop(name)       # the scheduler may forget the preparation now

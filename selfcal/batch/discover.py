@@ -309,12 +309,17 @@ class Library:
     roots : list of pathlib.Path
     copies : list of (pathlib.Path, pathlib.Path)
         Files skipped as copies of another (:mod:`.copies`): ``(skipped, kept)``.
+    lone_pairs : list of FrameInfo
+        Frames in no session that have a raw beside them (single RAW+JPEG shots: each a
+        scene of its camera's RAW-path library, :mod:`.raw_camera`); also in
+        ``unassigned``.
     """
 
     sessions: list = field(default_factory=list)
     unassigned: list = field(default_factory=list)
     roots: list = field(default_factory=list)
     copies: list = field(default_factory=list)
+    lone_pairs: list = field(default_factory=list)
 
     @property
     def cameras(self) -> dict:
@@ -441,7 +446,10 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
     skipped = choose_copies(sessions, copies)
     unassigned += loose
     unassigned.sort(key=lambda x: str(x[0]))
-    return Library(sessions=sessions, unassigned=unassigned, roots=roots, copies=skipped)
+    loose_paths = {p for p, _ in loose}
+    lone = [f for f in infos if f.raw is not None and f.path in loose_paths]
+    return Library(sessions=sessions, unassigned=unassigned, roots=roots, copies=skipped,
+                   lone_pairs=lone)
 
 
 def _starts_new(session: list, f: FrameInfo, max_gap: float) -> bool:

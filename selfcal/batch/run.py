@@ -20,6 +20,7 @@ Output layout under the batch folder::
     cameras.jsonl   cameras.csv       one row per camera
     unassigned.csv                    files in no session, with the reason
     cameras/<camera>/model.json       the shared curve;  camera.json: its summary
+    cameras/<camera>/pipeline.json    the RAW-path model (:mod:`.raw_camera`)
     sessions/<session>/radiance.exr   preview.jpg  [model.json]  [linear/*.tif]  session.json
 
 A session is skipped on a rerun when its ``session.json`` says it finished, every output
@@ -45,6 +46,7 @@ from ..errors import CalibrationError, SelfcalError, SelfcalWarning
 from ..io.model_file import jsonable
 from .camera_plot import camera_plot_writers, own_curve
 from .grouping import DEFAULT_MAX_GAP
+from .raw_camera import RAW_COLUMNS, RawLibraryOptions, raw_camera_columns
 from .pooled import (POOL_SAMPLES, POOL_SESSIONS, SessionSamples, agreement_with, disagrees,
                      pooled_calibration, session_samples, shared_model)
 
@@ -93,6 +95,9 @@ class BatchOptions:
         reference reading (``selfcal merge --reading ... --save-scale``), applied to every
         session of that camera (before ``luminance``).  A key matches a session's camera
         label (``make model #serial``) or its EXIF model, ignoring case.
+    raw_library : RawLibraryOptions or None
+        The RAW-path model per camera from its RAW+JPEG pairs (:mod:`.raw_camera`); None:
+        none is fitted.
     """
 
     linearize: bool = False
@@ -105,6 +110,7 @@ class BatchOptions:
     max_gap: float = DEFAULT_MAX_GAP
     luminance: str | None = None
     camera_scales: dict = field(default_factory=dict)
+    raw_library: RawLibraryOptions | None = field(default_factory=RawLibraryOptions)
 
     def luminance_for(self, camera_label: str) -> object:
         """The luminance option of a session of ``camera_label``: its camera's scale when
@@ -591,17 +597,19 @@ def _csv_text(rows, columns) -> str:
     return buf.getvalue()
 
 
-def camera_rows(cameras: dict, fits: dict, rows) -> list:
-    """The per-camera summary: sessions, pooled, flagged, failed, model, fit time."""
+def camera_rows(cameras: dict, fits: dict, rows, raw_fits: dict | None = None) -> list:
+    """The per-camera summary: sessions, pooled, flagged, failed, model, fit time; the
+    RAW-path model and its leave-one-scene-out errors (:func:`.raw_camera.raw_camera_columns`)."""
     by_camera: dict = {}
     for r in rows:
         by_camera.setdefault(r["camera"], []).append(r)
-    out = []
-    for cam in sorted(by_camera):
-        rs = by_camera[cam]
+    out, raw_fits = [], raw_fits or {}
+    for cam in sorted(set(by_camera) | set(raw_fits)):    # RAW+JPEG shots only: no session
+        rs = by_camera.get(cam, [])
         fit = fits.get(cam)
         out.append({
-            "camera": cam, "camera_label": rs[0]["camera_label"],
+            "camera": cam,
+            "camera_label": rs[0]["camera_label"] if rs else raw_fits[cam].label,
             "lenses": sorted({r["lens"] for r in rs if r["lens"]}),
             "sessions": len(rs), "ok": sum(r["status"] == "ok" for r in rs),
             "skipped": sum(r["status"] == "skipped" for r in rs),
@@ -614,7 +622,8 @@ def camera_rows(cameras: dict, fits: dict, rows) -> list:
             "residual_rms_log": fit.residual_rms_log if fit else None,
             "fit_error": fit.error if fit else "",
             "fit_seconds": round(fit.seconds, 3) if fit else None,
-            "fit_reused": bool(fit and fit.reused)})
+            "fit_reused": bool(fit and fit.reused),
+            **raw_camera_columns(raw_fits.get(cam))})
     return out
 
 
@@ -627,7 +636,7 @@ MANIFEST_COLUMNS = ["session", "status", "error", "camera", "camera_label", "len
 CAMERA_COLUMNS = ["camera", "camera_label", "lenses", "sessions", "ok", "skipped", "failed",
                   "pooled_fit", "model_file", "pooled_sessions", "flagged_sessions",
                   "alone_sessions", "residual_rms_log", "fit_error", "fit_seconds",
-                  "fit_reused", "plot"]
+                  "fit_reused", *RAW_COLUMNS, "plot"]
 
 
 def write_manifest(out_dir, rows, cameras, unassigned, *, inputs=()) -> list:

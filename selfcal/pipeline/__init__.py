@@ -17,6 +17,7 @@ camera pipeline.  Citation keys are those of ``docs/references.md``.  Its module
 * :mod:`selfcal.pipeline.dense` -- dense 3-D tables baked for whole images;
 * :mod:`selfcal.pipeline.trust` -- how far from its training colours a model is used;
 * :mod:`selfcal.pipeline.pairs` -- RAW+JPEG pairs, registered and sampled;
+* :mod:`selfcal.pipeline.library` -- one model from many scenes' pairs, by leave-one-scene-out;
 * :mod:`selfcal.pipeline.registration` -- where a camera's JPEG lies on its raw;
 * :mod:`selfcal.pipeline.nus` -- the NUS in-camera model files ([Kim2012]);
 * :mod:`selfcal.pipeline.nus_render` -- an NUS model's render table;
@@ -36,6 +37,7 @@ Examples
 
 from .clipped import ClippedCorrection, clipped_pixel_correction
 from .fit import PipelineOptions, fit_pipeline
+from .library import LibraryFit, LibraryOptions, fit_pipeline_library
 from .lattice import LatticeLUT, LatticeOptions, highlight_stretch, lattice_regression_lut
 from .matrix import fibonacci_sphere, rank_based_matrix, row_scales
 from .model import BackwardStages, ForwardStages, PipelineModel
@@ -46,6 +48,9 @@ from .trust import TrainingColours
 
 __all__ = [
     "fit_pipeline",
+    "fit_pipeline_library",
+    "LibraryOptions",
+    "LibraryFit",
     "PipelineOptions",
     "PipelineModel",
     "ForwardStages",

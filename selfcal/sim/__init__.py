@@ -24,6 +24,7 @@ three per-channel tone curves.  The modules follow a frame through the camera:
   brackets, scenes mixed;
 * :mod:`selfcal.sim.hard_cards` -- harder cards: slow manual, long tripod and handheld
   phone brackets, neighbouring scenes a minute apart, copies of a card;
+* :mod:`selfcal.sim.raw_cards` -- a card of RAW+JPEG brackets of many scenes (DNG + JPEG);
 * :mod:`selfcal.sim.scoring` -- scores against the simulator's truth;
 * :mod:`selfcal.sim.luminance` -- the absolute calibration of a simulated camera (cd/m²).
 

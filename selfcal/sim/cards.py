@@ -118,7 +118,7 @@ class Shots:
     jpeg_quality: int = 90
 
 
-def _write_session(root, body: SimulatedBody, counter: int, stack, when: datetime,
+def write_session(root, body: SimulatedBody, counter: int, stack, when: datetime,
                    per_folder: int, mid: float) -> list:
     """Write one session's frames as the body's card files, in shot order, from frame
     number ``counter + 1``; each frame's EXIF says when it was shot and its exposure bias
@@ -190,7 +190,7 @@ def write_library(root, *, bodies=None, sessions_per_body: int = 3,
             stack = simulate_stack(scene, pipe, list(shots.times), seed=s_seed,
                                    jpeg_quality=shots.jpeg_quality)
             when = start + timedelta(seconds=k * session_gap + 7 * b)
-            frames = _write_session(root, body, counters[b], stack, when, per_folder, mid)
+            frames = write_session(root, body, counters[b], stack, when, per_folder, mid)
             counters[b] += len(frames)
             lib.sessions.append(SimulatedSession(
                 body=body, frames=frames,
