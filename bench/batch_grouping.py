@@ -78,7 +78,8 @@ def pair_correlations(lib):
     """Best correlations (the whole search) of comparable frame pairs of one body
     ≤ 2 stops apart: (same scene, different scenes)."""
     from selfcal.batch import read_frame_info
-    from selfcal.batch.grouping import similarity, thumbnail, well_exposed
+    from selfcal.batch.grouping import similarity, well_exposed
+    from selfcal.batch.thumbnails import thumbnail
 
     full = _full_search()
     frames = [(k, p) for k, s in enumerate(lib.sessions) for p in s.frames]
@@ -111,7 +112,7 @@ def group_all(root, before):
     """``{method: (sessions, unassigned, seconds)}`` for content, before, time."""
     from selfcal.batch import discover
     from selfcal.batch.discover import _pair_raws, _walk, read_frame
-    from selfcal.batch.grouping import read_frames
+    from selfcal.batch.thumbnails import read_frames
 
     out = {}
     t0 = time.perf_counter()

@@ -85,7 +85,8 @@ def write_card(root: Path, files: int, height: int, width: int) -> int:
 
 def time_discovery(root: Path, workers: int | None):
     from selfcal.batch.discover import _pair_raws, _walk, read_frame, sessions_from_groups
-    from selfcal.batch.grouping import GroupingRule, group_by_content, read_frames
+    from selfcal.batch.grouping import GroupingRule, group_by_content
+    from selfcal.batch.thumbnails import read_frames
 
     def cpu():
         me = resource.getrusage(resource.RUSAGE_SELF)

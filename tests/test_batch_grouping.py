@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from selfcal.batch import discover
-from selfcal.batch.grouping import GroupingRule, group_by_content, similarity, thumbnail
+from selfcal.batch.grouping import GroupingRule, group_by_content, similarity
+from selfcal.batch.thumbnails import thumbnail
 from selfcal.sim.mixed_cards import write_mixed_card
 from selfcal_cli.main import main
 

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from selfcal.batch import discover, read_frame_info
-from selfcal.batch.grouping import (GroupingRule, group_by_content, similarity, thumbnail,
-                                    well_exposed)
+from selfcal.batch.grouping import GroupingRule, group_by_content, similarity, well_exposed
+from selfcal.batch.thumbnails import ThumbnailSpool, thumbnail
 from selfcal.sim.hard_cards import copy_card, write_hard_card
 from selfcal_cli.main import main
 
@@ -111,6 +111,19 @@ def test_the_search_holds_only_the_open_sessions_thumbnails(hard):
     assert most[0] < len(infos) // 2
     gc.collect()
     assert sum(r() is not None for r in alive) == 0    # nothing kept at the end
+
+
+def test_discovery_keeps_thumbnails_on_disk_and_reads_them_back_exactly():
+    """Discovery spools the thumbnails to a temporary file (it holds none of them in
+    memory): each reads back byte for byte, in any order, and None stays None."""
+    rng = np.random.default_rng(3)
+    thumbs = [rng.integers(0, 256, (rng.integers(20, 50), 64), dtype=np.uint8)
+              for _ in range(40)] + [None]
+    with ThumbnailSpool() as spool:
+        keys = [spool.add(t) for t in thumbs]
+        assert keys[-1] is None and spool[None] is None
+        for k in rng.permutation(40):
+            np.testing.assert_array_equal(spool[keys[k]], thumbs[k])
 
 
 @pytest.fixture(scope="module")

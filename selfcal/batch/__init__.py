@@ -11,6 +11,7 @@ import Dask.  Its modules:
 
 * :mod:`selfcal.batch.discover` -- the bracketed sessions of a photo library: EXIF, bodies;
 * :mod:`selfcal.batch.grouping` -- sessions by what the frames show;
+* :mod:`selfcal.batch.thumbnails` -- the frames' thumbnails, read once and kept on disk;
 * :mod:`selfcal.batch.copies` -- copies of one card in several folders, used once;
 * :mod:`selfcal.batch.pooled` -- one response curve per camera body, from pooled samples;
 * :mod:`selfcal.batch.run` -- the plan, the three kinds of task, the manifest, reruns;

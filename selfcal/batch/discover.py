@@ -416,16 +416,27 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
     InputError
         A root that does not exist (named).
     """
+    from .thumbnails import ThumbnailSpool
+
+    roots = [Path(r) for r in roots]
+    with ThumbnailSpool() as spool:
+        return _discover(roots, exclude, max_gap, by_content, workers, rule, spool)
+
+
+def _discover(roots, exclude, max_gap, by_content, workers, rule, spool):
+    """:func:`discover` with its thumbnails in ``spool`` (a
+    :class:`.thumbnails.ThumbnailSpool`)."""
     from dataclasses import replace
 
     from .copies import choose_copies, collapse_copies
-    from .grouping import GroupingRule, group_by_content, read_frames
+    from .grouping import group_by_content
+    from .thumbnails import read_frames
 
-    roots = [Path(r) for r in roots]
     unassigned: list = []
     infos, thumbs = [], []
     pairs = _pair_raws(_walk(roots, exclude), unassigned)
-    read = read_frames(pairs, read_frame, workers=workers, thumbnails=by_content)
+    read = read_frames(pairs, read_frame, workers=workers, thumbnails=by_content,
+                       keep=spool.add)
     for (path, _), (info, thumb) in zip(pairs, read):
         if isinstance(info, InputError):
             unassigned.append((path, info.reason))
@@ -439,7 +450,7 @@ def discover(roots: Sequence[PathLike], *, exclude: Sequence[PathLike] = (),
     infos, thumbs, copies = collapse_copies(infos, thumbs)
     if by_content:
         rule = replace(rule or GroupingRule(), max_gap=max_gap)
-        groups, loose = group_by_content(infos, thumbs, rule)
+        groups, loose = group_by_content(infos, lambda i: spool[thumbs[i]], rule)
         sessions = sessions_from_groups(groups)
     else:
         sessions, loose = group_sessions(infos, max_gap=max_gap)

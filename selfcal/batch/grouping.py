@@ -42,7 +42,6 @@ in ``docs/decisions.md``, "Sessions by content").
 from __future__ import annotations
 
 import math
-from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,9 +56,6 @@ DEFAULT_MAX_GAP = 10.0
 #: Two exposures closer than this factor are the same exposure (``selfcal.calibrate``
 #: counts exposures as distinct above 5 % too).
 SAME_EXPOSURE = 1.05
-
-#: Thumbnail width in pixels (height keeps the aspect ratio).
-THUMB_WIDTH = 64
 
 
 @dataclass(frozen=True)
@@ -123,88 +119,6 @@ class GroupingRule:
     high: int = 249
     open_sessions: int = 4
     neighbours: int = 3
-
-
-# ------------------------------------------------------------------------ thumbnails
-
-def thumbnail(path, width: int = THUMB_WIDTH):
-    """A small grey thumbnail of a rendered frame (uint8 codes), or None.
-
-    Decoded at reduced size where the format allows (JPEG DCT scaling), averaged over
-    boxes.  Returns None when the pixels cannot be read (a truncated file, say): the
-    grouping then falls back on time, and the session's own work reports the file.
-    """
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            return _thumbnail_of(im, width)
-    except Exception:  # noqa: BLE001 -- any unreadable frame: no thumbnail
-        return None
-
-
-def _thumbnail_of(im, width: int = THUMB_WIDTH):
-    """:func:`thumbnail` of an open Pillow image (None when its pixels cannot be read)."""
-    from PIL import Image
-
-    try:
-        w, h = im.size
-        tw = max(1, min(int(width), w))
-        th = max(1, round(tw * h / w))
-        im.draft("RGB", (2 * tw, 2 * th))
-        grey = im.convert("L") if im.mode in ("RGB", "L") else im.convert("RGB").convert("L")
-        return np.asarray(grey.resize((tw, th), Image.Resampling.BOX), dtype=np.uint8)
-    except Exception:  # noqa: BLE001 -- truncated or corrupt pixels: no thumbnail
-        return None
-
-
-def _read_one(pair, reader, thumbnails=True):
-    """EXIF and thumbnail of one frame from one opening of the file (``reader`` is
-    :func:`.discover.read_frame`)."""
-    from ..errors import InputError
-
-    try:
-        info, thumb = reader(*pair, also=_thumbnail_of if thumbnails else None)
-    except InputError as exc:
-        return exc, None
-    return info, (thumb if info.exposure_time is not None else None)
-
-
-def _read_chunk(pairs, reader, thumbnails):
-    return [_read_one(p, reader, thumbnails) for p in pairs]
-
-
-#: Frames from which :func:`read_frames` reads in worker processes rather than threads.
-PROCESS_THRESHOLD = 2000
-
-
-def read_frames(pairs, reader, *, workers: int | None = None, thumbnails: bool = True):
-    """EXIF and thumbnail of each ``(rendered, raw)`` pair, each file read once, in
-    parallel: threads for a few files, processes (``spawn``-safe, chunks of 500) from
-    :data:`PROCESS_THRESHOLD` on -- Pillow's EXIF parsing holds the GIL.
-
-    ``reader`` is :func:`.discover.read_frame` (passed in: this module does not import
-    the discovery).  Returns a list of ``(FrameInfo or InputError, thumbnail or None)``
-    in input order.
-    """
-    import multiprocessing
-    import os
-    from concurrent.futures import ProcessPoolExecutor
-    from functools import partial
-
-    pairs = list(pairs)
-    n = int(workers or min(8, os.cpu_count() or 1))
-    if n <= 1 or len(pairs) < 8:
-        return [_read_one(p, reader, thumbnails) for p in pairs]
-    if len(pairs) < PROCESS_THRESHOLD:
-        with ThreadPoolExecutor(max_workers=n) as pool:
-            return list(pool.map(partial(_read_one, reader=reader, thumbnails=thumbnails),
-                                 pairs))
-    chunks = [pairs[i:i + 500] for i in range(0, len(pairs), 500)]
-    spawn = multiprocessing.get_context("spawn")     # no fork of a threaded process
-    with ProcessPoolExecutor(max_workers=n, mp_context=spawn) as pool:
-        done = pool.map(partial(_read_chunk, reader=reader, thumbnails=thumbnails), chunks)
-        return [x for chunk in done for x in chunk]
 
 
 def _prepared(a, rule: GroupingRule):
@@ -595,7 +509,7 @@ def group_by_content(frames: Sequence[Any], thumbs, rule: GroupingRule = Groupin
     frames : sequence of FrameInfo
         With exposure times.
     thumbs : sequence or callable
-        :func:`thumbnail` of each frame (None where unreadable), or a function of the
+        :func:`.thumbnails.thumbnail` of each frame (None where unreadable), or a function of the
         frame's index in ``frames`` that returns it (called once per frame, in capture
         order per setup).
     rule : GroupingRule
