@@ -135,7 +135,9 @@ DETAIL_TABLES = {
     "export_cube": {1, 2, 3, 4},   # Resolve .cube against CLF; ffmpeg; response models; OCIO round trip
     "pipeline": {0, 1, 2},         # forward and backward RMSE (the targets table sums them up)
     "linear_bracket": {1},         # the negative controls, case by case (their count is shown)
-    "batch_grouping": {1},         # the simulated cards, seed by seed
+    "batch_grouping": {0, 1},      # the correlation's spread; the simulated cards, card by card
+    "batch_sessions_scale": {0, 1, 2, 3},  # each run alone (the table of all runs is shown)
+    "batch_raw": {0, 1},           # scene by scene (each card's targets line is shown)
     "response_unknown": {1},       # stack by stack
     "uncertainty": {1},            # σ curve by curve (bands and σ summed up below them)
     "response_real": {1},          # the metric by saturation band
@@ -155,6 +157,13 @@ DETAIL_TABLES = {
     "luminance": {0},              # stack by stack (the medians line is shown)
     # the band runs: their γ summary repeats the first run's (the bands are shown)
     "response_unknown.split-held-out.step-5.known-all_two_one_none.band": {0, 1},
+}
+
+#: Tables shown whole however long (script -> indices): the acceptance figures are rows
+#: of them, side by side with their baselines.
+WHOLE_TABLES = {
+    "batch_grouping": {2},         # content / before / time on each split
+    "batch_sessions_scale": {4},   # 10⁴ and 10⁵ frames, new and before
 }
 
 HEADER = """\
@@ -191,13 +200,13 @@ def record_file(record: dict) -> str:
     return f"bench/results/{record['name']}" + (f".{variant}" if variant else "") + ".json"
 
 
-def markdown_table(t: dict, source: str) -> list:
+def markdown_table(t: dict, source: str, *, whole: bool = False) -> list:
     def row(cells):
         return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
 
     rows = t["rows"]
     out = [row(t["headers"]), "|" + "|".join("---" for _ in t["headers"]) + "|"]
-    if len(rows) <= MAX_ROWS:
+    if whole or len(rows) <= MAX_ROWS:
         return out + [row(r) for r in rows]
     hidden = len(rows) - HEAD_ROWS - TAIL_ROWS
     gap = [f"… {hidden} rows in `{source}` …"] + [""] * (len(t["headers"]) - 1)
@@ -222,6 +231,9 @@ def text_block(text: str, source: str) -> list:
         return [plain(lines[0])]
     if len(lines) > MAX_TEXT_LINES:
         hidden = len(lines) - HEAD_TEXT - TAIL_TEXT
+        if TAIL_TEXT == 0:          # the pointer closes the last line shown
+            return [plain(line) + "\\" for line in lines[:HEAD_TEXT - 1]] + [
+                plain(lines[HEAD_TEXT - 1]) + f" (… {hidden} more line{'s' if hidden > 1 else ''} in `{source}`)"]
         lines = (lines[:HEAD_TEXT] + [f"[… {hidden} lines in {source} …]"]
                  + lines[len(lines) - TAIL_TEXT:])
     # a paragraph per run of lines, each line kept (a hard break ends all but the last)
@@ -230,6 +242,12 @@ def text_block(text: str, source: str) -> list:
         last = k + 1 == len(lines) or not lines[k + 1].strip()
         out.append(plain(line) + ("" if last or not line.strip() else "\\"))
     return out
+
+
+def _left_out_line(rows: list, source: str) -> str:
+    if len(rows) == 1:
+        return f"(A table of {rows[0]} rows: in `{source}`.)"
+    return f"({len(rows)} tables, of {', '.join(map(str, rows))} rows: in `{source}`.)"
 
 
 def render_record(record: dict, lead: str = "") -> list:
@@ -241,6 +259,7 @@ def render_record(record: dict, lead: str = "") -> list:
     hidden = DETAIL_TABLES.get(f"{record['name']}.{record['variant']}",
                                DETAIL_TABLES.get(record["name"], set()))
     k = -1
+    left_out: list = []         # row counts of the run of tables left out just now
     blocks = record["blocks"]
     named = False               # the table left out was named by its title line
     for i, block in enumerate(blocks):
@@ -249,10 +268,21 @@ def render_record(record: dict, lead: str = "") -> list:
             t = block["table"]
             if k in hidden:
                 if not named:
-                    lines += [f"(A table of {len(t['rows'])} rows: in `{source}`.)", ""]
+                    left_out.append(len(t["rows"]))
+                    line = _left_out_line(left_out, source)
+                    if len(left_out) > 1:           # one line for a run of tables left out
+                        lines[-2] = line
+                    elif len(lines) > 1 and lines[-1] == "" and lines[-2] \
+                            and not lines[-2].startswith("|"):
+                        lines[-1:] = [line, ""]     # in the paragraph before it
+                        lines[-3] += "\\"
+                    else:
+                        lines += [line, ""]
                 named = False
                 continue
-            lines += markdown_table(t, source) + [""]
+            left_out = []
+            lines += markdown_table(t, source,
+                                    whole=k in WHOLE_TABLES.get(record["name"], set())) + [""]
             continue
         nxt = blocks[i + 1] if i + 1 < len(blocks) else None
         if nxt and "table" in nxt and (k + 1) in hidden and "\n" not in block["text"]:
@@ -260,8 +290,10 @@ def render_record(record: dict, lead: str = "") -> list:
             lines += [plain(block["text"].rstrip(":")) + f" ({len(nxt['table']['rows'])} "
                       f"rows: in `{source}`)", ""]
             named = True
+            left_out = []
             continue
         lines += text_block(block["text"], source) + [""]
+        left_out = []
     return lines
 
 

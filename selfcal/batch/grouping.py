@@ -42,7 +42,7 @@ in ``docs/decisions.md``, "Sessions by content").
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -493,7 +493,9 @@ def _merge(into: _Open, other: _Open, open_: list, why: str) -> None:
     open_.remove(other)
 
 
-def group_by_content(frames: Sequence[Any], thumbs, rule: GroupingRule = GroupingRule()
+def group_by_content(frames: Sequence[Any],
+                     thumbs: Sequence[np.ndarray | None] | Callable[[int], np.ndarray | None],
+                     rule: GroupingRule = GroupingRule()
                      ) -> tuple[list[ContentGroup], list[tuple[Path, str]]]:
     """Group frames into bracketed sessions by what they show (time as a hint).
 

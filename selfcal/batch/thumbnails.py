@@ -140,6 +140,6 @@ def read_frames(pairs, reader, *, workers: int | None = None, thumbnails: bool =
                 partial(_read_one, reader=reader, thumbnails=thumbnails), pairs)]
     chunks = [pairs[i:i + 500] for i in range(0, len(pairs), 500)]
     spawn = multiprocessing.get_context("spawn")     # no fork of a threaded process
-    with ProcessPoolExecutor(max_workers=n, mp_context=spawn) as pool:
-        done = pool.map(partial(_read_chunk, reader=reader, thumbnails=thumbnails), chunks)
+    with ProcessPoolExecutor(max_workers=n, mp_context=spawn) as processes:
+        done = processes.map(partial(_read_chunk, reader=reader, thumbnails=thumbnails), chunks)
         return [kept(x) for chunk in done for x in chunk]

@@ -34,6 +34,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..typing import Progress
 from .fit import PipelineOptions, fit_pipeline
 from .model import PipelineModel
 from .pairs import PairSamples
@@ -205,7 +206,8 @@ def _fit(parts: list, smoothness: float, options: LibraryOptions, seed: int):
 
 def fit_pipeline_library(scenes: Mapping[str, PairSamples] | Sequence[PairSamples],
                          options: LibraryOptions | None = None, *, seed: int = 0,
-                         keep_fold_models: bool = False, progress=None) -> LibraryFit:
+                         keep_fold_models: bool = False,
+                         progress: Progress | None = None) -> LibraryFit:
     """Fit one RAW-path model to many scenes' pairs; λ and errors by leave-one-scene-out.
 
     :func:`selfcal.pipeline.fit_pipeline` ([Gong2018] §3.2-3.5 with [Lin2011] Eq. 10-11)
