@@ -37,7 +37,7 @@ import numpy as np
 
 from .camera import default_pipeline
 from .cards import SimulatedBody, SimulatedLibrary, SimulatedSession, default_bodies
-from .mixed_cards import CardWriter, mixed_scene
+from .mixed_cards import CardWriter, add_sessions, mixed_scene
 from .stacks import simulate_stack
 from .tone import ToneCurve
 
@@ -205,11 +205,7 @@ def write_hard_card(root, *, seed: int = 0, events_per_body: int = 5, height: in
         path = CardWriter(root, body, per_folder, counters, b).write(data, stamp, t, mode, bias)
         truth.setdefault((b, s), []).append((path, t, stamp))
     lib = SimulatedLibrary(root=root)
-    for (b, s), frames in sorted(truth.items(), key=lambda x: x[1][0][2]):
-        lib.sessions.append(SimulatedSession(
-            body=bodies[b], frames=[f[0] for f in frames],
-            exposure_times=[f[1] for f in frames], start=frames[0][2],
-            pipeline=bodies[b].pipeline, seed=s))
+    add_sessions(lib, truth, bodies)
     return lib
 
 

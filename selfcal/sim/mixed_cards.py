@@ -21,6 +21,7 @@ flip, a roll and a smooth illumination field drawn per scene, so that no two sha
 from __future__ import annotations
 
 import io as _io
+from collections.abc import Sequence
 from datetime import datetime, timedelta
 
 import numpy as np
@@ -204,9 +205,15 @@ def write_mixed_card(root, *, seed: int = 0, events_per_body: int = 6, bodies=No
         bias = round(float(np.log2(t * scales[s] * 4)) * 3) / 3
         path = CardWriter(root, body, per_folder, counters, b).write(data, stamp, t, mode, bias)
         truth.setdefault((b, s), []).append((path, t, stamp))
+    add_sessions(lib, truth, bodies)
+    return lib
+
+
+def add_sessions(lib: SimulatedLibrary, truth: dict, bodies: Sequence) -> None:
+    """The card's true sessions into ``lib``, in the order they began: ``truth`` maps
+    ``(body index, scene seed)`` to the session's ``(path, exposure time, stamp)``."""
     for (b, s), frames in sorted(truth.items(), key=lambda x: x[1][0][2]):
         lib.sessions.append(SimulatedSession(
             body=bodies[b], frames=[f[0] for f in frames],
             exposure_times=[f[1] for f in frames], start=frames[0][2],
             pipeline=bodies[b].pipeline, seed=s))
-    return lib
