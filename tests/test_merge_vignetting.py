@@ -202,3 +202,23 @@ def test_a_handheld_merge_on_the_fly_fits_and_divides_the_falloff():
 
     assert bias(kept) < -0.3
     assert abs(bias(result)) < 0.1
+
+
+@pytest.mark.parametrize("shape", [(600, 900), (208, 306), (13, 17), (1, 5)])
+def test_the_merge_evaluates_the_falloff_from_its_coarse_grid_within_5e_4(shape):
+    """SmoothField (a coarse grid every power-of-two pixels, one OpenCV remap per strip)
+    against the falloff evaluated exactly at every pixel, strip by strip as the merge
+    asks for it, on a strong off-centre falloff (about 2 stops at the corner)."""
+    from selfcal.hdr.vignetting import SmoothField
+
+    hh, ww = shape
+    v = sim.random_vignetting(3)
+    field = SmoothField(lambda xs, ys: v.at(hh, ww, xs, ys), shape)
+    assert field.step & (field.step - 1) == 0
+    xs = np.arange(ww, dtype=float)[None, :]
+    for y in range(0, hh, 96):
+        s = slice(y, min(y + 96, hh))
+        exact = v.at(hh, ww, xs, np.arange(s.start, s.stop, dtype=float)[:, None])
+        np.testing.assert_allclose(field.strip(s), exact, rtol=5e-4, atol=0)
+    with pytest.raises(ValueError, match="power of two"):
+        SmoothField(lambda xs, ys: v.at(hh, ww, xs, ys), shape, step=6)

@@ -25,12 +25,14 @@ References
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..io.images import import_cv2
 from ..lens.database import lens_vignetting
 from ..lens.vignetting import Vignetting
 
@@ -151,6 +153,11 @@ class SmoothField:
     each strip of rows (ours: the falloff is a low-order polynomial, so the interpolation
     error is ``k₁·(step / half diagonal)² / 4``; docs/decisions.md says why 8 pixels).
 
+    The coarse rows run on past the frame's last row (the function is a polynomial,
+    defined there), so every row sits a multiple of ``1/step`` into its interval and a
+    strip is one call of OpenCV's ``remap``, whose linear weights (multiples of 1/32) are
+    then exact: ``step`` is a power of two.
+
     Parameters
     ----------
     function : callable
@@ -158,46 +165,50 @@ class SmoothField:
     shape : (H, W)
     step : int, optional
         Default 8 pixels, less on frames whose half-diagonal is under 512 pixels (at most
-        1/64 of it).
+        1/64 of it, rounded down to a power of two).
     """
 
     def __init__(self, function, shape, *, step: int | None = None):
         hh, ww = shape
         if step is None:    # 8 px on large frames; at most 1/64 of the half-diagonal
-            step = int(np.clip(0.5 * np.hypot(hh, ww) / 64, 1, 8))
-        self.rows = np.unique(np.r_[np.arange(0, hh, step), hh - 1]).astype(np.float64)
-        cols = np.unique(np.r_[np.arange(0, ww, step), ww - 1]).astype(np.float64)
-        grid = np.asarray(function(cols[None, :], self.rows[:, None]), np.float64)
+            step = 1 << int(np.log2(np.clip(0.5 * np.hypot(hh, ww) / 64, 1, 8)))
+        if step & (step - 1) or not 1 <= step <= 32:
+            raise ValueError(f"step {step} is not a power of two from 1 to 32")
+        self.step = int(step)
+        self.rows = np.arange(0, hh - 1 + step, step, dtype=np.float64)
+        cols = np.arange(0, ww - 1 + step, step, dtype=np.float64)
+        grid = np.asarray(function(cols[None, :], self.rows[:, None]), np.float32)
         # along x to every column once: (coarse rows, W, 3)
-        x = np.arange(ww, dtype=np.float64)
-        j, t = _bracket(cols, x)
-        self.across = (grid[:, j] * (1 - t)[None, :, None]
-                       + grid[:, j + 1] * t[None, :, None]).astype(np.float32)
-        # each interval's step between its two coarse rows, so that a strip costs two
-        # passes (a multiply and an add per coarse interval), not a gather of rows
-        self.step = np.diff(self.across, axis=0) if len(self.rows) > 1 else self.across * 0
+        n = len(self.rows)
+        map_x = np.repeat((np.arange(ww, dtype=np.float32) / np.float32(step))[None, :], n,
+                          axis=0)
+        map_y = np.repeat(np.arange(n, dtype=np.float32)[:, None], ww, axis=1)
+        cv2 = import_cv2()
+        self.across = cv2.remap(grid, map_x, map_y, cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_REPLICATE).reshape(n, ww, -1)
 
     def strip(self, s: slice) -> np.ndarray:
         """The field on rows ``s``: float32 (rows, W, 3)."""
-        y = np.arange(s.start, s.stop, dtype=np.float64)
-        i, t = _bracket(self.rows, y)
-        t = t.astype(np.float32)[:, None, None]
-        out = np.empty((y.size,) + self.across.shape[1:], np.float32)
-        bounds = np.flatnonzero(np.diff(i)) + 1
-        for lo, hi in zip(np.r_[0, bounds], np.r_[bounds, y.size]):
-            k = i[lo]
-            block = out[lo:hi]
-            np.multiply(self.step[k], t[lo:hi], out=block)
-            np.add(block, self.across[k], out=block)
-        return out
+        cv2 = import_cv2()
+        first = s.start // self.step
+        last = min(-(-(s.stop - 1) // self.step), len(self.rows) - 1)
+        map_x, map_y = _strip_maps(s.stop - s.start, s.start - first * self.step,
+                                   self.step, self.across.shape[1])
+        block = self.across[first:last + 1]
+        if block.shape[0] == 1:         # one coarse row (a one-row frame): no interval
+            return np.repeat(block, s.stop - s.start, axis=0)
+        return cv2.remap(block, map_x, map_y, cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REPLICATE)
 
 
-def _bracket(knots: np.ndarray, at: np.ndarray):
-    """Index of the knot interval holding each of ``at`` and the fraction into it."""
-    if knots.size == 1:
-        return np.zeros(at.size, int), np.zeros(at.size)
-    i = np.clip(np.searchsorted(knots, at, side="right") - 1, 0, knots.size - 2)
-    return i, (at - knots[i]) / (knots[i + 1] - knots[i])
+@functools.lru_cache(maxsize=4)
+def _strip_maps(rows: int, offset: int, step: int, width: int):
+    """``remap``'s maps for ``rows`` rows starting ``offset`` pixels into a coarse
+    interval of ``step`` (the same for every full strip of a merge: cached)."""
+    fy = (offset + np.arange(rows, dtype=np.float32)) / np.float32(step)
+    map_y = np.repeat(fy[:, None], width, axis=1)
+    map_x = np.repeat(np.arange(width, dtype=np.float32)[None, :], rows, axis=0)
+    return map_x, map_y
 
 
 def _through(transform, xs, ys):
