@@ -86,7 +86,7 @@ def write_card(root: Path, files: int, height: int, width: int) -> int:
 def time_discovery(root: Path, workers: int | None):
     from selfcal.batch.discover import _pair_raws, _walk, read_frame, sessions_from_groups
     from selfcal.batch.grouping import GroupingRule, group_by_content
-    from selfcal.batch.thumbnails import read_frames
+    from selfcal.batch.thumbnails import ThumbnailSpool, read_frames
 
     def cpu():
         me = resource.getrusage(resource.RUSAGE_SELF)
@@ -96,12 +96,14 @@ def time_discovery(root: Path, workers: int | None):
     t0, c0 = time.perf_counter(), cpu()
     pairs = _pair_raws(_walk([root], ()), [])
     t1 = time.perf_counter()
-    read = read_frames(pairs, read_frame, workers=workers)
-    t2, c2 = time.perf_counter(), cpu()
-    infos = [i for i, _ in read]
-    groups, loose = group_by_content(infos, [t for _, t in read], GroupingRule())
-    sessions = sessions_from_groups(groups)
-    t3, c3 = time.perf_counter(), cpu()
+    with ThumbnailSpool() as spool:      # as discover() holds them: on disk
+        read = read_frames(pairs, read_frame, workers=workers, keep=spool.add)
+        t2, c2 = time.perf_counter(), cpu()
+        infos = [i for i, _ in read]
+        keys = [k for _, k in read]
+        groups, loose = group_by_content(infos, lambda i: spool[keys[i]], GroupingRule())
+        sessions = sessions_from_groups(groups)
+        t3, c3 = time.perf_counter(), cpu()
     return {"walk": t1 - t0, "read": t2 - t1, "group": t3 - t2, "total": t3 - t0,
             "cpu_read": c2 - c0, "cpu_group": c3 - c2,
             "files": len(pairs), "sessions": sessions, "loose": loose}
@@ -228,6 +230,8 @@ def main(argv=None) -> None:
     print(f"card: {args.files} files of {args.width}x{args.height} in "
           f"{args.files // FRAMES} sessions, written in {time.perf_counter() - t0:.0f} s "
           f"-> {root}")
+    from selfcal.batch.thumbnails import PROCESS_THRESHOLD
+
     for threads in ((1, None) if args.discovery == "both" else (None,)):
         d = time_discovery(root, threads)
         exact = sum(len(s.frames) == FRAMES for s in d["sessions"])
@@ -237,7 +241,10 @@ def main(argv=None) -> None:
               f"{d['group']:.1f} s; CPU: walk + read {1e3 * d['cpu_read'] / d['files']:.2f} "
               f"ms per file, grouping {1e3 * d['cpu_group'] / d['files']:.2f} ms per "
               f"frame); {len(d['sessions'])} sessions, {exact} of "
-              f"{FRAMES} frames, {len(d['loose'])} loose; load {_load()}")
+              f"{FRAMES} frames, {len(d['loose'])} loose; peak RSS of this process so "
+              f"far {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB "
+              f"(readers in worker processes from {PROCESS_THRESHOLD} files on are not in "
+              f"it); load {_load()}")
     sessions = d["sessions"][: args.run_sessions]
     lib = Library(sessions=sessions, roots=[root])
     plans, cameras = plan_batch(lib, work / "plan", BatchOptions())
