@@ -166,6 +166,9 @@ WHOLE_TABLES = {
     "batch_sessions_scale": {4},   # 10⁴ and 10⁵ frames, new and before
 }
 
+#: Scripts whose blocks of text are shown whole (their figures are lines of text).
+WHOLE_TEXT = {"batch_scale"}
+
 HEADER = """\
 # Benchmarks
 
@@ -225,11 +228,11 @@ def plain(line: str) -> str:
     return f"**{text}**" if heading else text
 
 
-def text_block(text: str, source: str) -> list:
+def text_block(text: str, source: str, *, whole: bool = False) -> list:
     lines = text.splitlines()
     if len(lines) == 1:
         return [plain(lines[0])]
-    if len(lines) > MAX_TEXT_LINES:
+    if len(lines) > MAX_TEXT_LINES and not whole:
         hidden = len(lines) - HEAD_TEXT - TAIL_TEXT
         if TAIL_TEXT == 0:          # the pointer closes the last line shown
             return [plain(line) + "\\" for line in lines[:HEAD_TEXT - 1]] + [
@@ -292,7 +295,8 @@ def render_record(record: dict, lead: str = "") -> list:
             named = True
             left_out = []
             continue
-        lines += text_block(block["text"], source) + [""]
+        lines += text_block(block["text"], source,
+                            whole=record["name"] in WHOLE_TEXT) + [""]
         left_out = []
     return lines
 
