@@ -93,24 +93,31 @@ def rational_value(value) -> float | None:
     return result if np.isfinite(result) else None
 
 
+def _exif_directories(path: PathLike) -> tuple[dict, dict]:
+    """IFD0 and the Exif sub-IFD (0x8769) of a file's EXIF, as dicts of tag → value.
+
+    Raises InputError (naming the file) when it cannot be opened as an image.
+    """
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            return dict(exif), dict(exif.get_ifd(_EXIF_IFD))
+    except FileNotFoundError:
+        raise InputError("no such file", path) from None
+    except Exception as exc:
+        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
+
+
 def read_exposure_info(path: PathLike) -> ExposureInfo:
     """Read exposure time, f-number and ISO from a file's EXIF.
 
     Falls back to the APEX ShutterSpeedValue (t = 2^-Tv) when ExposureTime is missing.
     Never raises for missing tags; raises InputError only when the file cannot be opened.
     """
-    from PIL import Image
-
     path = Path(path)
-    try:
-        with Image.open(path) as im:
-            exif = im.getexif()
-            sub = exif.get_ifd(_EXIF_IFD)
-            exif = dict(exif)
-    except FileNotFoundError:
-        raise InputError("no such file", path) from None
-    except Exception as exc:
-        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
+    exif, sub = _exif_directories(path)
 
     def tag(code):
         # TIFF/EP writers put the exposure tags in IFD0 rather than the EXIF sub-IFD
@@ -162,17 +169,7 @@ def read_lens_info(path: PathLike) -> LensInfo:
     Never raises for missing tags (a lens named only in a maker note reads as None);
     raises InputError only when the file cannot be opened.
     """
-    from PIL import Image
-
-    try:
-        with Image.open(path) as im:
-            exif = im.getexif()
-            sub = dict(exif.get_ifd(_EXIF_IFD))
-            exif = dict(exif)
-    except FileNotFoundError:
-        raise InputError("no such file", path) from None
-    except Exception as exc:
-        raise InputError(f"not an image file selfcal reads ({exc})", path) from None
+    exif, sub = _exif_directories(path)
 
     def text(code):
         value = sub.get(code, exif.get(code))
