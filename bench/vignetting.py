@@ -101,18 +101,26 @@ def one_stack(seed: int) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def stacks_of_split(name: str, description: str, one_stack) -> tuple:
+    """The command line of the handheld-stack benches (``--split``, ``--stacks``,
+    ``--jobs``), the record started, and ``one_stack(seed)`` run on the split's seeds
+    (tuning 0…N−1, held-out 1000…) in single-threaded worker processes."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--split", choices=("tuning", "held-out"), required=True)
     parser.add_argument("--stacks", type=int, default=20)
     parser.add_argument("--jobs", type=int, default=2)
     args = parser.parse_args()
-    start("vignetting", args.split)
+    start(name, args.split)
     base = 0 if args.split == "tuning" else 1000
     seeds = list(range(base, base + args.stacks))
-    t0 = time.perf_counter()
     with Pool(args.jobs, initializer=_init_worker) as pool:
         results = sorted(pool.imap_unordered(one_stack, seeds), key=lambda r: r["seed"])
+    return args, results
+
+
+def main():
+    t0 = time.perf_counter()
+    args, results = stacks_of_split("vignetting", __doc__.splitlines()[0], one_stack)
     wall = time.perf_counter() - t0
     print(f"{len(results)} handheld stacks ({args.split} split): 5 frames 208x306, shifts "
           "10-12 % of the frame, rotations up to 2°, falloff 0.5-2 stops at the corner; "

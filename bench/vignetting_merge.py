@@ -27,15 +27,13 @@ channels (0.674 for a perfect Gaussian σ; target 0.6-0.8).
 
 from __future__ import annotations
 
-import argparse
 import time
-from multiprocessing import Pool
 
 import numpy as np
 
 from .metrics import global_scale
-from .tables import finish, start, table
-from .vignetting import TIMES, _init_worker, make_stack
+from .tables import finish, table
+from .vignetting import TIMES, make_stack, stacks_of_split
 
 CENTRE, CORNER = 0.3, 0.8
 FLOOR, CEILING = 2.0 ** -8, 0.9
@@ -93,16 +91,7 @@ def one_stack(seed: int) -> dict:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--split", choices=("tuning", "held-out"), required=True)
-    parser.add_argument("--stacks", type=int, default=20)
-    parser.add_argument("--jobs", type=int, default=2)
-    args = parser.parse_args()
-    start("vignetting_merge", args.split)
-    base = 0 if args.split == "tuning" else 1000
-    seeds = list(range(base, base + args.stacks))
-    with Pool(args.jobs, initializer=_init_worker) as pool:
-        results = sorted(pool.imap_unordered(one_stack, seeds), key=lambda r: r["seed"])
+    args, results = stacks_of_split("vignetting_merge", __doc__.splitlines()[0], one_stack)
     print(f"{len(results)} handheld stacks through a vignetting lens ({args.split} split), "
           "merged with align='homography' and σ; radiance error after one global scale\n")
     rows = []
