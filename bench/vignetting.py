@@ -73,7 +73,8 @@ def response_error(model, stack) -> float:
 def one_stack(seed: int) -> dict:
     import selfcal
     from selfcal import sim
-    from selfcal.response.calibrate import ResponseOptions, calibrate_aligned
+    from selfcal.response.calibrate import calibrate_aligned
+    from selfcal.response.options import ResponseOptions
 
     t0 = time.perf_counter()
     times = list(TIMES)

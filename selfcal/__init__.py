@@ -43,7 +43,8 @@ from .errors import (
 )
 
 from .choose.loading import load_model
-from .response.calibrate import ResponseOptions, calibrate_response
+from .response.calibrate import calibrate_response
+from .response.options import ResponseOptions
 from .response.model import ResponseModel
 from .pipeline import PipelineModel, PipelineOptions, fit_pipeline
 from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path

@@ -205,7 +205,7 @@ def _seed(text: str) -> int:
 
 def register(sub) -> None:
     """Add the ``demo`` and ``calibrate`` commands to the main parser's subparsers."""
-    from selfcal.response.calibrate import DEFAULT_N_COMPONENTS
+    from selfcal.response.options import DEFAULT_N_COMPONENTS
     from selfcal.response.solver import DEFAULT_SATURATION_THRESHOLD
 
     p = sub.add_parser(

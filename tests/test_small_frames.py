@@ -12,7 +12,7 @@ import pytest
 import selfcal
 from selfcal import sim
 from selfcal.io import read_image
-from selfcal.response.calibrate import DEFAULT_MAX_SAMPLES
+from selfcal.response.options import DEFAULT_MAX_SAMPLES
 from selfcal.stack.samples import (TARGET_BLOCKS, THUMBNAIL_SIDE, collect_samples,
                              working_block_size)
 

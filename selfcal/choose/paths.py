@@ -33,7 +33,8 @@ from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_i
 from ..io.raw import read_raw_exposure_info
 from ..pipeline import PipelineModel, PipelineOptions, fit_pipeline
 from ..pipeline.pairs import collect_pair_samples
-from ..response.calibrate import ResponseOptions, calibrate_response
+from ..response.calibrate import calibrate_response
+from ..response.options import ResponseOptions
 from ..response.model import ResponseModel
 from ..stack.linear_evidence import linear_evidence
 from ..typing import ExposureTimes, PathLike, Progress

@@ -81,7 +81,8 @@ from typing import Literal
 import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..response.calibrate import ResponseOptions, calibrate_aligned, calibrate_response
+from ..response.calibrate import calibrate_aligned, calibrate_response
+from ..response.options import ResponseOptions
 from ..stack.align import estimate_alignment, negligible_motion
 from ..stack.frames import (
     DEFAULT_CLIP_MARGIN,

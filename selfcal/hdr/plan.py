@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.images import JPEG_SUFFIXES
-from ..response.calibrate import DEFAULT_MAX_SAMPLES
+from ..response.options import DEFAULT_MAX_SAMPLES
 from ..stack.frames import StackFrames, model_frame_index, stuck_code_levels
 from ..stack.samples import collect_samples
 

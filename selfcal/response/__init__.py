@@ -5,6 +5,8 @@
 :class:`SolverOptions`.  Its modules:
 
 * :mod:`selfcal.response.calibrate` -- :func:`calibrate_response`, frames to a model;
+* :mod:`selfcal.response.options` -- :class:`ResponseOptions`, its finer settings and their
+  defaults;
 * :mod:`selfcal.response.model` -- :class:`ResponseModel` and its model file;
 * :mod:`selfcal.response.basis` -- the log-domain PCA basis of Eq. 7 (built in, or a file);
 * :mod:`selfcal.response.basis_files` -- Grossberg & Nayar's EMoR and DoRF files;
@@ -27,7 +29,7 @@
 * :mod:`selfcal.response.diagnostics` -- what the fit says about itself, in the model.
 """
 
-from .calibrate import ResponseOptions
+from .options import ResponseOptions
 from .solver import SolverOptions
 
 __all__ = ["ResponseOptions", "SolverOptions"]

@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -30,9 +30,8 @@ from ..stack.frames import (
 from ..stack.frames import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import KeptData, SampleSet, collect_samples, frame_masks
-from ..typing import ExposureTimes, ImageInput, PathLike, Progress
-from .bands import DEFAULT_BAND_METHOD, band_for_fit
-from .basis import ResponseBasis
+from ..typing import ExposureTimes, ImageInput, Progress
+from .bands import band_for_fit
 from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
@@ -50,117 +49,13 @@ from ..exposure.times import (
 from .diagnostics import fit_diagnostics
 from ..exposure.measured import MEASURE_CODES_SIDE, measure_calibration_exposures
 from .frame_choice import record_ignored, subset, without_clipped_frames, without_duplicates
-from .solver import SolverOptions, solve_exposure_equations
+from .options import ResponseOptions
+from .solver import solve_exposure_equations
 from .verdict import judge_calibration
 
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
-#: Basis functions per channel (N of Eq. 7 of [Lin2011]); chosen before the split rule
-#: (docs/decisions.md, "Basis functions per channel: N = 5").
-DEFAULT_N_COMPONENTS = 5
-#: Sample locations drawn from a stack (block means; stratified, see collect_samples).
-DEFAULT_MAX_SAMPLES = 4000
-#: The values of :attr:`ResponseOptions.correspondences`.
-CORRESPONDENCE_KINDS = ("blocks", "histogram", "histogram+blocks")
-
-
-@dataclass(frozen=True)
-class ResponseOptions(SolverOptions):
-    """The finer settings of :func:`calibrate_response`: its sampling and its solve.
-
-    Every field of :class:`selfcal.response.solver.SolverOptions` (``saturation_threshold``
-    β, ``clip_margin``, ``huber_k``, the priors' weights, ``centre_ambiguity``, ...), and
-    the fields of the sampling and the correspondences below.
-
-    Attributes
-    ----------
-    basis : ResponseBasis or path, optional
-        The response basis of Eq. 7 (a :class:`.basis.ResponseBasis`, or a file
-        :func:`.basis.load_basis_file` reads: ``invemor.txt``, ``.npz``); default the
-        built-in log-PCA basis.
-    n_components : int
-        Number of PCA basis functions per channel (N of Eq. 7); see
-        :data:`DEFAULT_N_COMPONENTS`.  Capped at the basis' size.
-    saturation_threshold : float
-        β: samples whose HSV saturation exceeds it in either frame of a pair are rejected.
-        Default 0.5 (see :data:`selfcal.response.solver.DEFAULT_SATURATION_THRESHOLD`).
-    clip_margin : float
-        Codes (8-bit scale) from 0 or the maximum code that count as clipped.
-    max_samples : int
-        Number of sample locations (block means) drawn from the stack.
-    correspondences : {"blocks", "histogram", "histogram+blocks"}
-        What Eq. 8 is solved on: ``"blocks"`` (default), the stratified flat block samples
-        of :func:`selfcal.stack.samples.collect_samples`; ``"histogram"``, transfer
-        functions matched on the histograms of every usable pixel
-        (:mod:`.histogram_samples`, [Grossberg2003]), gated by a first fit on the blocks;
-        ``"histogram+blocks"``, both sets of rows in one solve.  The block samples serve
-        the verdict, the frame checks and the time contradictions in every case.
-        Default chosen on the tuning split (docs/decisions.md, "Correspondences: block
-        samples, not histograms").
-    measure_ringing : bool
-        Measure how far JPEG damage next to clipped areas reaches on the first fit and
-        solve again without the samples within it (:mod:`.white_end`, ours); the reach is
-        ``diagnostics["ringing_reach_blocks"]``.  Default True, chosen on the tuning
-        split (docs/decisions.md, "The measured ringing reach next to clipped areas: on").
-    near_clip_blocks : int
-        A block within this many blocks of a clipped one counts as clipped
-        (:func:`selfcal.stack.samples.reduce_frame`: keeps samples away from JPEG ringing at
-        clipped edges, ours).  Default 0 (off), chosen on the tuning split
-        (docs/decisions.md, "Blocks next to clipped ones: not widened").
-    hidden_white : bool
-        Count the samples the first fit predicts at white in a frame as clipped there, and
-        solve again (:mod:`.hidden_white`, ours: JPEG moves clipped areas below the clip
-        limit); how many is ``diagnostics["hidden_white_samples"]``.  Default True, chosen
-        on the tuning split (docs/decisions.md, "Samples the fit predicts at white count
-        as clipped: on, half a code").
-    band_method : {"covariance", "bootstrap"}
-        How the confidence band of f⁻¹ is estimated (:func:`selfcal.response.bands.curve_band`,
-        ours): from the fit's covariance, or by resampling the samples.  Default
-        ``"covariance"``, chosen on the tuning split (docs/decisions.md, "Curve bands: the
-        covariance, σ_t = 0.02, σ_top = 0.03").
-    measure_exposures : bool
-        Measure the frames' exposures through the fitted curve from the codes kept while
-        reading them (:func:`selfcal.exposure.measured.measure_calibration_exposures`, the
-        merge's measurement; ours): the model's ``exposures`` are then these, and its
-        ``diagnostics["measured_exposures"]`` says how they were found.  Default True
-        (docs/decisions.md, "Exposures measured from the pixels: by default").
-    fit_vignetting : bool
-        With homography alignment (``align="homography"``, :func:`calibrate_aligned`),
-        fit the lens's vignetting jointly with the response and the exposures where the
-        frames moved enough to observe it (:mod:`.vignetting_fit`, [Goldman2010]); the
-        model's ``vignetting`` and ``diagnostics["vignetting"]``.  Default True.
-
-    Examples
-    --------
-    >>> options = ResponseOptions(saturation_threshold=0.3)
-    >>> options.saturation_threshold, options.n_components, options.max_samples
-    (0.3, 5, 4000)
-    """
-
-    n_components: int = DEFAULT_N_COMPONENTS
-    max_samples: int = DEFAULT_MAX_SAMPLES
-    basis: ResponseBasis | PathLike | None = field(default=None, repr=False, compare=False)
-    correspondences: str = "blocks"
-    measure_ringing: bool = True
-    near_clip_blocks: int = 0
-    hidden_white: bool = True
-    band_method: str = DEFAULT_BAND_METHOD
-    measure_exposures: bool = True
-    fit_vignetting: bool = True
-
-    def __post_init__(self) -> None:
-        if self.correspondences not in CORRESPONDENCE_KINDS:
-            raise InputError(f"correspondences must be one of "
-                             f"{', '.join(CORRESPONDENCE_KINDS)}, not {self.correspondences!r}")
-        if self.band_method not in ("covariance", "bootstrap"):
-            raise InputError(f"band_method must be covariance or bootstrap, not "
-                             f"{self.band_method!r}")
-        if int(self.near_clip_blocks) != self.near_clip_blocks or self.near_clip_blocks < 0:
-            raise InputError(f"near_clip_blocks must be a whole number >= 0, not "
-                             f"{self.near_clip_blocks!r}")
-
-
 @dataclass(frozen=True)
 class _Call:
     """What one calibration was asked for (:func:`calibrate_response`'s arguments)."""

@@ -17,7 +17,7 @@ def fit_diagnostics(result, fit: dict, *, warnings, exposure_source, refine_expo
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
     ``fit`` is :func:`selfcal.response.calibrate._judged_fit`'s; ``options`` the
-    :class:`selfcal.response.calibrate.ResponseOptions` of the calibration.  ``delta_eq12`` is δ of Eq. 12
+    :class:`selfcal.response.options.ResponseOptions` of the calibration.  ``delta_eq12`` is δ of Eq. 12
     (:func:`selfcal.response.delta.delta_eq12`) per channel over the solve's frame pairs
     and inliers (samples neither clipped nor above β in either frame: what the curve was
     fitted to), not over all points as [Lin2011] scores its Fig. 4.
