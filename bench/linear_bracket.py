@@ -13,7 +13,7 @@ per shot, through :class:`selfcal.sim.SensorModel` (shot and read noise, white c
   folder).
 
 Per case: whether the bracket is recognised as linear
-(:func:`selfcal.stack.linear_evidence.linear_evidence`, what ``selfcal merge`` acts on), the
+(:func:`selfcal.exposure.linear_evidence.linear_evidence`, what ``selfcal merge`` acts on), the
 largest error of the exposure ratios (to the first frame) measured by
 :func:`selfcal.merge_hdr` (``linear=True``; :mod:`selfcal.exposure.linear`) against the
 true, jittered ones, that of the nominal times, and the radiance's median relative error
@@ -76,7 +76,7 @@ def _radiance_error(radiance, unmeasured, truth) -> float:
 
 def _measure(name, split, scene, times, sensor, jitter, seed, with_times, root: Path):
     import selfcal
-    from selfcal.stack.linear_evidence import linear_evidence
+    from selfcal.exposure.linear_evidence import linear_evidence
 
     stack = _bracket(scene, times, sensor=sensor, jitter=jitter, seed=seed)
     true = np.asarray(stack.true_exposures, dtype=float)
@@ -140,7 +140,7 @@ def rendered_controls(seeds, split, args, root):
     linear.  Without times a pure power law cannot be told from linear data (the
     exponential ambiguity), so gamma 2.2 is run with times only."""
     from selfcal import sim
-    from selfcal.stack.linear_evidence import linear_evidence
+    from selfcal.exposure.linear_evidence import linear_evidence
 
     rows = []
     for seed in seeds:

@@ -45,6 +45,7 @@ from .errors import (
 from .choose.loading import load_model
 from .response.calibrate import calibrate_response
 from .response.options import ResponseOptions
+from .exposure.record import ExposureRule
 from .response.model import ResponseModel
 from .pipeline import PipelineModel, PipelineOptions, fit_pipeline
 from .choose.paths import CalibrationResult, calibrate, calibrate_pipeline  # path choice; RAW path
@@ -60,6 +61,7 @@ __all__ = [
     "RawImage",
     "calibrate_response",
     "ResponseOptions",
+    "ExposureRule",
     "load_model",
     "ResponseModel",
     "fit_pipeline",

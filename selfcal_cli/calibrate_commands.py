@@ -12,16 +12,29 @@ from pathlib import Path
 from selfcal.io import format_exposure_time as fmt_time
 
 from . import interrupts
-from .common import (EPILOG, EXIT_OK, check_output_folder, check_outputs, float_range,
-                     int_range, parse_time, progress_bar, say, say_verdict, verdict_of, warn)
+from selfcal.exposure import exposure_message
+
+from .common import (EPILOG, EXIT_OK, add_exposure_flags, check_output_folder, check_outputs,
+                     exposure_rule, float_range, int_range, parse_time, progress_bar, say,
+                     say_verdict, verdict_of, warn)
 
 
 def _print_response_summary(model) -> None:
     d = model.diagnostics
-    say(f"frames: {len(model.sources)}  (times from {d['exposure_source']})")
-    say(f"{'frame':<32} {'given':>10} {'estimated':>10}")
-    for src, given, est in zip(model.sources, model.exposure_times, model.exposures):
-        say(f"{Path(src).name:<32} {fmt_time(given):>10} {fmt_time(float(est)):>10}")
+    record = model.exposure_record
+    origin = {"exif": "EXIF", "given": "--times", "raw": "the raw files' ratios",
+              "unknown": "nowhere: solved"}.get(record.origin, record.origin)
+    say(f"frames: {len(model.sources)}  (times from {origin}; "
+        + ("held as given, --hold-times)" if record.rule == "held"
+           else "exposures measured from the pixels; --hold-times keeps the times)"))
+    say(f"{'frame':<32} {'given':>10} {'used':>10}  from")
+    for f in record.frames:
+        say(f"{Path(f.source).name:<32} {fmt_time(f.given):>10} "
+            f"{fmt_time(f.used if f.used is not None else float('nan')):>10}  "
+            f"{f.used_from if f.used is not None else 'not used'}")
+    line = exposure_message(record)
+    if line:
+        warn(line)
     s = d["samples"]
     rej = ", ".join(f"{k} {v}" for k, v in s["rejected"].items())
     say(f"samples: {s['locations']} locations ({s['block_size']}x{s['block_size']} px blocks), "
@@ -96,10 +109,10 @@ def cmd_calibrate(args) -> int:
     result = selfcal.calibrate(
         images, exposure_times=args.times, progress=progress_bar("calibrate"),
         exposure_source="unknown" if args.unknown_exposures else "auto",
-        refine_exposures=args.refine_exposures, align=args.align or False,
+        exposures=exposure_rule(args), align=args.align or False,
         response_options=selfcal.ResponseOptions(
             n_components=args.components, saturation_threshold=args.saturation_threshold,
-            basis=basis, measure_exposures=args.measure_exposures))
+            basis=basis))
     for line in result.summary_lines():
         say(line)
     if result.response is not None:
@@ -239,17 +252,7 @@ def register(sub) -> None:
                             "default: EXIF")
     times.add_argument("--unknown-exposures", action="store_true",
                        help="ignore EXIF; solve the exposures jointly with the curves")
-    refine = p.add_mutually_exclusive_group()
-    refine.add_argument("--refine-exposures", action="store_const", const=True,
-                        default="auto", help="treat the times as a prior and re-estimate "
-                        "them (default: only EXIF times the pixels contradict)")
-    refine.add_argument("--no-refine-exposures", dest="refine_exposures",
-                        action="store_const", const=False,
-                        help="hold every time, EXIF times the pixels contradict included")
-    p.add_argument("--no-measure-exposures", dest="measure_exposures", action="store_false",
-                   help="keep the solve's exposures in the model (default: measured from "
-                        "the pixels through the fitted curve, the times keeping their "
-                        "scale and trend)")
+    add_exposure_flags(p)
     p.add_argument("--align", choices=("mtb", "homography"),
                    help="align handheld frames before calibrating the response: "
                         "translation (median threshold bitmaps) or homography (ECC)")

@@ -274,3 +274,27 @@ def say_vignetting(record, *, frame: str | None = None) -> None:
     passed = "; ".join(record.get("reasons", []))
     say(f"{where}vignetting: {record['source']} ({record.get('description') or 'no description'})"
         + (f" -- passed over: {passed}" if passed else ""))
+
+
+def add_exposure_flags(parser) -> None:
+    """The rule for given times, one flag for every command that takes times
+    (:class:`selfcal.exposure.ExposureRule`): ``--hold-times``, and the solve's finer
+    ``--refine-exposures``."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--hold-times", action="store_true",
+                       help="use every exposure time (EXIF or --times) exactly as given "
+                            "(default: the exposures are measured from the pixels, the "
+                            "times keeping their scale and trend; times the pixels "
+                            "contradict are refined)")
+    group.add_argument("--refine-exposures", action="store_true",
+                       help="treat every time as a prior in the response solve, not only "
+                            "those the pixels contradict")
+
+
+def exposure_rule(args):
+    """The :class:`selfcal.exposure.ExposureRule` of ``--hold-times`` / ``--refine-exposures``."""
+    from selfcal.exposure import ExposureRule
+
+    if getattr(args, "hold_times", False):
+        return ExposureRule(times="held")
+    return ExposureRule(refine=True if getattr(args, "refine_exposures", False) else "auto")

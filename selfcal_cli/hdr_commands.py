@@ -12,7 +12,8 @@ import math
 from pathlib import Path
 
 from . import interrupts
-from .common import (EPILOG, EXIT_OK, add_vignetting_argument, say_vignetting,
+from .common import (EPILOG, EXIT_OK, add_exposure_flags, add_vignetting_argument,
+                     exposure_rule, say_vignetting,
                      vignetting_argument, check_output_folder, check_outputs, parse_time,
                      progress_bar, say, say_verdict, warn)
 
@@ -61,9 +62,8 @@ def cmd_merge(args) -> int:
     result = merge_hdr(images, args.times, model, weighting=args.weighting,
                        align=args.align or False, deghost=args.deghost, linear=args.linear,
                        options=MergeOptions(reference=args.reference,
-                                            linear_exposures=args.linear_exposures,
+                                            exposures=exposure_rule(args),
                                             sigma=args.sigma,
-                                            measure_exposures=args.measure_exposures,
                                             vignetting=vignetting,
                                             luminance=luminance),
                        progress=progress_bar("merge"))
@@ -101,21 +101,17 @@ def _merge_summary(result, images, args) -> list:
 
     how = ("linear input" if args.linear else
            f"model from {args.model}" if args.model else "model calibrated on the fly")
-    unit = ("ratios measured from the pixels, scaled to the EXIF t·ISO/100/N²"
-            if result.exposure_source == "measured+exif"
-            else "ratios measured from the pixels, scaled to the given times"
-            if result.exposure_source == "measured+given"
-            else "ratios measured from the pixels (relative)"
-            if result.exposure_source == "measured"
-            else "t·ISO/100/N² from EXIF" if result.exposure_source.startswith("exif")
-            else "the given times" if result.exposure_source.startswith("given")
-            else "the model's estimates")
-    say(f"frames: {len(images)}  ({how}; exposure e = {unit}"
-         + (", corrected by the model" if result.exposure_source.endswith("+model") else "")
-         + ")")
-    lin = result.diagnostics.get("linear_exposures")
+    record = result.exposure_record
+    origin = {"exif": "EXIF t·ISO/100/N²", "given": "the given times", "raw": "the raw files",
+              "unknown": "no times"}.get(record.origin, record.origin)
+    unit = {"measured": "measured from the pixels (a relative scale)"
+            if record.origin == "unknown" else
+            f"measured from the pixels, on the scale of {origin}",
+            "solved": f"{origin}, the model's solve where it had no time",
+            "given": f"{origin}, held" if record.rule == "held" else origin}[record.used_from]
+    say(f"frames: {len(images)}  ({how}; exposure e = {unit})")
     say(f"{'frame':<32} {'e':>10} {'used':>7}" + ("  shift" if result.transforms else "")
-        + ("  ratio (pixels)  time vs pixels" if lin else ""))
+        + "  given     moved  from")
     used = result.diagnostics.get("frame_used_fraction", [])
     for k, (src, e) in enumerate(zip(result.sources, result.exposures)):
         mark = " (reference)" if k == result.reference else ""
@@ -123,10 +119,9 @@ def _merge_summary(result, images, args) -> list:
         if result.transforms is not None:
             t = result.transforms[k]
             line += f"  {-t[0, 2]:+.1f},{-t[1, 2]:+.1f} px"
-        if lin:
-            m, d = lin["measured"][k], lin["differences"][k]
-            line += (f"  {m:>14.4g}" if m is not None else f"  {'-':>14}")
-            line += f"  {100 * d:+13.1f}%" if d is not None else f"  {'-':>14}"
+        f = record.frames[k]
+        line += (f"  {f.given:<9.4g} {100 * f.moved:+5.1f}%" if f.given is not None
+                 else f"  {'-':<9} {'':>6}") + f"  {f.used_from}"
         say(line + mark)
     rad = result.radiance
     measured = ~result.unmeasured
@@ -384,15 +379,7 @@ def register(subparsers) -> None:
                       help="the images are linear already (e.g. from selfcal linearize or "
                            "a raw converter; raw files and TIFFs found linear are merged "
                            "so without it); no response model")
-    p.add_argument("--linear-exposures", choices=("auto", "measured", "times"),
-                   default="auto",
-                   help="linear frames: exposures from the pixels' ratios in the times' "
-                        "scale (auto; --times are kept as given), always from the pixels "
-                        "(measured), or the times as they are (times)")
-    p.add_argument("--no-measure-exposures", dest="measure_exposures", action="store_false",
-                   help="rendered frames: merge with the given, EXIF or model's exposures "
-                        "as they are (default: measured from the pixels through the "
-                        "curve, the times keeping their scale and trend)")
+    add_exposure_flags(p)
     p.add_argument("--reference", type=int, metavar="K",
                    help="index of the reference frame (default: the middle exposure)")
     add_vignetting_argument(p)

@@ -66,7 +66,7 @@ def test_calibrate_fixture_stack(capsys, tmp_path):
     doc = json.loads(out.read_text())
     assert doc["format"] == "selfcal-model" and doc["kind"] == "response"
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "verdict" in text and "exif" in text
+    assert "verdict" in text and "times from EXIF" in text
     # the truth of the fixtures: the recovered curve is close to it
     truth = json.loads((FIXTURES / "truth.json").read_text())
     import numpy as np
@@ -354,7 +354,7 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     import numpy as np
 
     import selfcal
-    from selfcal.stack.linear_evidence import linear_evidence
+    from selfcal.exposure.linear_evidence import linear_evidence
     from selfcal.hdr.io import read_radiance
 
     times = (1 / 60, 1 / 15, 1 / 4)
@@ -375,7 +375,7 @@ def test_linear_tiff_bracket_is_not_taken_for_rendered_frames(capsys, tmp_path):
     code, text = run(["merge", *paths, "-o", tmp_path / "auto.exr"], capsys)
     assert code == 0, text
     assert "are linear data" in text and "no response fitted" in text
-    assert "ratios measured from the pixels (relative)" in text
+    assert "measured from the pixels (a relative scale)" in text
     code, text = run(["merge", *paths, "--linear", "--times", *map(str, times),
                       "-o", tmp_path / "r.exr"], capsys)
     assert code == 0, text
@@ -414,10 +414,16 @@ def test_contradicted_exif_time_refined_by_default_or_held_on_request(capsys, tm
     paths = dataclasses.replace(stack, exposure_times=exif_times).write(tmp_path / "s")
     code, out = run(["calibrate", *paths, "-o", tmp_path / "auto.json"], capsys)
     assert code == 0
-    assert "frame_02.jpg" in out and "exposures were refined" in out, out
-    assert json.loads((tmp_path / "auto.json").read_text())["diagnostics"]["verdict"] == "ok"
+    assert "frame_02.jpg" in out and "--hold-times keeps the times" in out, out
+    auto = json.loads((tmp_path / "auto.json").read_text())
+    assert auto["diagnostics"]["verdict"] == "ok"
+    assert auto["exposure_record"]["refined"] is True
+    assert auto["exposure_record"]["frames"][2]["contradicted"] is not None
     code, out = run(["calibrate", *paths, "-o", tmp_path / "held.json",
-                     "--no-refine-exposures"], capsys)
+                     "--hold-times"], capsys)
     assert code == 0
-    held = json.loads((tmp_path / "held.json").read_text())["diagnostics"]
-    assert held["refine_exposures"] is False and held["verdict"] == "doubtful"
+    held = json.loads((tmp_path / "held.json").read_text())
+    assert held["exposure_record"]["rule"] == "held" and not held["exposure_record"]["refined"]
+    assert held["diagnostics"]["verdict"] == "doubtful"
+    assert [f["used"] for f in held["exposure_record"]["frames"]] == pytest.approx(
+        list(exif_times))

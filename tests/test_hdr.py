@@ -74,7 +74,8 @@ def rel_error(estimate, truth, mask, scale=None):
 def test_radiance_matches_truth_with_true_response(stack, weighting):
     # the merge's arithmetic with the truth: the true exposures as they are
     result = merge_hdr(stack.images, stack.true_exposures, true_model(stack),
-                       weighting=weighting, options=MergeOptions(measure_exposures=False))
+                       weighting=weighting,
+                       options=MergeOptions(exposures=selfcal.ExposureRule(times="held")))
     assert isinstance(result, HDRResult)
     assert result.radiance.dtype == np.float32 and result.radiance.shape == (96, 144, 3)
     assert result.unmeasured.dtype == bool and result.unmeasured.shape == (96, 144)
@@ -210,7 +211,8 @@ def test_exif_exposure_scale_across_sessions(tmp_path):
     ra = merge_hdr(pa, model=model)
     rb = merge_hdr(pb, model=model)
     # the exposures measured from the pixels keep the times' scale: the median ratio is 1
-    assert ra.exposure_source == rb.exposure_source == "exif+pixels"
+    assert ra.exposure_source == rb.exposure_source == "measured+exif"
+    assert {f.used_from for f in ra.exposure_record.frames} == {"measured"}
     assert abs(np.median(np.log(ra.exposures / (np.array(TIMES) / 64)))) < 1e-9
     np.testing.assert_allclose(ra.exposures, np.array(TIMES) / 64, rtol=0.02)
     mask = ~(ra.unmeasured | rb.unmeasured)
@@ -226,9 +228,12 @@ def test_contradicted_exif_time_uses_model_estimate(tmp_path):
     paths = st.write(tmp_path)
     result = merge_hdr(paths)
     # the calibration measured every frame's exposure: the merge uses those, and says so
-    assert any("measured exposures" in w and "02" in w for w in result.warnings), \
-        result.warnings
-    assert result.exposure_source == "exif+model+pixels"
+    # in one line
+    frame = result.exposure_record.frames[2]
+    assert frame.used_from == "measured" and frame.contradicted is not None
+    assert abs(frame.moved + 0.5) < 0.1, frame
+    assert len([w for w in result.warnings if "--hold-times" in w]) == 1, result.warnings
+    assert result.exposure_source == "measured+exif"
     rel = result.exposures / (np.array(TIMES) / 64)
     assert abs(rel[2] - 1) < 0.1, rel
     # (the curve calibrated with a wrong time is itself less accurate than usual)
@@ -236,10 +241,18 @@ def test_contradicted_exif_time_uses_model_estimate(tmp_path):
     assert rel_error(result.radiance, truth, ~result.unmeasured, scale="best") < 0.12
 
 
-def test_refined_exposures_are_used_with_a_warning(stack):
-    result = merge_hdr(stack.images, np.array(stack.exposure_times) * [1, 1.05, 1, 1],
-                       options=MergeOptions(refine_exposures=True, measure_exposures=False))
-    assert any("refined" in w for w in result.warnings), result.warnings
+def test_refined_exposures_are_used_and_said_once(stack):
+    given = np.array(stack.exposure_times) * [1, 1.05, 1, 1]
+    result = merge_hdr(stack.images, given,
+                       options=MergeOptions(exposures=selfcal.ExposureRule(refine=True)))
+    record = result.exposure_record
+    assert record.refined and record.rule == "measured"
+    assert [f.given for f in record.frames] == pytest.approx(list(given))
+    assert len([w for w in result.warnings if "--hold-times" in w]) <= 1, result.warnings
+    held = merge_hdr(stack.images, given,
+                     options=MergeOptions(exposures=selfcal.ExposureRule(times="held")))
+    np.testing.assert_allclose(held.exposures, given, rtol=1e-12)
+    assert not any("--hold-times" in w for w in held.warnings)
 
 
 def test_unknown_exposures_need_a_model(stack):
@@ -626,8 +639,8 @@ def test_calibrate_response_aligns_handheld_frames_first():
     # misregistered correspondences inflate the fit residual; aligned ones do not
     assert (aligned.diagnostics["residual_rms_log"]
             < 0.5 * unaligned.diagnostics["residual_rms_log"])
-    assert any("contradict" in w for w in unaligned.diagnostics["warnings"])
-    assert not any("contradict" in w for w in aligned.diagnostics["warnings"])
+    assert unaligned.exposure_record.contradictions()
+    assert not aligned.exposure_record.contradictions()
     truth = st.inverse_response()
 
     def err(m):

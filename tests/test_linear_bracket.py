@@ -9,7 +9,7 @@ import pytest
 import selfcal
 from selfcal import sim
 from selfcal.hdr import MergeOptions
-from selfcal.exposure.linear import REPORT_DIFFERENCE
+from selfcal.exposure.resolve import REPORT_DIFFERENCE
 
 TIMES = (1 / 125, 1 / 30, 1 / 8, 1 / 2)
 
@@ -46,8 +46,9 @@ def test_ratios_measured_without_times_within_one_percent(tmp_path):
     assert np.max(np.abs(_ratios(TIMES) / true - 1)) > 0.02
     assert result.exposure_source == "measured"
     assert any("relative scale" in w for w in result.warnings)
-    lin = result.diagnostics["linear_exposures"]
-    assert lin["source"] == "measured" and lin["times"] == [None] * len(TIMES)
+    record = result.exposure_record
+    assert record.origin == "unknown" and record.given == [None] * len(TIMES)
+    assert {f.used_from for f in record.frames} == {"measured"}
     assert _radiance_error(result, stack) < 0.03
 
 
@@ -60,25 +61,27 @@ def test_exif_times_scale_the_measured_ratios(tmp_path):
     # in the times' units: the median frame agrees with its time
     exif = np.array(TIMES) * (stack.iso / 100) / stack.f_number ** 2   # t · ISO/100 / N²
     assert abs(np.median(np.log(result.exposures / exif))) < 1e-9
-    diffs = result.diagnostics["linear_exposures"]["differences"]
-    worst = int(np.argmax(np.abs(diffs)))
-    assert max(abs(d) for d in diffs) > REPORT_DIFFERENCE
-    assert any("instead of the EXIF exposures" in w and f"raw_{worst}.tif" in w
-               for w in result.warnings)
-    # "times": the EXIF times as they are
-    held = selfcal.merge_hdr(paths, linear=True, options=MergeOptions(linear_exposures="times"))
+    moved = [f.moved for f in result.exposure_record.frames]
+    worst = int(np.argmax(np.abs(moved)))
+    assert max(abs(d) for d in moved) > REPORT_DIFFERENCE
+    assert result.exposure_record.largest_move().source.endswith(f"raw_{worst}.tif")
+    assert len([w for w in result.warnings if "--hold-times" in w]) == 1
+    # held: the EXIF times as they are
+    held = selfcal.merge_hdr(paths, linear=True,
+                             options=MergeOptions(exposures=selfcal.ExposureRule(times="held")))
     assert held.exposure_source == "exif"
     np.testing.assert_allclose(held.exposures, exif, rtol=1e-6)
 
 
-def test_given_times_are_kept_unless_measured_is_asked_for(tmp_path):
+def test_given_times_follow_the_rule_exif_times_do(tmp_path):
+    """One rule: --times are measured like EXIF times, and held only when asked."""
     paths, stack = _bracket(tmp_path, with_times=False)
     given = list(TIMES)
-    kept = selfcal.merge_hdr(paths, given, linear=True)
+    kept = selfcal.merge_hdr(paths, given, linear=True,
+                             options=MergeOptions(exposures=selfcal.ExposureRule(times="held")))
     assert kept.exposure_source == "given"
     np.testing.assert_allclose(kept.exposures, given)
-    assert any("kept as given" in w for w in kept.warnings)
-    measured = selfcal.merge_hdr(paths, given, linear=True, options=MergeOptions(linear_exposures="measured"))
+    measured = selfcal.merge_hdr(paths, given, linear=True)
     assert measured.exposure_source == "measured+given"
     true = _ratios(stack.true_exposures)
     assert np.max(np.abs(_ratios(measured.exposures) / true - 1)) < 0.01
@@ -95,8 +98,9 @@ def test_linear_arrays_and_a_frame_nothing_measures(tmp_path):
     black = arrays[:2] + [np.zeros_like(arrays[0])]
     with pytest.raises(selfcal.CalibrationError, match=r"array #2: shares too few"):
         selfcal.merge_hdr(black, linear=True)
-    with pytest.raises(selfcal.InputError, match="linear_exposures must be one of"):
-        selfcal.merge_hdr(arrays, linear=True, options=MergeOptions(linear_exposures="exif"))
+    with pytest.raises(selfcal.InputError, match="rule for given times"):
+        selfcal.merge_hdr(arrays, linear=True,
+                          options=MergeOptions(exposures=selfcal.ExposureRule(times="exif")))
 
 
 def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):
@@ -110,8 +114,8 @@ def test_cli_merges_a_linear_bracket_and_says_so(tmp_path, capsys):
     text = text.out + text.err
     assert code == 0, text
     assert "are linear data" in text and "follow the exposure times" in text
-    assert "ratios measured from the pixels, scaled to the EXIF" in text
-    assert "ratio (pixels)" in text and "instead of the EXIF exposures" in text
+    assert "measured from the pixels, on the scale of EXIF" in text
+    assert "--hold-times keeps the times" in text
     radiance = read_radiance(out)
     truth = stack.radiance
     ok = (truth > 1e-3).all(axis=2)

@@ -51,20 +51,20 @@ def test_measured_exposures_recover_the_truth_from_arrays(stack):
     model = true_model(stack)
     truth = truth_radiance(stack)
     plain = selfcal.merge_hdr(stack.images, times, model,
-                              options=MergeOptions(measure_exposures=False))
+                              options=MergeOptions(exposures=selfcal.ExposureRule(times="held")))
     meas = selfcal.merge_hdr(stack.images, times, model, options=MergeOptions(sigma=True))
     assert np.abs(_relative(plain.exposures, true) - 1).max() > 0.1      # the times' error
     assert np.abs(_relative(meas.exposures, true) - 1).max() < 0.015
     # the scale stays the times': the median log difference is zero
     assert abs(np.median(np.log(meas.exposures / np.asarray(times)))) < 1e-9
     assert _radiance_error(meas, truth) < 0.7 * _radiance_error(plain, truth)
-    summary = meas.diagnostics["measured_exposures"]
-    assert summary["reduce"] == 1
-    assert summary["log_sigma"] >= MIN_LOG_SIGMA
-    assert meas.exposure_source == "given+pixels"
-    assert any("measured from the pixels" in w for w in meas.warnings)
-    assert max(abs(d) for d in summary["differences"]) > 0.1
-    # measure_exposures=False leaves the times alone
+    spread = meas.exposure_record.spread
+    assert spread.reduce == 1 and spread.by == "merge"
+    assert spread.log_sigma >= MIN_LOG_SIGMA
+    assert meas.exposure_source == "measured+given"
+    assert max(abs(f.moved) for f in meas.exposure_record.frames) > 0.1
+    assert len([w for w in meas.warnings if "--hold-times" in w]) == 1
+    # held times are left alone
     np.testing.assert_allclose(plain.exposures, times)
 
 
@@ -87,7 +87,7 @@ def test_measured_exposures_from_files_use_a_reduced_prepass(stack, tmp_path):
 def test_times_that_are_right_are_barely_moved(stack):
     true = np.asarray(stack.true_exposures, float)
     meas = selfcal.merge_hdr(stack.images, list(true), true_model(stack),
-                             options=MergeOptions(measure_exposures=True))
+                             options=MergeOptions(exposures=selfcal.ExposureRule()))
     assert np.abs(meas.exposures / true - 1).max() < 0.015
 
 
@@ -128,21 +128,21 @@ def test_times_trend_is_not_pulled_by_one_frame():
 def test_the_merge_takes_the_calibrations_own_numbers(stack, tmp_path):
     jittered = np.asarray(stack.true_exposures, float) * OFF
     model = selfcal.calibrate_response(stack.images, list(jittered))
-    assert model.diagnostics["measured_exposures"]["trend"] == "times"
+    assert model.exposure_record.spread.trend == "times"
     # arrays: recognised by their content, nothing measured again
     r = selfcal.merge_hdr(stack.images, list(jittered), model)
-    assert r.diagnostics["measured_exposures"]["by"] == "calibration"
+    assert r.exposure_record.spread.by == "calibration"
     np.testing.assert_allclose(r.exposures, model.exposures, rtol=1e-12)
     # other frames (one changed): measured by the merge's own pre-pass
     other = [im.copy() for im in stack.images]
     other[0][0, 0] ^= 1
     r = selfcal.merge_hdr(other, list(jittered), model)
-    assert r.diagnostics["measured_exposures"]["by"] == "merge"
+    assert r.exposure_record.spread.by == "merge"
     # files, after the model went through its file
     paths = stack.write(tmp_path / "files", fmt="png")
     model = selfcal.calibrate_response(paths, list(jittered))
     model.save(tmp_path / "model.json")
     loaded = selfcal.load_model(tmp_path / "model.json")
     r = selfcal.merge_hdr(paths, list(jittered), loaded)
-    assert r.diagnostics["measured_exposures"]["by"] == "calibration"
+    assert r.exposure_record.spread.by == "calibration"
     np.testing.assert_allclose(r.exposures, model.exposures, rtol=1e-9)

@@ -141,7 +141,7 @@ def calibrate(images, times, mode="given"):
     try:
         model = selfcal.calibrate_response(
             images, None if mode == "unknown" else times,
-            refine_exposures=mode == "refine",
+            exposures=selfcal.ExposureRule(refine=True) if mode == "refine" else None,
             options=ResponseOptions(max_samples=SAMPLES))
     except SelfcalError as exc:
         event(f"{mode}: {type(exc).__name__}")

@@ -47,7 +47,8 @@ def test_known_times_recover_truth(srgb_model, srgb_stack):
     # the solve held the given times; the exposures measured through the curve after it
     # are closer to the true (jittered) ones than the times are, on the times' scale
     true = np.asarray(srgb_stack.true_exposures)
-    assert srgb_model.diagnostics["refine_exposures"] is False
+    assert srgb_model.exposure_record.refined is False
+    assert {f.used_from for f in srgb_model.exposure_record.frames} == {"measured"}
     assert abs(np.median(np.log(srgb_model.exposures / TIMES))) < 1e-9
     assert _ratio_error(srgb_model.exposures, true) < 0.5 * _ratio_error(TIMES, true)
     assert srgb_model.diagnostics["verdict"] == "ok"
@@ -238,7 +239,9 @@ def test_refine_exposures_beats_wrong_nominal_times():
     pipe = sim.default_pipeline(gamut="smooth", curves=sim.ToneCurve.gamma(2.2), seed=3)
     scene = sim.make_scene(192, 288, seed=3)
     stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.12, jpeg_quality=90, seed=3)
-    refined = selfcal.calibrate_response(stack.images, TIMES, refine_exposures=True)
+    refined = selfcal.calibrate_response(stack.images, TIMES,
+                                         exposures=selfcal.ExposureRule(refine=True))
+    assert refined.exposure_record.refined
     true = stack.true_exposures
     # compare ratios to the first frame (the overall scale is the prior's)
     err_nominal = np.abs(np.log(np.array(TIMES) / TIMES[0]) - np.log(true / true[0]))
@@ -293,9 +296,19 @@ def test_contradicting_time_is_reported(srgb_stack):
     times = list(TIMES)
     times[3] = times[3] * 2.5  # EXIF lies about one frame
     model = selfcal.calibrate_response(srgb_stack.images, times)
-    flagged = [c["frame"] for c in model.diagnostics["contradicting_times"]]
+    flagged = [f.source for f in model.exposure_record.contradictions()]
     assert flagged == ["array #3"]
-    assert any("array #3" in w and "contradict" in w for w in model.diagnostics["warnings"])
+    # the caller's times follow the rule EXIF times do: the contradicted one is refined
+    # (and then measured), held with ExposureRule(times="held")
+    assert model.exposure_record.refined
+    assert abs(model.exposure_record.frames[3].moved) > 0.4
+    held = selfcal.calibrate_response(srgb_stack.images, times,
+                                      exposures=selfcal.ExposureRule(times="held"))
+    assert [f.source for f in held.exposure_record.contradictions()] == ["array #3"]
+    assert not held.exposure_record.refined
+    np.testing.assert_allclose(held.exposures, times, rtol=1e-12)
+    line = selfcal.exposure.exposure_message(held.exposure_record)
+    assert "array #3" in line and "held" in line
 
 
 def test_sixteen_bit_stack():
@@ -435,7 +448,7 @@ def test_jpeg_padded_with_zeros_after_its_end_is_read(tmp_path, srgb_stack):
 def test_exif_times_are_used_and_missing_exif_warned(tmp_path, srgb_stack):
     paths = srgb_stack.write(tmp_path / "stack")
     model = selfcal.calibrate_response(paths)
-    assert model.diagnostics["exposure_source"] == "exif"
+    assert model.exposure_record.origin == "exif"
     # measured through the curve, on the EXIF times' scale
     true = np.asarray(srgb_stack.true_exposures)
     assert _ratio_error(model.exposures, true) < _ratio_error(srgb_stack.exposure_times, true)

@@ -5,7 +5,7 @@
 * the verdict (``diagnostics["verdict"]``, :mod:`selfcal.response.verdict`) is not
   "ok" on wrong data -- times in reversed order, a handheld stack, two scenes, one stop,
   a flat scene -- and stays "ok" on a good stack; each reason is a SelfcalWarning;
-* ``exposure_source`` says where the times came from, the ambiguity warning is a
+* the exposure record says where the times came from, the ambiguity warning is a
   SelfcalWarning, and refined exposures keep the times of the frames that agree.
 
 Each test here failed on the code before these checks were added (``git archive 83b5507``).
@@ -180,12 +180,18 @@ def test_flat_scene_is_doubtful():
     assert any("stops of the curve" in r for r in reasons), reasons
 
 
-def test_one_wrong_time_is_doubtful(stack):
+def test_one_wrong_time_held_is_doubtful(stack):
     times = list(TIMES)
     times[3] *= 2.0
-    verdict, reasons, _ = verdict_of(calibrate_quietly(stack.images, times))
+    held = calibrate_quietly(stack.images, times, exposures=selfcal.ExposureRule(times="held"))
+    verdict, reasons, evidence = verdict_of(held)
     assert verdict == "doubtful"
-    assert any("array #3" in r and "contradict" in r for r in reasons), reasons
+    assert evidence["contradicted_times"] == 1, evidence
+    assert [f.source for f in held.exposure_record.contradictions()] == ["array #3"]
+    # by default the rule refines it (the verdict sees the corrected time as evidence)
+    refined = calibrate_quietly(stack.images, times)
+    assert refined.exposure_record.refined
+    assert [f.source for f in refined.exposure_record.contradictions()] == ["array #3"]
 
 
 def test_verdict_is_saved_and_loaded(stack, tmp_path):
@@ -224,13 +230,13 @@ def test_memorial_ok_and_reversed_unusable():
 # ------------------------------------------------------------------ point 8
 
 def test_exposure_source_says_where_the_times_came_from(stack, tmp_path):
-    d = calibrate_quietly(stack.images, TIMES).diagnostics
-    assert d["exposure_source"] == "given"
-    d = calibrate_quietly(stack.images, [None] * 6).diagnostics
-    assert d["exposure_source"] == "unknown"            # was "given"
-    d = calibrate_quietly(stack.images, TIMES, times_source="raw").diagnostics
-    assert d["exposure_source"] == "raw"
-    assert calibrate_quietly(stack.images).diagnostics["exposure_source"] == "unknown"
+    def origin(*args, **kw):
+        return calibrate_quietly(*args, **kw).exposure_record.origin
+
+    assert origin(stack.images, TIMES) == "given"
+    assert origin(stack.images, [None] * 6) == "unknown"            # was "given"
+    assert origin(stack.images, TIMES, times_source="raw") == "raw"
+    assert origin(stack.images) == "unknown"
     # files without EXIF times: unknown, not "exif"
     from selfcal.io import encode_image
 
@@ -238,11 +244,11 @@ def test_exposure_source_says_where_the_times_came_from(stack, tmp_path):
     for k, im in enumerate(stack.images):
         paths.append(tmp_path / f"f{k}.png")
         paths[-1].write_bytes(encode_image(im, ".png"))
-    d = calibrate_quietly(paths).diagnostics
-    assert d["exposure_source"] == "unknown"            # was "exif"
-    assert sum("no exposure time in EXIF" in w for w in d["warnings"]) == 6
+    model = calibrate_quietly(paths)
+    assert model.exposure_record.origin == "unknown"            # was "exif"
+    assert sum("no exposure time in EXIF" in w for w in model.diagnostics["warnings"]) == 6
     written = stack.write(tmp_path / "exif")
-    assert calibrate_quietly(written).diagnostics["exposure_source"] == "exif"
+    assert origin(written) == "exif"
 
 
 def test_unknown_exposures_through_calibrate_are_labelled_unknown(stack, tmp_path):
@@ -251,7 +257,7 @@ def test_unknown_exposures_through_calibrate_are_labelled_unknown(stack, tmp_pat
         warnings.simplefilter("ignore", SelfcalWarning)
         result = selfcal.calibrate(paths, exposure_source="unknown")
     assert result.exposure_source == "unknown"
-    assert result.response.diagnostics["exposure_source"] == "unknown"   # was "given"
+    assert result.response.exposure_record.origin == "unknown"   # was "given"
 
 
 def test_ambiguity_warning_is_a_selfcal_warning(stack):
@@ -266,7 +272,8 @@ def test_refined_times_keep_the_agreeing_frames_times(stack):
     for wrong in (2, 3):
         times = list(TIMES)
         times[wrong] *= 2.5
-        model = calibrate_quietly(stack.images, times, refine_exposures=True)
+        model = calibrate_quietly(stack.images, times,
+                                  exposures=selfcal.ExposureRule(refine=True))
         others = [k for k in range(6) if k != wrong]
         rel = model.exposures[others] / np.array(TIMES)[others]
         assert np.all(np.abs(rel - 1) < 0.06), rel
@@ -295,30 +302,37 @@ def test_contradicted_exif_times_are_refined_by_default(stack, tmp_path):
 
     without_reach = ResponseOptions(measure_ringing=False, hidden_white=False)
     paths = exif_stack_with_one_wrong_time(stack, tmp_path / "s")
-    with pytest.warns(SelfcalWarning, match=r"frame_03.*contradict the EXIF.*refined"):
-        model = selfcal.calibrate_response(paths, options=without_reach)
+    model = calibrate_quietly(paths, options=without_reach)
     d = model.diagnostics
-    assert d["exposure_source"] == "exif" and d["refine_exposures"] is True
+    record = model.exposure_record
+    assert record.origin == "exif" and record.refined
+    assert [f.source for f in record.contradictions()] == [str(paths[3])]
     assert d["verdict"] == "ok", d["verdict_reasons"]
     # the wrong frame comes back near the truth (jitter ±3 %), the others keep EXIF's
     assert model.exposures[3] / stack.true_exposures[3] == pytest.approx(1, abs=0.08)
     others = [0, 1, 2, 4, 5]
     assert np.allclose(model.exposures[others] / np.array(TIMES)[others], 1, atol=0.06)
-    held = calibrate_quietly(paths, refine_exposures=False, options=without_reach)
-    assert held.diagnostics["refine_exposures"] is False
+    held = calibrate_quietly(paths, exposures=selfcal.ExposureRule(times="held"),
+                             options=without_reach)
+    assert not held.exposure_record.refined and held.exposure_record.rule == "held"
     assert held.diagnostics["verdict"] == "doubtful"
     assert rmse_vs_truth(model, stack) < rmse_vs_truth(held, stack)
 
 
-def test_times_the_caller_gives_are_held_not_refined(stack):
+def test_times_the_caller_gives_follow_the_rule_exif_times_do(stack):
+    """One rule for given times: the caller's contradicted time is refined as an EXIF one
+    is, and held (the verdict doubtful) only with ``--hold-times``."""
     times = list(TIMES)
     times[3] *= 1.6
     model = calibrate_quietly(stack.images, times)
-    assert model.diagnostics["refine_exposures"] is False
-    assert model.diagnostics["verdict"] == "doubtful"
-    # the solve held the wrong time; the exposure measured after it is the pixels'
+    assert model.exposure_record.refined
+    assert model.diagnostics["verdict"] == "ok", model.diagnostics["verdict_reasons"]
     measured = model.exposures[3] / model.exposures[2]
     assert abs(measured / (TIMES[3] / TIMES[2]) - 1) < 0.1, measured
+    held = calibrate_quietly(stack.images, times, exposures=selfcal.ExposureRule(times="held"))
+    assert not held.exposure_record.refined
+    assert held.diagnostics["verdict"] == "doubtful"
+    np.testing.assert_allclose(held.exposures, times, rtol=1e-12)
 
 
 def test_exif_times_mostly_contradicted_are_not_refined_away(stack, tmp_path):
@@ -327,11 +341,13 @@ def test_exif_times_mostly_contradicted_are_not_refined_away(stack, tmp_path):
     # EXIF times in reversed order: refining would hide that they belong to other frames
     reversed_times = np.array(stack.exposure_times, dtype=float)[::-1].copy()
     paths = dataclasses.replace(stack, exposure_times=reversed_times).write(tmp_path / "r")
-    d = calibrate_quietly(paths).diagnostics
-    assert d["refine_exposures"] is False
-    assert d["verdict"] == "unusable"
+    model = calibrate_quietly(paths)
+    assert not model.exposure_record.refined
+    assert model.diagnostics["verdict"] == "unusable"
 
 
-def test_refine_option_is_checked(stack):
-    with pytest.raises(ValueError, match="refine_exposures"):
-        selfcal.calibrate_response(stack.images, TIMES, refine_exposures="yes")
+def test_exposure_rule_is_checked():
+    with pytest.raises(selfcal.InputError, match="rule for given times"):
+        selfcal.ExposureRule(times="yes")
+    with pytest.raises(selfcal.InputError, match="--hold-times"):
+        selfcal.ExposureRule(refine=False)

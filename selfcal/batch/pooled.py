@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..exposure.record import BracketExposures, FrameExposure
 from ..errors import CalibrationError
 from ..response.basis import ResponseBasis
 from ..typing import ExposureTimes, ImageInput
@@ -437,11 +438,8 @@ def shared_model(pooled: PooledCalibration, sessions: Sequence[SessionSamples], 
         "verdict": "ok",
         "verdict_reasons": [],
         "warnings": list(fit.warnings),
-        "exposure_source": "exif",
-        "refine_exposures": False,
         "frames_used": sources,
         "residual_rms_log": fit.residual_rms,
-        "contradicting_times": [],
         "stuck_codes": pooled.stuck_codes,
         "pooled": {"camera": camera, "sessions": list(pooled.pooled),
                    "flagged": list(pooled.flagged), "rows_used": fit.rows_used,
@@ -450,4 +448,7 @@ def shared_model(pooled: PooledCalibration, sessions: Sequence[SessionSamples], 
     return ResponseModel(intensity=fit.intensity, inverse=fit.inverse,
                          coefficients=fit.coefficients, basis_name=fit.basis_name,
                          exposures=np.asarray(times), exposure_times=times, sources=sources,
-                         max_code=used[0].max_code, diagnostics=diagnostics)
+                         max_code=used[0].max_code, diagnostics=diagnostics,
+                         exposure_record=BracketExposures(tuple(
+                             FrameExposure(source=src, given=t, origin="exif", used=t)
+                             for src, t in zip(sources, times)), rule="held", origin="exif"))

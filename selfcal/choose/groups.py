@@ -3,7 +3,7 @@
 
 Part of the path choice of :mod:`selfcal.choose`, which re-exports :class:`InputGroups`
 and :func:`group_inputs`.  Whether a bracket of 16-bit TIFFs is linear data is
-:func:`selfcal.stack.linear_evidence.linear_evidence`.
+:func:`selfcal.exposure.linear_evidence.linear_evidence`.
 """
 
 from __future__ import annotations

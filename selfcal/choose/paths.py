@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ..exposure.record import ExposureRule
 from ..errors import CalibrationError, InputError
 from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info,
                          read_image, read_image_size)
@@ -36,7 +37,7 @@ from ..pipeline.pairs import collect_pair_samples
 from ..response.calibrate import calibrate_response
 from ..response.options import ResponseOptions
 from ..response.model import ResponseModel
-from ..stack.linear_evidence import linear_evidence
+from ..exposure.linear_evidence import linear_evidence
 from ..typing import ExposureTimes, PathLike, Progress
 from ..exposure.plan import (ResponsePlan, SessionReport, distinct_exposures, file_names,
                             noun, plan_response, seconds_text, times_by_frame)
@@ -184,7 +185,7 @@ class PairOptions:
 def calibrate(paths: Sequence[PathLike], *,
               exposure_times: ExposureTimes | Mapping[PathLike, float | None] | None = None,
               exposure_source: str = "auto", seed: int = 0,
-              refine_exposures: bool | str = "auto", align: bool | str = False,
+              exposures: ExposureRule | None = None, align: bool | str = False,
               pairs: PairOptions | None = None,
               response_options: ResponseOptions | None = None,
               pipeline_options: PipelineOptions | None = None,
@@ -226,8 +227,9 @@ def calibrate(paths: Sequence[PathLike], *,
         ``"auto"``: raw ratios when ≥ 2 response frames have raws, else EXIF.  ``"raw"``
         insists on raw ratios (error without them), ``"exif"`` ignores the raws for
         exposures, ``"unknown"`` solves all exposures jointly.
-    refine_exposures : {"auto", True, False}
-        The response path's (:func:`selfcal.calibrate_response`).
+    exposures : ExposureRule, optional
+        The rule for given times of the response path (:func:`selfcal.calibrate_response`;
+        :class:`selfcal.exposure.ExposureRule`).
     align : {False, "mtb", "homography"}
         Align a handheld stack before the response path calibrates it
         (:func:`selfcal.calibrate_response`).
@@ -253,13 +255,13 @@ def calibrate(paths: Sequence[PathLike], *,
         When the inputs support neither path; the message says what is missing, e.g.
         ``"3 JPEGs all at 1/60 s and no raw files: need frames at ≥ 2 exposures, or a
         RAW+JPEG pair"``.  Also for a bracket of linear TIFFs (raw converter output,
-        :func:`selfcal.stack.linear_evidence.linear_evidence`), which has no response.
+        :func:`selfcal.exposure.linear_evidence.linear_evidence`), which has no response.
     """
     if exposure_source not in ("auto", "raw", "exif", "unknown"):
         raise InputError(f"exposure_source must be auto, raw, exif or unknown, got "
                          f"{exposure_source!r}")
     pairs = PairOptions() if pairs is None else pairs
-    resp_opts = {"seed": seed, "refine_exposures": refine_exposures, "align": align,
+    resp_opts = {"seed": seed, "exposures": exposures, "align": align,
                  "options": response_options}
     groups = group_inputs(paths)
     report = SessionReport()
@@ -446,14 +448,14 @@ def _run_response(plan: ResponsePlan, resp_opts: dict, *, progress, pipeline_fol
                   report: SessionReport):
     """The response path (:func:`selfcal.calibrate_response`) on the planned frames, or
     None without frames; a failure is an error unless the pipeline path follows.
-    ``resp_opts`` holds its ``seed``, ``refine_exposures``, ``align`` and ``options``."""
+    ``resp_opts`` holds its ``seed``, ``exposures``, ``align`` and ``options``."""
     if not plan.frames:
         return None
     try:
         model = calibrate_response(
             [str(p) for p in plan.frames], plan.times, progress=progress,
-            times_source=plan.exposure_kind if plan.times is not None else None,
-            seed=resp_opts["seed"], refine_exposures=resp_opts["refine_exposures"],
+            times_source=plan.exposure_kind if plan.times is not None else "given",
+            seed=resp_opts["seed"], exposures=resp_opts["exposures"],
             align=resp_opts["align"], options=resp_opts["options"])
     except CalibrationError as exc:
         if not pipeline_follows:

@@ -25,13 +25,14 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, InputError
-from ..io.images import effective_exposure_times, is_path, read_exposure_info
-from ..stack.frames import DEFAULT_CLIP_MARGIN, REPORT_DIFFERENCE, StackFrames, given_exposures
-from ..stack.linear_evidence import linear_evidence
+from ..io.images import is_path
+from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames
+from .linear_evidence import linear_evidence
+from .record import GivenTimes
 from .raw_ratios import raw_exposure_ratios, split_thumbnails
 
-__all__ = ["LinearExposures", "measure_linear_exposures", "resolve_linear_exposures",
-           "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE", "REPORT_DIFFERENCE",
+__all__ = ["LinearExposures", "measure_linear_exposures",
+           "linear_tiff_evidence", "stack_frames", "MEASURE_SIDE",
            "fit_log_sigma", "MIN_LOG_SIGMA"]
 
 #: Long side (pixels) of the area-averaged thumbnails the ratios are measured on.
@@ -213,57 +214,26 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
                            times_source, source, differences, pairs)
 
 
-def resolve_linear_exposures(frames, exposure_times, use: str, clip_margin: float,
-                             warnings: list, diagnostics: dict, progress):
-    """:func:`measure_linear_exposures` for :func:`selfcal.merge_hdr`: the times (given,
-    else EXIF) read, the summary put in ``diagnostics["linear_exposures"]`` and the
-    warnings that say what was used.  Returns ``(exposures, source)``."""
-    times, times_source = given_exposures(frames, exposure_times)
-    lin = measure_linear_exposures(frames, times, times_source, use=use,
-                                   clip_margin=clip_margin, progress=progress)
-    diagnostics["linear_exposures"] = lin.as_dict(frames.sources)
-    label = {"given": "given times", "exif": "EXIF exposures"}[times_source]
-    worst = lin.largest_difference()
-    if lin.source == "measured":
-        warnings.append("no exposure times known: the radiance is on a relative scale "
-                        "(exposure ratios measured from the pixels)")
-    elif worst is not None and worst[0] > REPORT_DIFFERENCE:
-        name = Path(frames.sources[worst[1]]).name
-        if lin.source.startswith("measured"):
-            warnings.append(f"using the exposure ratios measured from the pixels instead of "
-                            f"the {label} (they differ by up to {100 * worst[0]:.1f}%, at "
-                            f"{name})")
-        else:
-            warnings.append(f"the {label} differ from the exposure ratios measured from the "
-                            f"pixels by up to {100 * worst[0]:.1f}% (at {name}); kept as "
-                            "given (linear_exposures='measured' uses the pixels')")
-    return lin.exposures, lin.source
-
-
-def linear_tiff_evidence(images, exposure_times=None) -> str | None:
+def linear_tiff_evidence(images, given: GivenTimes) -> str | None:
     """Why ``images`` -- every one a TIFF path -- are linear data rather than rendered
-    frames (:func:`selfcal.stack.linear_evidence.linear_evidence`), or None.
+    frames (:func:`selfcal.exposure.linear_evidence.linear_evidence`), or None.
 
-    ``exposure_times`` (None: EXIF ``t · ISO/100 / N²``) make the test decisive: linear
-    ratios follow them to the power 1.
+    The ``given`` times (:func:`selfcal.exposure.read_given_times`) make the test decisive:
+    linear ratios follow them to the power 1.
     """
     if not images or not all(is_path(p) and Path(p).suffix.lower() in (".tif", ".tiff")
                              for p in images):
         return None
-    paths = [Path(p) for p in images]
-    if exposure_times is None:
-        exposure_times = effective_exposure_times([read_exposure_info(p) for p in paths])
-    return linear_evidence(paths, list(exposure_times))
+    return linear_evidence([Path(p) for p in images], list(given.seconds))
 
 
-def stack_frames(images, exposure_times, model, linear: bool, warnings: list,
+def stack_frames(images, given: GivenTimes, model, linear: bool, warnings: list,
                  diagnostics: dict) -> StackFrames:
     """The stack's frames for :func:`selfcal.merge_hdr`, linear when the caller says so,
     for raw files, and for TIFFs that show linear data (:func:`linear_tiff_evidence`;
     said in ``warnings`` and ``diagnostics["linear_evidence"]``) -- which would otherwise
     be calibrated as rendered frames, with a bent curve and wrong ratios."""
-    why = None if linear or model is not None else linear_tiff_evidence(images,
-                                                                        exposure_times)
+    why = None if linear or model is not None else linear_tiff_evidence(images, given)
     if why:
         names = ", ".join(Path(p).name for p in images[:4]) + (", …" if len(images) > 4
                                                                else "")

@@ -52,8 +52,8 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import read_image
 from ..stack.frames import Lineariser, apply_lut, frame_limits, max_code_of
-from .linear import MEASURE_SIDE, MIN_LOG_SIGMA, REPORT_DIFFERENCE, fit_log_sigma, \
-    scale_to_times, thumbnail_exposures
+from .linear import MEASURE_SIDE, MIN_LOG_SIGMA, fit_log_sigma, scale_to_times, \
+    thumbnail_exposures
 from .raw_ratios import split_thumbnails
 
 __all__ = ["measure_response_exposures", "measure_calibration_exposures", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
@@ -254,15 +254,15 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
     return out, summary
 
 
-def measure_calibration_exposures(model, codes, keep, sources, *, clip_margin: float,
-                                  stuck=None):
+def measure_calibration_exposures(model, codes, keep, sources, *, times, solved, refined: bool,
+                                  clip_margin: float, stuck=None):
     """The exposures of a calibration's own frames measured through its fitted curve.
 
     :func:`measure_response_exposures` on ``codes``, the frames' codes the calibration
     kept while it read them (``selfcal.stack.samples.collect_samples(keep_codes=...)``):
-    no frame is read again.  The times (given or EXIF) set the scale and the trend where
-    known, the model's solved exposures where not -- and everywhere when the solve refined
-    them (the curve was fitted with their trend).
+    no frame is read again.  The given ``times`` (seconds, None where unknown) set the
+    scale and the trend where known, the ``solved`` exposures where not -- and everywhere
+    when the solve ``refined`` them (the curve was fitted with their trend).
 
     Returns
     -------
@@ -272,11 +272,10 @@ def measure_calibration_exposures(model, codes, keep, sources, *, clip_margin: f
     """
     from ..stack.frames import StackFrames
 
-    solved = np.asarray(model.exposures, dtype=float)
-    refined = bool((model.diagnostics or {}).get("refine_exposures"))
+    solved = np.asarray(solved, dtype=float)
     # refined exposures carry the trend the curve was fitted with: they anchor it then
     anchor = np.array([t if t is not None and not refined else e
-                       for t, e in zip(model.exposure_times, solved)], dtype=float)
+                       for t, e in zip(times, solved)], dtype=float)
     anchor = np.where(np.isfinite(anchor) & (anchor > 0), anchor, 1.0)
     out, summary = measure_response_exposures(
         StackFrames(codes, linear=False), model, anchor, list(keep), clip_margin=clip_margin,
@@ -284,16 +283,3 @@ def measure_calibration_exposures(model, codes, keep, sources, *, clip_margin: f
     measured = np.full(len(codes), np.nan)
     measured[list(keep)] = out[list(keep)]
     return measured, summary
-
-
-def measured_warning(summary: dict, label: str) -> str | None:
-    """The warning saying which times the pixels moved and by how much (as the linear
-    path's), or None when none moved by more than :data:`.linear.REPORT_DIFFERENCE`."""
-    moved = [(abs(d), k) for k, d in enumerate(summary["differences"])
-             if d is not None and abs(d) > REPORT_DIFFERENCE]
-    if not moved:
-        return None
-    worst, k = max(moved)
-    return (f"using the exposure ratios measured from the pixels instead of the {label}: "
-            f"{len(moved)} frame(s) differ by more than {100 * REPORT_DIFFERENCE:.0f}%, "
-            f"up to {100 * worst:.1f}% at {summary['frames'][k]}")

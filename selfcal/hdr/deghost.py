@@ -228,8 +228,10 @@ def _shift_residual(ya, yb) -> dict:
             "shift": at, "gain": gain, "scale": ya.shape}
 
 
-def misalignment_warning(residuals, exposure_source: str) -> str | None:
-    """The ``--align`` warning when some neighbour pair registers better shifted."""
+def misalignment_warning(residuals, exposures_from_pixels: bool) -> str | None:
+    """The ``--align`` warning when some neighbour pair registers better shifted (and,
+    when the exposures were estimated from these frames' pixels, that they may carry the
+    misalignment)."""
     bad = [r for r in residuals if r["gain"] > MISALIGNMENT_GAIN]
     if not bad:
         return None
@@ -240,7 +242,7 @@ def misalignment_warning(residuals, exposure_source: str) -> str | None:
            f"{worst['shift'][1]:+d} px at {worst['scale'][1]}x{worst['scale'][0]} lowers "
            f"the residual by {100 * worst['gain']:.0f}%); merge with --align (align='mtb' "
            "or 'homography')")
-    if "model" in exposure_source:
-        msg += ("; the exposures the model estimated from these frames may reflect the "
+    if exposures_from_pixels:
+        msg += ("; the exposures estimated from these frames may reflect the "
                 "misalignment rather than the shutter")
     return msg

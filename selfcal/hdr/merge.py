@@ -81,22 +81,19 @@ from typing import Literal
 import numpy as np
 
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..response.calibrate import calibrate_aligned, calibrate_response
+from ..response.calibrate import CalibrationCall, aligned_calibration, calibrate_given
 from ..response.options import ResponseOptions
 from ..stack.align import estimate_alignment, negligible_motion
-from ..stack.frames import (
-    DEFAULT_CLIP_MARGIN,
-    StackFrames,
-    default_reference,
-    model_frame_index,
-    name_arrays,
-    resolve_exposures,
-)
+from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, default_reference, model_frame_index
 from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import misalignment_warning, poor_agreement
-from ..exposure.linear import USES, resolve_linear_exposures, stack_frames
-from ..exposure.measured import TRENDS, measure_response_exposures, measured_warning
+from ..exposure.linear import fit_log_sigma, measure_linear_exposures, stack_frames
+from ..exposure.measured import measure_response_exposures
+from ..exposure.record import BracketExposures, ExposureRule, GivenTimes, MeasurementSpread, \
+    read_given_times
+from ..exposure.resolve import exposure_message, linear_exposures, measured_by_model, \
+    merge_exposures, model_exposures, with_measured
 from .weights import DEFAULT_NOISE, NoiseModel
 from .plan import frames_to_merge, looks_lossy, stuck_levels
 from .sigma import SigmaSums, add_trend_term
@@ -134,26 +131,25 @@ class MergeOptions:
     stuck_codes : dict or False, optional
         ``{"floor": [R, G, B], "ceiling": [R, G, B]}``, normalised codes.  Default: the
         model's ``diagnostics["stuck_codes"]``, else measured; False: none.
-    linear_exposures : {"auto", "measured", "times"}
-        Linear frames' exposures (:func:`selfcal.exposure.linear.measure_linear_exposures`).
+    exposures : ExposureRule
+        The rule for given times, EXIF and the caller's alike, linear or rendered frames,
+        and for the calibration on the fly (:class:`selfcal.exposure.ExposureRule`): by
+        default the exposures are measured from the pixels -- through the model's curve
+        for rendered frames (:mod:`selfcal.exposure.measured`: the model's own measurement
+        for the frames it was calibrated on with the same times, files by path and arrays
+        by content, nothing read again; else a pre-pass), from their ratios for linear ones
+        (:mod:`selfcal.exposure.linear`) -- the times setting only their scale and trend,
+        and σ's exposure term becomes the measurement's, with the trend's
+        (docs/decisions.md, "Given times: measured by default, one rule");
+        ``ExposureRule(times="held")`` merges with the times as given.  What was used,
+        frame by frame: :attr:`HDRResult.exposure_record`.
     calibrate_options : ResponseOptions, optional
         The options of :func:`selfcal.calibrate_response` when it runs on the fly (no
         model given); default ``ResponseOptions()``.
-    refine_exposures : {"auto", True, False}
-        ``refine_exposures`` of that calibration on the fly (see
-        :func:`selfcal.calibrate_response`).
     sigma : bool
         Also compute the radiance's standard deviation, :attr:`HDRResult.sigma`
         (:mod:`.sigma`: noise model, exposure uncertainty and the curve's band); two more
         float32 sums the size of the radiance while merging.  Default False.
-    measure_exposures : bool
-        Rendered frames: the exposures measured from the pixels through the model's
-        curve, the times setting only their scale and trend (:mod:`selfcal.exposure.measured`):
-        the model's own measurement for the frames it was calibrated on (files by path,
-        arrays by content: the same numbers, nothing read again), else a pre-pass (files
-        decoded at 1/2-1/8 when large); σ's exposure term becomes the measurement's, with
-        the trend's.  Default True (docs/decisions.md, "Exposures measured from the
-        pixels: by default"); False merges with the given, EXIF or model's exposures.
     merge_unchecked : bool
         Merge a frame the calibration ignored as ``"unchecked"`` (too far from the rest of
         the bracket, :attr:`selfcal.ResponseModel.frames_ignored`) with its time, flagged
@@ -163,12 +159,8 @@ class MergeOptions:
         Add the curve's measured error per code (:mod:`selfcal.response.code_error`, the
         model's ``diagnostics["code_error_log"]``) to the variance of the noise weights
         and of σ (ours).  Default True, chosen on the tuning split, see docs/decisions.md.
-    exposure_trend : {"times", "pixels"}
-        With ``measure_exposures``: the exposures' trend over the bracket is the times'
-        (ours, :mod:`selfcal.exposure.measured`) or the measured ratios' as they are.  Default
-        ``"times"``, chosen on the tuning split, see docs/decisions.md.
     sigma_exposure_from_fit : bool
-        With ``measure_exposures`` and ``sigma``: σ's exposure term is the measurement's
+        With measured exposures and ``sigma``: σ's exposure term is the measurement's
         (:func:`selfcal.exposure.linear.fit_log_sigma`) or, False, the fixed one of given times.
     vignetting : {"auto", "self", "lens", "none"} or selfcal.lens.Vignetting
         The lens's falloff to divide out (:mod:`.vignetting`, [Goldman2010] Eq. 1):
@@ -193,14 +185,11 @@ class MergeOptions:
     deghost_tolerance: float = 0.1
     lossy: bool | None = None
     stuck_codes: dict | bool | None = None
-    linear_exposures: str = "auto"
+    exposures: ExposureRule = ExposureRule()
     calibrate_options: ResponseOptions | None = None
-    refine_exposures: bool | str = "auto"
     sigma: bool = False
-    measure_exposures: bool = True
     merge_unchecked: bool = True
     code_error: bool = True
-    exposure_trend: str = "times"
     sigma_exposure_from_fit: bool = True
     vignetting: object = "auto"
     luminance: object = None
@@ -233,7 +222,13 @@ class HDRResult:
         Per frame, the 3×3 matrix mapping reference pixel coordinates to that frame's
         (identity for the reference); None without alignment.
     exposure_source : str
-        ``"given"``, ``"exif"``, ``"model"`` or ``"exif+model"``.
+        Where the exposures came from, in words made from :attr:`exposure_record`
+        (:meth:`selfcal.exposure.BracketExposures.describe_source`): ``"given"``,
+        ``"exif"``, ``"measured+exif"``, ``"measured+given"``, ``"measured"`` (no time
+        known), ``"exif+model"`` (the model's solve).
+    exposure_record : BracketExposures or None
+        Every frame's exposures (given, solved, measured, used, contradicted, in the
+        merge's unit ``t · ISO/100 / N²`` or the caller's), and the rule that chose.
     frame_count : numpy.ndarray
         uint8 ``HxW``: number of frames that contributed to each pixel.
     diagnostics : dict
@@ -275,6 +270,7 @@ class HDRResult:
     sigma: np.ndarray | None = field(default=None, repr=False)
     unchecked: np.ndarray | None = field(default=None, repr=False)
     units: str = "relative"
+    exposure_record: BracketExposures | None = field(default=None, repr=False)
 
 
 # --------------------------------------------------------------------------------------
@@ -381,18 +377,20 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     warnings: list[str] = []
     diagnostics: dict = {"weighting": weighting if isinstance(weighting, str)
                          else getattr(weighting, "__name__", "callable")}
-    frames = stack_frames(images, exposure_times, model, linear, warnings, diagnostics)
+    images = list(images)
+    given = read_given_times(images, exposure_times)
+    frames = stack_frames(images, given, model, linear, warnings, diagnostics)
     linear = frames.linear  # raw files, and TIFFs that show linear data, are linear
 
     fresh, transforms, ref0 = False, None, None
     if model is None and not linear:
-        model, transforms, ref0 = _calibrate_on_the_fly(frames, exposure_times, align, opts,
+        model, transforms, ref0 = _calibrate_on_the_fly(frames, given, align, opts,
                                                         progress, warnings, diagnostics)
         fresh = True
-    exposures, exposure_source = resolve_linear_exposures(
-        frames, exposure_times, opts.linear_exposures, opts.clip_margin, warnings,
-        diagnostics, progress) if linear else resolve_exposures(
-            frames, exposure_times, model, fresh, warnings, measured=opts.measure_exposures)
+    record = (_linear_exposures(frames, given, opts, progress) if linear else
+              merge_exposures(given, model_frame_index(model, frames, fresh),
+                              model_exposures(model), opts.exposures))
+    exposures = record.used
     vignetting, diagnostics["vignetting"] = resolve_vignetting(
         opts.vignetting, model, path=next((p for p in frames.paths if p), None),
         shape=frames.shape)
@@ -408,20 +406,16 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     used, unchecked, ref, stuck, radius = _merge_plan(
         frames, model, fresh, exposures, ref, opts, linear=linear, warnings=warnings,
         diagnostics=diagnostics)
+    if opts.exposures.measured and not linear:
+        record = _measured_exposures(frames, model, record, used, unchecked, stuck, opts,
+                                     progress)
+        exposures = record.used
+    line = exposure_message(record)
+    if line:
+        warnings.append(line)
     sigma_t, trend_sigma = None, 0.0
-    if linear and exposure_source.startswith("measured") and opts.sigma_exposure_from_fit:
-        sigma_t = diagnostics["linear_exposures"]["log_sigma"]
-    if opts.measure_exposures and not linear:
-        own = _own_measurement(model, frames, fresh, used, unchecked)
-        if own is None:
-            exposures, own = _measured_exposures(frames, model, exposures, used, unchecked,
-                                                 stuck, opts, exposure_source, warnings,
-                                                 diagnostics, progress)
-        else:
-            diagnostics["measured_exposures"] = {**own, "by": "calibration"}
-        if opts.sigma_exposure_from_fit:
-            sigma_t, trend_sigma = own["log_sigma"], own["trend_log_sigma"]
-        exposure_source += "+pixels"
+    if record.spread is not None and opts.sigma_exposure_from_fit:
+        sigma_t, trend_sigma = record.spread.log_sigma, record.spread.trend_log_sigma
     sums = MergeSums(frames.shape, exposures, ref, used, unchecked)
     if opts.sigma:
         sums.sigma = SigmaSums(frames.shape, model, exposure_log_sigma=sigma_t)
@@ -433,8 +427,8 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     weighing = FrameWeighing(weighting, noise, opts.clip_margin, linear, stuck, radius, need_x,
                              opts.deghost_threshold, opts.deghost_tolerance, opts.code_error)
     accumulate_frames(sums, frames, exposures, model, transforms, weighing, progress)
-    unmeasured = _finish(sums, frames, need_x, transforms is None, exposure_source,
-                         warnings, diagnostics)
+    unmeasured = _finish(sums, frames, need_x, transforms is None,
+                         record.used_from != "given", warnings, diagnostics)
     sigma = None if sums.sigma is None else _sigma_result(sums, diagnostics)
     if vignetting is not None:
         apply_vignetting(sums.num, sigma, vignetting, moved=moved,
@@ -444,51 +438,39 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     if opts.luminance is not None:
         sums.num, sigma, diagnostics["luminance"] = absolute_radiance(
             opts.luminance, sums.num, sigma, model=model, unmeasured=unmeasured,
-            exposure_source=exposure_source, linear=linear)
+            exif_exposures=record.origin == "exif", linear=linear)
     return HDRResult(radiance=sums.num, unmeasured=unmeasured, ghost=sums.ghost,
                      exposures=exposures, warnings=warnings, sources=list(frames.sources),
-                     reference=ref, transforms=transforms, exposure_source=exposure_source,
+                     reference=ref, transforms=transforms,
+                     exposure_source=record.describe_source(), exposure_record=record,
                      frame_count=sums.count, diagnostics=diagnostics, model=model,
                      sigma=sigma,
                      unchecked=sums.unchecked_pixels(unmeasured),
                      units="relative" if opts.luminance is None else "cd/m2")
 
 
-def _own_measurement(model, frames: StackFrames, fresh: bool, used, unchecked):
-    """The summary of the exposures the model's calibration measured
-    (``diagnostics["measured_exposures"]``, :mod:`selfcal.exposure.measured`) when every
-    checked frame to merge is one of its own (by path, or an array by its content) and
-    was measured there -- the merge then uses the same numbers, read nowhere again --
-    else None."""
-    summary = (getattr(model, "diagnostics", None) or {}).get("measured_exposures")
-    if not summary:
-        return None
-    idx = model_frame_index(model, frames, fresh)
-    values = summary.get("measured") or []
-    checked = [k for k in used if k not in unchecked]
-    if all(idx[k] is not None and idx[k] < len(values) and values[idx[k]] is not None
-           for k in checked):
-        return summary
-    return None
+def _linear_exposures(frames: StackFrames, given: GivenTimes, opts: MergeOptions,
+                      progress) -> BracketExposures:
+    """A linear bracket's exposures (:func:`selfcal.exposure.linear.measure_linear_exposures`):
+    its ratios measured from the pixels on the times' scale, or the times held."""
+    lin = measure_linear_exposures(frames, list(given.relative), given.origin,
+                                   use="times" if opts.exposures.held else "measured",
+                                   clip_margin=opts.clip_margin, progress=progress)
+    return linear_exposures(given, lin, opts.exposures, fit_log_sigma(lin.measured, lin.pairs))
 
 
-def _measured_exposures(frames, model, exposures, used, unchecked, stuck, opts,
-                        exposure_source, warnings, diagnostics, progress):
-    """:func:`selfcal.exposure.measured.measure_response_exposures` on the checked merged
-    frames: (exposures, the measurement's summary), the summary also in
-    ``diagnostics["measured_exposures"]``, and a warning naming the times the pixels
-    moved."""
+def _measured_exposures(frames, model, record: BracketExposures, used, unchecked, stuck,
+                        opts: MergeOptions, progress) -> BracketExposures:
+    """The record with the checked merged frames' exposures measured from the pixels
+    (:func:`selfcal.exposure.measured.measure_response_exposures`), unless the model
+    measured every one of them on the same times (nothing is read again then)."""
     checked = [k for k in used if k not in unchecked]
-    out, summary = measure_response_exposures(frames, model, exposures, checked,
+    if measured_by_model(record, checked):
+        return record
+    out, summary = measure_response_exposures(frames, model, record.used, checked,
                                               clip_margin=opts.clip_margin, stuck=stuck,
-                                              trend=opts.exposure_trend, progress=progress)
-    diagnostics["measured_exposures"] = {**summary, "by": "merge"}
-    label = {"given": "given times", "exif": "EXIF exposures"}.get(
-        exposure_source.split("+")[0], "model's exposures")
-    moved = measured_warning(summary, label)
-    if moved:
-        warnings.append(moved)
-    return out, summary
+                                              trend=opts.exposures.trend, progress=progress)
+    return with_measured(record, out, checked, MeasurementSpread.from_summary(summary, "merge"))
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:
@@ -534,7 +516,7 @@ def _merge_plan(frames: StackFrames, model, fresh: bool, exposures, ref: int,
 
 
 def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bool,
-            exposure_source: str, warnings: list, diagnostics: dict) -> np.ndarray:
+            exposures_from_pixels: bool, warnings: list, diagnostics: dict) -> np.ndarray:
     """The radiance from the sums, the fill, and what the merge has to say about them.
 
     Returns the mask of unmeasured pixels.
@@ -545,7 +527,8 @@ def _finish(sums: MergeSums, frames: StackFrames, deghosted: bool, unaligned: bo
     if poor:
         warnings.append(poor)
     diagnostics["neighbour_residuals"] = sums.residuals
-    moved = misalignment_warning(sums.residuals, exposure_source) if unaligned else None
+    moved = (misalignment_warning(sums.residuals, exposures_from_pixels) if unaligned
+             else None)
     if moved:
         warnings.append(moved)
     unmeasured = sums.divide_and_fill()
@@ -568,23 +551,22 @@ def _check_options(weighting, align, linear: bool, model, opts: MergeOptions):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
     if linear and model is not None:
         raise InputError("linear=True: the frames are linear already; do not pass a model")
-    if opts.linear_exposures not in USES:
-        raise InputError(f"linear_exposures must be one of {', '.join(USES)}")
-    if opts.exposure_trend not in TRENDS:
-        raise InputError(f"exposure_trend must be one of {', '.join(TRENDS)}, not "
-                         f"{opts.exposure_trend!r}")
+    if not isinstance(opts.exposures, ExposureRule):
+        raise InputError(f"MergeOptions(exposures=...) must be an ExposureRule, not "
+                         f"{type(opts.exposures).__name__}")
     check_vignetting_option(opts.vignetting)
     return align, (DEFAULT_NOISE if opts.noise is None else opts.noise)
 
 
-def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: MergeOptions,
+def _calibrate_on_the_fly(frames: StackFrames, given: GivenTimes, align, opts: MergeOptions,
                           progress, warnings: list, diagnostics: dict):
     """The frames' own response (Lin et al., ICCV 2011, §5), when no model is given.
 
-    With ``align``, calibrated on the frames aligned first
-    (:func:`selfcal.response.calibrate.calibrate_aligned`).  The calibration's warnings join
-    ``warnings`` (all but the contradicted times, which :func:`resolve_exposures` reports
-    with what is done about them) and its verdict ``diagnostics``.
+    On the times the merge read (``given``: nothing is read twice) and by the merge's rule
+    for them; with ``align``, on the frames aligned first
+    (:func:`selfcal.response.calibrate.aligned_calibration`).  The calibration's warnings
+    join ``warnings`` (its exposures are the merge's, said once by the merge) and its
+    verdict ``diagnostics``.
 
     Returns
     -------
@@ -597,26 +579,23 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: Merg
     # its warnings are the merge's (below, in HDRResult.warnings), not warned twice
     with _pywarnings.catch_warnings():
         _pywarnings.simplefilter("ignore", SelfcalWarning)
+        options = opts.calibrate_options or ResponseOptions()
         if align:
             # the vignetting is fitted only where the merge may use it
-            options = replace(opts.calibrate_options or ResponseOptions(),
-                              fit_vignetting=opts.vignetting in ("auto", "self"))
-            model, transforms, ref0 = calibrate_aligned(
-                frames, exposure_times, method=align, reference=opts.reference,
-                clip_margin=opts.clip_margin, warnings=warnings, progress=progress,
-                refine_exposures=opts.refine_exposures, options=options)
+            call = CalibrationCall(options=replace(options, fit_vignetting=opts.vignetting in
+                                         ("auto", "self")),
+                         rule=opts.exposures, progress=progress)
+            model, transforms, ref0, aligned_warnings = aligned_calibration(
+                frames, given, call, method=align, reference=opts.reference,
+                clip_margin=opts.clip_margin)
+            warnings.extend(aligned_warnings)
             diagnostics["calibrated_on"] = model.diagnostics.get("calibrated_on")
         else:
-            model = calibrate_response(frames.items, exposure_times, progress=progress,
-                                       refine_exposures=opts.refine_exposures,
-                                       options=opts.calibrate_options)
-    diag = getattr(model, "diagnostics", {})
-    diagnostics["model_verdict"] = diag.get("verdict")
-    for w in diag.get("warnings", []):
-        if "contradict" not in w:       # reported by resolve_exposures, with what is done
-            warnings.append(f"calibration: {name_arrays(w, frames.sources)}")
-    for c in diag.get("contradicting_times", []) or []:
-        c["frame"] = name_arrays(str(c.get("frame")), frames.sources)
+            model = calibrate_given(frames.items, given,
+                                    CalibrationCall(options=options, rule=opts.exposures,
+                                          progress=progress))
+    diagnostics["model_verdict"] = model.diagnostics.get("verdict")
+    warnings.extend(f"calibration: {w}" for w in model.diagnostics.get("warnings", []))
     return model, transforms, ref0
 
 

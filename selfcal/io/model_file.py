@@ -36,7 +36,7 @@ from .images import write_bytes_atomic
 
 FORMAT = "selfcal-model"
 #: Written; every version from 1 up to it is read.
-VERSION = 4
+VERSION = 5
 #: Why a response calibration ignored a frame (``frames_ignored[].reason`` of a response
 #: model, :class:`selfcal.response.model.IgnoredFrame`).
 IGNORED_FRAME_REASONS = ("clipped", "duplicate", "unchecked")
@@ -335,9 +335,39 @@ def check_response_content(doc: dict, path=None) -> None:
         luminance.number("log_sigma", low=0)
         luminance.string("source", choices=("exif-convention", "reference"))
         luminance.string("description", optional=True)
+    record = c.sub("exposure_record", optional=True, nullable=True)       # version 5
+    if record is not None:
+        _check_exposure_record(record, sources)
     diag = c.sub("diagnostics", optional=True)
     if diag is not None:
         _check_response_diagnostics(diag)
+
+
+#: What a frame's used exposure may be (:class:`selfcal.exposure.FrameExposure`).
+_USED_FROM = ("given", "solved", "measured")
+_ORIGINS = ("given", "exif", "raw", "none")
+
+
+def _check_exposure_record(r: "_Checker", sources: list) -> None:
+    """A model's exposure record (:class:`selfcal.exposure.BracketExposures`, version 5)."""
+    r.require("frames")
+    r.string("rule", optional=True, choices=("measured", "held"))
+    r.string("origin", optional=True, choices=("given", "exif", "raw", "unknown"))
+    r.string("unit", optional=True, choices=("seconds", "relative"))
+    frames = r.get("frames")
+    if not isinstance(frames, list) or len(frames) != len(sources):
+        raise r.error("must list one frame per source", "frames")
+    for i, item in enumerate(frames):
+        f = _Checker(item, f"{r.where}: frames[{i}]", r.path)
+        if f.string("source") != sources[i]:
+            raise f.error("does not name the source of its place", "source")
+        f.string("origin", optional=True, choices=_ORIGINS)
+        f.string("used_from", optional=True, choices=_USED_FROM)
+        for key in ("given", "solved", "measured", "contradicted", "used"):
+            f.number(key, optional=True, nullable=True, low=0, low_open=True)
+    spread = r.sub("spread", optional=True, nullable=True)
+    if spread is not None:
+        spread.number("log_sigma", low=0)
 
 
 def _check_vignetting(v: "_Checker") -> None:

@@ -342,7 +342,7 @@ def parse_reference(text: str, accuracy: float = DEFAULT_METER_ACCURACY) -> Refe
 
 
 def absolute_radiance(how, radiance, sigma, *, model=None, unmeasured=None,
-                      exposure_source: str = "exif", linear: bool = False):
+                      exif_exposures: bool = True, linear: bool = False):
     """A merge's radiance and σ in cd/m² (the hook of :func:`selfcal.merge_hdr`, ours).
 
     ``how`` is ``"exif"`` (:func:`scale_from_exif` with the merge's model), ``"model"``
@@ -370,7 +370,7 @@ def absolute_radiance(how, radiance, sigma, *, model=None, unmeasured=None,
         scale = how
         transfer = TRANSFER_LOG_SIGMA if how.source == "reference" else 0.0
     elif how == "exif":
-        if not ("exif" in exposure_source):
+        if not exif_exposures:
             raise InputError("luminance from EXIF needs the exposures from EXIF (time, "
                              "f-number, ISO), not given times: leave the times out, or "
                              "give a reference reading")

@@ -80,9 +80,9 @@ def _describe_response(model) -> dict:
         ("codes", f"0..{model.max_code} ({'8' if model.max_code == 255 else '16'}-bit)"),
         ("frames", f"{len(frames)}" + (f" ({len(used)} used)" if used is not None
                                       and len(used) != len(frames) else "")),
-        ("exposure times from", d.get("exposure_source", "not recorded")),
+        ("exposure times from", _exposure_origin(model)),
         ("settings", ", ".join(f"{k} {d[k]}" for k in (
-            "refine_exposures", "saturation_threshold", "clip_margin",
+            "saturation_threshold", "clip_margin",
             "monotone_constrained", "ambiguity_resolved_by_prior") if k in d)
          or "not recorded"),
     ]
@@ -313,3 +313,14 @@ def format_description(desc: dict, *, name: str | None = None) -> str:
         for r in cells:
             out.append("  " + "  ".join(c.rjust(w) for c, w in zip(r, widths)))
     return "\n".join(out) + "\n"
+
+
+def _exposure_origin(model) -> str:
+    """Where the model's exposures came from, and the rule that chose them, in words (from
+    its :attr:`~selfcal.ResponseModel.exposure_record`)."""
+    record = getattr(model, "exposure_record", None)
+    if record is None:
+        return "not recorded"
+    kind = {"measured": "measured from the pixels", "solved": "solved (Eq. 8)",
+            "given": "as given"}[record.used_from]
+    return f"{record.origin}; used {kind} (rule: times {record.rule})"

@@ -19,15 +19,7 @@ import numpy as np
 
 from ..stack.align import aligned_working_frames, estimate_alignment
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..stack.frames import (
-    DEFAULT_CLIP_MARGIN,
-    default_reference,
-    StackFrames,
-    given_exposures,
-    name_arrays,
-    resolve_exposures,
-)
-from ..stack.frames import stuck_code_levels
+from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, default_reference, stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import KeptData, SampleSet, collect_samples, frame_masks
 from ..typing import ExposureTimes, ImageInput, Progress
@@ -36,15 +28,14 @@ from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
 from .hidden_white import white_end_masks
+from ..exposure.record import ExposureRule, GivenTimes, MeasurementSpread, read_given_times
+from ..exposure.resolve import calibration_exposures, exposure_message
 from ..exposure.times import (
+    CONTRADICTED_UNUSABLE_SHARE,
     CONTRADICTION_FACTOR,
     anchor_refined,
-    check_refine_option,
-    contradiction_messages,
     corrected_times,
     log_exposure_times,
-    refine_decision,
-    resolve_exposure_times,
 )
 from .diagnostics import fit_diagnostics
 from ..exposure.measured import MEASURE_CODES_SIDE, measure_calibration_exposures
@@ -56,21 +47,22 @@ from .verdict import judge_calibration
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
 #: it is too far from the rest of the bracket to add equations or have its time checked.
 MIN_SHARED_SAMPLES = 20
+
+
 @dataclass(frozen=True)
-class _Call:
+class CalibrationCall:
     """What one calibration was asked for (:func:`calibrate_response`'s arguments)."""
 
     options: ResponseOptions
-    refine_exposures: object = "auto"
+    rule: ExposureRule = ExposureRule()
     seed: int = 0
     progress: object = None
-    times_source: str | None = None
 
 
 def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTimes | None = None,
-                       *, refine_exposures: bool | str = "auto", seed: int = 0,
+                       *, exposures: ExposureRule | None = None, seed: int = 0,
                        align: bool | str = False, progress: Progress | None = None,
-                       times_source: str | None = None,
+                       times_source: str = "given",
                        options: ResponseOptions | None = None) -> ResponseModel:
     """Estimate each channel's camera response from an exposure stack.
 
@@ -86,13 +78,13 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
     exposure_times : sequence of float or None, optional
         Exposure time per frame; None for a frame whose time is unknown.  When omitted,
         times come from EXIF for paths and are unknown for arrays.
-    refine_exposures : {"auto", True, False}
-        True: treat the given times as a prior and re-estimate them (shutters are
-        inaccurate).  ``"auto"`` (default): refine EXIF times when the pixels contradict
-        some of them by more than
-        :data:`selfcal.exposure.times.CONTRADICTION_FACTOR` (ours: the
-        contradiction is then a warning, not a doubtful verdict); hold times the caller
-        gave, and EXIF times most of which are contradicted.  False: hold every time.
+    exposures : ExposureRule, optional
+        The rule for given times, EXIF and the caller's alike
+        (:class:`selfcal.exposure.ExposureRule`): by default the times the pixels
+        contradict by more than :data:`selfcal.exposure.times.CONTRADICTION_FACTOR` are
+        refined in the solve, and the model's exposures are measured from the pixels
+        through the fitted curve (the times keep their scale and trend);
+        ``ExposureRule(times="held")`` holds every time.
     seed : int
         Seed of every random choice (the same input gives the same model).
     align : {False, "mtb", "homography"}
@@ -103,10 +95,9 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         (:mod:`.vignetting_fit`, [Goldman2010]; ``diagnostics["vignetting"]`` says if not).
     progress : callable, optional
         ``progress(stage, done, total, detail)`` for long work.
-    times_source : str, optional
-        Where the given ``exposure_times`` came from, for the model's
-        ``diagnostics["exposure_source"]`` (e.g. ``"raw"`` when the caller took them from
-        raw files); default ``"given"``.  Times all None are ``"unknown"``.
+    times_source : {"given", "raw"}
+        Where the given ``exposure_times`` came from (``"raw"``: measured from raw files),
+        for the model's :attr:`~ResponseModel.exposure_record`.
     options : ResponseOptions, optional
         The finer settings of the sampling and the solve (number of components, β, clip
         margin, samples, Huber threshold, priors, correspondences); default
@@ -118,13 +109,15 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         Its ``diagnostics`` hold the fit's evidence and the verdict
         (:mod:`selfcal.response.verdict`): ``"verdict"`` (``"ok"``, ``"doubtful"`` or
         ``"unusable"`` -- the model is returned in every case), ``"verdict_reasons"``
-        and ``"verdict_evidence"``; its ``frames_ignored`` the frames left out and why.
+        and ``"verdict_evidence"``; its ``frames_ignored`` the frames left out and why;
+        its ``exposure_record`` every frame's given, solved, measured and used exposure.
 
     Warns
     -----
     SelfcalWarning
-        Each of the model's ``diagnostics["warnings"]`` (frames ignored, contradicted
-        times, the exponential ambiguity left to the prior, the verdict's reasons).
+        The exposures' line (:func:`selfcal.exposure.exposure_message`) and each of the
+        model's ``diagnostics["warnings"]`` (frames ignored, the exponential ambiguity left
+        to the prior, the verdict's reasons).
 
     Raises
     ------
@@ -135,22 +128,39 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
-    call = _Call(options=ResponseOptions() if options is None else options,
-                 refine_exposures=refine_exposures, seed=seed,
-                 progress=progress, times_source=times_source)
-    model = _calibrate_response(images, exposure_times, call, align=align)
+    call = CalibrationCall(options=ResponseOptions() if options is None else options,
+                 rule=ExposureRule() if exposures is None else exposures, seed=seed,
+                 progress=progress)
+    frames = list(images)
+    if len(frames) < 2:
+        raise CalibrationError(
+            "one frame only: a response needs at least two frames at different exposures")
+    given = read_given_times(frames, exposure_times, origin=times_source)
+    if align:
+        model = _calibrate_after_alignment(StackFrames(frames, False), given, align, call)
+    else:
+        model = calibrate_given(frames, given, call)
     model.diagnostics.setdefault("vignetting", {
-        "observable": None, "reason": "not attempted (needs align='homography')"})
+        "observable": None, "reason": "not attempted (needs --align homography)"})
     emit_warnings(model)
     return model
 
 
 def emit_warnings(model, stacklevel: int = 3) -> None:
-    """Emit each of the model's ``diagnostics["warnings"]`` as a SelfcalWarning."""
+    """Emit the model's exposure line and each of its ``diagnostics["warnings"]`` as a
+    SelfcalWarning."""
     import warnings as _warnings
 
-    for message in model.diagnostics.get("warnings", []):
+    for message in model_warnings(model):
         _warnings.warn(message, SelfcalWarning, stacklevel=stacklevel)
+
+
+def model_warnings(model) -> list[str]:
+    """What a calibration has to say: its exposures' line (from the record, the one place
+    it is worded), then ``diagnostics["warnings"]``."""
+    record = getattr(model, "exposure_record", None)
+    line = None if record is None else exposure_message(record)
+    return ([line] if line else []) + list(model.diagnostics.get("warnings", []))
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,115 +174,185 @@ class _Usable:
     times: list                     # seconds, None where unknown
 
 
-def _calibrate_response(images, exposure_times, call: _Call, align=False):
-    """:func:`calibrate_response` without emitting its warnings (they are in the model)."""
-    frames = list(images)
+@dataclass(frozen=True, eq=False)
+class _Readout:
+    """The read stage's result: every frame's samples and masks, the frames kept."""
+
+    samples: SampleSet
+    masks: dict
+    keep: list
+    ignored: tuple
+    warnings: tuple
+
+
+@dataclass(frozen=True, eq=False)
+class _Solved:
+    """The solve stage's result: the fit of Eq. 8, the times it refined or holds, the
+    contradicted ones, the measured ringing reach and hidden white samples."""
+
+    result: object
+    refined: bool
+    contradictions: list
+    reach: int
+    hidden: int
+
+
+def calibrate_given(frames: Sequence, given: GivenTimes, call: CalibrationCall) -> ResponseModel:
+    """:func:`calibrate_response` on frames whose given times are read
+    (:func:`selfcal.exposure.read_given_times`), without emitting its warnings (they are
+    in the model).
+
+    The stages, each a function of the values before it: read the frames' samples and
+    choose the usable ones (:func:`_read_stage`), solve Eq. 8 with the rule for the times
+    (:func:`_solve_stage`), judge the fit (:func:`_judged_fit`), its band
+    (:func:`.bands.band_for_fit`), the exposures measured through the curve
+    (:func:`_measure_stage`) and the model (:func:`_model_stage`).
+    """
+    frames = list(frames)
     if len(frames) < 2:
         raise CalibrationError(
             "one frame only: a response needs at least two frames at different exposures")
-    if align:
-        return _calibrate_after_alignment(frames, exposure_times, align, call)
-
-    sources = [str(f) if is_path(f) else f"array #{k}" for k, f in enumerate(frames)]
-    times, time_source = resolve_exposure_times(frames, exposure_times, sources,
-                                                call.times_source)
-    warnings: list[str] = []
-    if exposure_times is None and all(is_path(f) for f in frames):
-        lacking = [src for src, t in zip(sources, times) if t is None]
-        for src in lacking:
-            warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
     basis, n_components = _log_domain_basis(call.options.basis, call.options.n_components)
     options = replace(call.options, n_components=n_components)
+    read = _read_stage(frames, given, options, call)
+    keep = read.keep
+    sub_times = [given.seconds[k] for k in keep]
+    usable = _Usable(samples=subset(read.samples, keep),
+                     masks={k: v[keep] for k, v in read.masks.items()},
+                     log_times=log_exposure_times(sub_times),
+                     sources=[given.sources[k] for k in keep], times=sub_times)
+    solved = _solve_stage(read.samples, usable, keep, basis, options, call)
+    warnings = list(read.warnings) + list(solved.result.warnings)
+    fit = _judged_fit(usable, basis, solved.result, options=options, refined=solved.refined,
+                      contradictions=solved.contradictions)
+    warnings.extend(fit["reasons"])
+    band_warnings: list[str] = []
+    log_sigma = band_for_fit(usable.samples, usable.masks, basis, solved.result,
+                             usable.log_times, fit, band_warnings,
+                             n_components=options.n_components, seed=call.seed,
+                             method=options.band_method)
+    warnings.extend(band_warnings)
+    solved_only = calibration_exposures(given, keep, solved.result.log_exposures,
+                                        rule=call.rule, refined=solved.refined,
+                                        contradictions=solved.contradictions)
+    model = _model_stage(read, usable, basis, solved, fit, solved_only, log_sigma, warnings,
+                         options)
+    if read.samples.codes is None:
+        return model
+    measured, spread = _measure_stage(model, read.samples.codes, given, keep, solved,
+                                      fit, options)
+    record = calibration_exposures(given, keep, solved.result.log_exposures, rule=call.rule,
+                                   refined=solved.refined,
+                                   contradictions=solved.contradictions, measured=measured,
+                                   spread=spread)
+    return _with_record(model, record)
 
+
+def _with_record(model: ResponseModel, record) -> ResponseModel:
+    """The model with ``record``'s exposures (its fit data kept)."""
+    out = replace(model, exposure_record=record, exposures=record.used)
+    out.fit_data = model.fit_data
+    return out
+
+
+def _read_stage(frames, given: GivenTimes, options: ResponseOptions, call: CalibrationCall) -> _Readout:
+    """The frames' samples and masks, and the frames the solve can use
+    (:func:`_sample_usable_frames`), with a warning for each file without an EXIF time."""
+    warnings: list[str] = []
+    if given.read_from_files and all(is_path(f) for f in frames):
+        for src, g in zip(given.sources, given.times):
+            if not g.known:
+                warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
     ignored: list = []
     samples, masks, keep = _sample_usable_frames(
-        frames, sources, times, warnings, options=options, seed=call.seed,
-        progress=call.progress, ignored=ignored)
-    sub_times = [times[k] for k in keep]
-    usable = _Usable(samples=subset(samples, keep),
-                     masks={k: v[keep] for k, v in masks.items()},
-                     log_times=log_exposure_times(sub_times),
-                     sources=[sources[k] for k in keep], times=sub_times)
+        frames, list(given.sources), list(given.seconds), warnings, options=options,
+        seed=call.seed, progress=call.progress, ignored=ignored,
+        keep_codes=call.rule.measured)
+    return _Readout(samples=samples, masks=masks, keep=keep,
+                    ignored=tuple(sorted(ignored, key=lambda f: given.sources.index(f.source))),
+                    warnings=tuple(warnings))
 
-    solve = functools.partial(_solve, usable, basis, options=options,
-                              progress=call.progress)
-    refine_exposures = check_refine_option(call.refine_exposures)
-    result = solve(refine_exposures=refine_exposures is True)
+
+def _solve_stage(samples, usable: _Usable, keep, basis, options, call: CalibrationCall) -> _Solved:
+    """Eq. 8 solved over the usable frames, the given times held or refined by the rule
+    (:meth:`selfcal.exposure.ExposureRule.solve_refines`: the times the pixels contradict,
+    found by :func:`_contradicted_times`), then once more without the samples the fit
+    predicts at white (:func:`.hidden_white.white_end_masks`; held times only)."""
+    rule = call.rule
+    refine_from_start = rule.measured and rule.refine is True
+    solve = functools.partial(_solve, usable, basis, options=options, progress=call.progress)
+    result = solve(refine_exposures=refine_from_start)
     if samples.reduced is not None:     # the block fit gates the histogram correspondences
         solve = _histogram_solve(samples, usable, keep, basis, result, options, call.progress)
-        result = solve(refine_exposures=refine_exposures is True)
+        result = solve(refine_exposures=refine_from_start)
+    known = int(np.isfinite(usable.log_times).sum())
     contradictions = []
-    if np.isfinite(usable.log_times).sum() >= 2 and refine_exposures is not True:
+    if known >= 2 and not refine_from_start:
         contradictions = _contradicted_times(usable, basis, options)
-    refine_exposures = refine_decision(refine_exposures, time_source, contradictions,
-                                       usable.log_times)
-    if refine_exposures and contradictions:        # decided now: EXIF times contradicted
+    refined = rule.solve_refines(len(contradictions), known, CONTRADICTED_UNUSABLE_SHARE)
+    if refined and contradictions:        # decided now: times contradicted
         result = solve(refine_exposures=True)
     # measured on the final fit with the exposures held only: refined exposures lean on
     # the samples near clipped areas (a 192x288 stack with one wrong EXIF time, refined,
     # went from 0.0026 to 0.0081 f⁻¹ RMSE without them; tests/test_verdict.py)
-    reach, hidden = ((0, 0) if refine_exposures else
+    reach, hidden = ((0, 0) if refined else
                      white_end_masks(usable.samples, usable.masks, basis, result, options))
     if reach or hidden:       # the masks the partial holds are updated in place
         result = solve(refine_exposures=False)
-    warnings.extend(result.warnings)
-    warnings.extend(contradiction_messages(contradictions, refined=refine_exposures))
-    if refine_exposures:
+    if refined:
         result.log_exposures = anchor_refined(result.log_exposures, usable.log_times)
-    fit = _judged_fit(usable, basis, result, warnings, options=options,
-                      refine_exposures=refine_exposures, contradictions=contradictions)
-    log_sigma = band_for_fit(usable.samples, usable.masks, basis, result, usable.log_times,
-                             fit, warnings, n_components=options.n_components,
-                             seed=call.seed, method=options.band_method)
+    return _Solved(result=result, refined=refined, contradictions=contradictions,
+                   reach=int(reach), hidden=hidden)
 
-    full_exposures = np.full(len(frames), np.nan)
-    full_exposures[keep] = np.exp(result.log_exposures)
+
+def _measure_stage(model: ResponseModel, codes, given: GivenTimes, keep, solved: _Solved,
+                   fit, options):
+    """The exposures of the kept frames measured through the model's curve on the codes
+    kept while reading (:func:`selfcal.exposure.measured.measure_calibration_exposures`):
+    the times (or, refined, the solve's exposures: the curve was fitted with their trend)
+    set the scale and the trend.  Returns ``(measured per frame, MeasurementSpread)``."""
+    stuck = fit["stuck"]
+    levels = None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
+                                         np.asarray(stuck["ceiling"], dtype=float))
+    measured, summary = measure_calibration_exposures(
+        model, codes, keep, list(given.sources), times=list(given.seconds),
+        solved=np.asarray(model.exposures, dtype=float), refined=solved.refined,
+        clip_margin=options.clip_margin, stuck=levels)
+    return measured, MeasurementSpread.from_summary(summary, by="calibration")
+
+
+def _model_stage(read: _Readout, usable: _Usable, basis, solved: _Solved, fit, record,
+                 log_sigma, warnings, options) -> ResponseModel:
+    """The :class:`ResponseModel`: the curve, its band, the record of its exposures, the
+    diagnostics of the fit."""
+    result = solved.result
     diagnostics = fit_diagnostics(
-        result, fit, warnings=warnings, exposure_source=time_source,
-        refine_exposures=refine_exposures, options=options, frames_used=usable.sources,
-        samples=samples, contradictions=contradictions)
+        result, fit, warnings=warnings, options=options, frames_used=usable.sources,
+        samples=read.samples)
     diagnostics["stuck_codes"] = fit["stuck"]
     # the curve's error per code level (the merge weighs and its σ counts it)
     diagnostics["code_error_log"] = code_error_profile(
         usable.samples, ~(usable.masks["clipped"] | usable.masks["saturated"]), result,
         fit["grid"], fit["inverse"])
     if options.measure_ringing:
-        diagnostics["ringing_reach_blocks"] = int(reach)
-    diagnostics["hidden_white_samples"] = hidden
-    from .model import ResponseModel
-
+        diagnostics["ringing_reach_blocks"] = solved.reach
+    diagnostics["hidden_white_samples"] = solved.hidden
+    diagnostics["frame_digests"] = list(read.samples.digests)
     model = ResponseModel(intensity=fit["grid"].copy(), inverse=fit["inverse"],
                           coefficients=result.coefficients, basis_name=basis.name,
-                          exposures=full_exposures, exposure_times=list(times),
-                          sources=sources, max_code=samples.max_code,
+                          exposures=record.used, exposure_times=list(record.given),
+                          sources=record.sources, max_code=read.samples.max_code,
                           diagnostics=diagnostics, inverse_log_sigma=log_sigma,
-                          frames_ignored=tuple(sorted(ignored,
-                                                      key=lambda f: sources.index(f.source))))
+                          frames_ignored=read.ignored, exposure_record=record)
     model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
-    model.diagnostics["frame_digests"] = list(samples.digests)
-    if samples.codes is not None:
-        _measure_own_exposures(model, samples.codes, keep, fit["stuck"], options)
     return model
 
 
-def _measure_own_exposures(model, codes, keep, stuck, options: ResponseOptions) -> None:
-    """The model's exposures measured through its curve on the codes kept while reading
-    (:func:`selfcal.exposure.measured.measure_calibration_exposures`), in place."""
-    levels = None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
-                                         np.asarray(stuck["ceiling"], dtype=float))
-    measured, summary = measure_calibration_exposures(
-        model, codes, keep, model.sources, clip_margin=options.clip_margin, stuck=levels)
-    ok = np.isfinite(measured)
-    model.exposures = np.where(ok, measured, model.exposures)
-    model.diagnostics["measured_exposures"] = summary
-
-
-def _judged_fit(usable: _Usable, basis, result, warnings, *, options, refine_exposures,
-                contradictions):
+def _judged_fit(usable: _Usable, basis, result, *, options, refined: bool, contradictions):
     """The fitted f⁻¹ table, δ of Eq. 12, the stuck code levels and the verdict.
 
-    The verdict's reasons join ``warnings``.  With ``refine_exposures`` the verdict sees the
-    times the pixels corrected (evidence only); otherwise the contradicted ones.
+    With ``refined`` the verdict sees the times the pixels corrected (evidence only);
+    otherwise the contradicted ones.
     """
     sub, log_times = usable.samples, usable.log_times
     grid, inverse = _inverse_response(basis, result.coefficients, options.n_components)
@@ -285,16 +365,15 @@ def _judged_fit(usable: _Usable, basis, result, warnings, *, options, refine_exp
                               clip_margin=options.clip_margin)
     corrected = (corrected_times(result.log_exposures, log_times, usable.sources,
                                  usable.times)
-                 if refine_exposures else contradictions)
+                 if refined else contradictions)
     verdict, reasons, evidence = judge_calibration(
         sub, valid, grid, inverse, result.log_exposures, pairs, log_times=log_times,
-        contradictions=corrected, refined=refine_exposures, stuck_codes=stuck)
-    warnings.extend(reasons)
+        contradictions=corrected, refined=refined, stuck_codes=stuck)
     return {"grid": grid, "inverse": inverse, "delta": delta, "stuck": stuck,
             "verdict": verdict, "reasons": reasons, "evidence": evidence}
 
 
-def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
+def _calibrate_after_alignment(frames: StackFrames, given: GivenTimes, align, call: CalibrationCall):
     """``calibrate_response(..., align=...)``: align the frames, then calibrate.
 
     The warnings of the alignment come first in the model's diagnostics.  The options'
@@ -306,18 +385,16 @@ def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
         align = "mtb"
     if align not in ("mtb", "homography"):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
-    warnings: list[str] = []
     provisional = replace(call, options=replace(call.options, clip_margin=DEFAULT_CLIP_MARGIN))
-    model, _, _ = _calibrate_aligned(frames, exposure_times, provisional, method=align,
-                                     clip_margin=call.options.clip_margin, warnings=warnings)
+    model, _, _, warnings = aligned_calibration(frames, given, provisional, method=align,
+                                                clip_margin=call.options.clip_margin)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
 
 def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
-                      clip_margin: float | None = None, warnings: list | None = None,
-                      progress=None, max_side: int = 2048,
-                      refine_exposures: bool | str = "auto",
+                      clip_margin: float | None = None, progress=None, max_side: int = 2048,
+                      exposures: ExposureRule | None = None,
                       options: ResponseOptions | None = None):
     """Align a handheld stack to its reference frame, then calibrate its response.
 
@@ -328,119 +405,81 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     calibrated on the aligned frames, downscaled to ``max_side``
     (:func:`selfcal.stack.align.aligned_working_frames`: the calibration uses block means only).
 
-    Ours, not the paper's: with unknown times, a provisional calibration on the unaligned
-    frames supplies the exposures the homography needs; the model's sources and messages
-    name the original frames.
-
-    Parameters
-    ----------
-    images : sequence
-        Frames (arrays or paths).
-    exposure_times : sequence of float or None, optional
-        As for :func:`selfcal.calibrate_response`.
-    method : {"mtb", "homography"}
-        Alignment (see :func:`selfcal.stack.align.estimate_alignment`).
-    reference : int, optional
-        Reference frame; default the middle exposure.
-    clip_margin : float, optional
-        Clip margin of the alignment and of the calibration of the aligned frames;
-        default the ``options``' (``ResponseOptions.clip_margin``).
-    warnings : list, optional
-        Receives the alignment's warnings (they are not in the model's).
-    progress : callable, optional
-        As for :func:`calibrate_response`.
-    max_side : int
-        Long side (pixels) of the aligned frames the response is calibrated on.
-    refine_exposures : {"auto", True, False}
-        As for :func:`calibrate_response`.
-    options : ResponseOptions, optional
-        The calibration's finer settings (default ``ResponseOptions()``).
-
     Returns
     -------
-    model : ResponseModel
-        Its ``sources`` are the original frames'; ``diagnostics["calibrated_on"]`` says
-        what it was calibrated on, ``diagnostics["alignment"]`` holds the transforms.
-    transforms : list of numpy.ndarray
-        Per frame, the 3×3 map from reference to frame pixel coordinates.
-    reference : int
+    (ResponseModel, list of 3x3 arrays, int)
+        The model (its ``sources`` the frames given, its ``diagnostics["alignment"]`` the
+        transforms), each frame's transform to the reference, and the reference.
 
     Warns
     -----
     SelfcalWarning
-        Each of the model's ``diagnostics["warnings"]``.
+        The model's warnings (:func:`model_warnings`), the alignment's first.
     """
     resolved = ResponseOptions() if options is None else options
-    call = _Call(options=resolved, progress=progress, refine_exposures=refine_exposures)
-    model, transforms, ref = _calibrate_aligned(
-        images, exposure_times, call, method=method, reference=reference,
+    call = CalibrationCall(options=resolved, progress=progress,
+                 rule=ExposureRule() if exposures is None else exposures)
+    frames = images if isinstance(images, StackFrames) else StackFrames(images, False)
+    given = read_given_times(frames.items, exposure_times, frames.sources)
+    model, transforms, ref, warnings = aligned_calibration(
+        frames, given, call, reference=reference,
         clip_margin=resolved.clip_margin if clip_margin is None else clip_margin,
-        warnings=warnings, max_side=max_side)
+        method=method, max_side=max_side)
+    model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     emit_warnings(model)
     return model, transforms, ref
 
 
-def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", reference=None,
-                       clip_margin: float = DEFAULT_CLIP_MARGIN,
-                       warnings: list | None = None, max_side: int = 2048):
-    """:func:`calibrate_aligned` without emitting the model's warnings; with
-    ``options.fit_vignetting`` and homographies, the vignetting is fitted jointly.
+def aligned_calibration(frames: StackFrames, given: GivenTimes, call: CalibrationCall, *, method="mtb",
+                        reference=None, clip_margin: float = DEFAULT_CLIP_MARGIN,
+                        max_side: int = 2048):
+    """:func:`calibrate_aligned` on frames whose times are read, without emitting the
+    model's warnings; with ``options.fit_vignetting`` and homographies, the vignetting is
+    fitted jointly.
 
     ``call`` serves the provisional calibration (unknown times); the aligned frames are
-    calibrated with ``clip_margin``, the alignment's.
+    calibrated with ``clip_margin``, the alignment's.  The aligned working frames are
+    named after the frames they come from, so every message names the files.
+
+    Returns
+    -------
+    (ResponseModel, transforms, reference, the alignment's warnings)
     """
-    frames = images if isinstance(images, StackFrames) else StackFrames(images, False)
     n = len(frames)
     progress = call.progress
-    warnings = [] if warnings is None else warnings
-    given, _ = given_exposures(frames, exposure_times)
+    warnings: list[str] = []
+    seconds = list(given.seconds)
     provisional = None
-    if any(g is None for g in given):
-        provisional = _calibrate_response(frames.items, exposure_times, call)
-        given = list(resolve_exposures(frames, exposure_times, provisional, True, [])[0])
-    ref = default_reference(given) if reference is None else int(reference)
+    if any(s is None for s in seconds):
+        provisional = calibrate_given(frames.items, given, call)
+        seconds = [float(e) for e in provisional.exposures]
+    ref = default_reference(seconds) if reference is None else int(reference)
     if not 0 <= ref < n:
         raise InputError(f"reference frame {reference} is out of range (0..{n - 1})")
-    transforms = estimate_alignment(frames, given, provisional, method=method, reference=ref,
+    transforms = estimate_alignment(frames, seconds, provisional, method=method, reference=ref,
                                     clip_margin=clip_margin, warnings=warnings,
                                     progress=progress)
     small = aligned_working_frames(frames, transforms, max_side=max_side)
     # the solve gets the frames' own times (seconds, None where unknown), as unaligned
-    times, time_source = resolve_exposure_times(frames.items, exposure_times,
-                                                list(frames.sources), call.times_source)
-    aligned = replace(call, times_source=time_source,
-                      options=replace(call.options, clip_margin=clip_margin))
+    aligned = replace(call, options=replace(call.options, clip_margin=clip_margin))
+    times = list(given.seconds)
     if call.options.fit_vignetting and method == "homography":   # [Goldman2010]
         from . import vignetting_fit as vf
 
         basis = _log_domain_basis(call.options.basis, call.options.n_components)
         model = vf.calibrate_with_vignetting(
             small, vf.working_transforms(transforms, frames.shape, small[0].shape[:2]), times,
-            lambda f: _calibrate_response(f, times, aligned),
+            lambda f: calibrate_given(f, given, aligned),
             lambda f: vf.prior_mean_model(f, times, *basis), reference=ref, seed=call.seed,
             originals=lambda: [frames.load(k) for k in range(n)])
     else:
-        model = _calibrate_response(small, times, aligned)
-    model.diagnostics["exposure_source"] = time_source
-    model.sources = list(frames.sources)
-    diag = model.diagnostics
-    for key in ("warnings", "verdict_reasons"):
-        diag[key] = [name_arrays(w, frames.sources) for w in diag.get(key, [])]
-    diag["frames_used"] = [name_arrays(f, frames.sources)
-                           for f in diag.get("frames_used", [])]
-    model.frames_ignored = tuple(
-        replace(f, source=name_arrays(f.source, frames.sources),
-                detail=name_arrays(f.detail, frames.sources)) for f in model.frames_ignored)
-    diag["per_pair_rms_log"] = {name_arrays(k, frames.sources): v
-                                for k, v in diag.get("per_pair_rms_log", {}).items()}
-    for c in diag.get("contradicting_times", []) or []:
-        c["frame"] = name_arrays(str(c.get("frame")), frames.sources)
+        model = calibrate_given(small, given, aligned)
     model.diagnostics["calibrated_on"] = (f"frames aligned ({method}), long side "
                                           f"{max(small[0].shape[:2])} px")
     model.diagnostics["alignment"] = {
         "method": method, "reference": frames.sources[ref],
         "transforms": [np.round(t, 6).tolist() for t in transforms]}
-    return model, transforms, ref
+    return model, transforms, ref, warnings
 
 
 def _log_domain_basis(basis, n_components: int):
@@ -459,7 +498,7 @@ def _log_domain_basis(basis, n_components: int):
 
 
 def _sample_usable_frames(frames, sources, times, warnings, *, options: ResponseOptions, seed,
-                          progress, ignored: list):
+                          progress, ignored: list, keep_codes: bool):
     """Read the frames' samples and masks; choose the frames the solve can use.
 
     Dropped, with a warning each and in this order: frames clipped almost everywhere
@@ -487,7 +526,7 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
                               clip_margin=clip_margin, seed=seed, progress=frame_progress,
                               keep=KeptData(reduced=options.correspondences != "blocks",
                                             codes_side=MEASURE_CODES_SIDE
-                                            if options.measure_exposures else 0),
+                                            if keep_codes else 0),
                               near_clip_blocks=options.near_clip_blocks)
     masks = frame_masks(samples, clip_margin=clip_margin,
                         saturation_threshold=options.saturation_threshold)

@@ -12,15 +12,15 @@ from __future__ import annotations
 __all__ = ["fit_diagnostics"]
 
 
-def fit_diagnostics(result, fit: dict, *, warnings, exposure_source, refine_exposures,
-                 options, frames_used, samples, contradictions) -> dict:
+def fit_diagnostics(result, fit: dict, *, warnings, options, frames_used, samples) -> dict:
     """The model's ``diagnostics``: how the fit went, for the report and the CLI.
 
     ``fit`` is :func:`selfcal.response.calibrate._judged_fit`'s; ``options`` the
     :class:`selfcal.response.options.ResponseOptions` of the calibration.  ``delta_eq12`` is δ of Eq. 12
     (:func:`selfcal.response.delta.delta_eq12`) per channel over the solve's frame pairs
     and inliers (samples neither clipped nor above β in either frame: what the curve was
-    fitted to), not over all points as [Lin2011] scores its Fig. 4.
+    fitted to), not over all points as [Lin2011] scores its Fig. 4.  The exposures are
+    not here: they are the model's :attr:`~selfcal.ResponseModel.exposure_record`.
     """
     verdict, reasons, evidence = fit["verdict"], fit["reasons"], fit["evidence"]
     per_pair = {f"{frames_used[a]} -> {frames_used[b]}": v
@@ -30,8 +30,6 @@ def fit_diagnostics(result, fit: dict, *, warnings, exposure_source, refine_expo
         "verdict_reasons": list(reasons),
         "verdict_evidence": evidence,
         "warnings": warnings,
-        "exposure_source": exposure_source,
-        "refine_exposures": bool(refine_exposures),
         "ambiguity_resolved_by_prior": bool(result.ambiguity_prior),
         "n_components": options.n_components,
         "saturation_threshold": options.saturation_threshold,
@@ -50,6 +48,5 @@ def fit_diagnostics(result, fit: dict, *, warnings, exposure_source, refine_expo
             "code_coverage": evidence["code_coverage"],
         },
         "monotone_constrained": bool(result.monotone_constrained),
-        "contradicting_times": contradictions,
         "exposure_ratio": evidence["exposure_ratio"],
     }

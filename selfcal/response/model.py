@@ -20,6 +20,7 @@ from ..typing import PathLike
 from ..io.model_file import IGNORED_FRAME_REASONS, jsonable, save_model_dict
 from ..lens.luminance import LuminanceScale
 from ..lens.vignetting import Vignetting
+from ..exposure.record import BracketExposures
 
 MODEL_KIND = "response"
 
@@ -114,8 +115,7 @@ class ResponseModel:
         255 for 8-bit stacks, 65535 for 16-bit.
     diagnostics : dict
         Fit residuals, δ of Eq. 12, per-pair residuals, samples used and rejected by
-        reason, ``warnings``, ``exposure_source`` (``"given"``, ``"exif"``, ``"raw"``,
-        ``"unknown"``: where the times came from) and the verdict
+        reason, ``warnings`` and the verdict
         (:mod:`selfcal.response.verdict`): ``verdict`` (``"ok"``, ``"doubtful"`` or
         ``"unusable"``), ``verdict_reasons`` (one sentence each, also among the
         warnings) and ``verdict_evidence`` (the numbers they rest on).  Saved with the
@@ -140,6 +140,12 @@ class ResponseModel:
         give (:mod:`selfcal.lens.luminance`), when one was measured (``selfcal merge
         --reference ... --save-scale``); later merges apply it with
         ``MergeOptions(luminance="model")``.  Saved with the model (format version 4).
+    exposure_record : BracketExposures or None
+        Every frame's exposures (:class:`selfcal.exposure.BracketExposures`): the given
+        time and where it came from, the solve's, the measured and the used one (which
+        :attr:`exposures` holds), the times the pixels contradict, the rule that chose,
+        and the measurement's spread.  Saved with the model (file format version 5); for
+        older files derived on loading from their diagnostics.
     """
 
     intensity: np.ndarray
@@ -155,6 +161,7 @@ class ResponseModel:
     frames_ignored: tuple[IgnoredFrame, ...] = ()
     vignetting: Vignetting | None = None
     luminance: LuminanceScale | None = None
+    exposure_record: BracketExposures | None = None
     #: samples of one frame pair with rejection reasons (for plots); not saved
     fit_data: dict | None = field(default=None, repr=False, compare=False)
 
@@ -265,6 +272,8 @@ class ResponseModel:
             **({} if self.vignetting is None else
                {"vignetting": jsonable(self.vignetting.to_dict())}),
             **({} if self.luminance is None else {"luminance": self.luminance.to_dict()}),
+            **({} if self.exposure_record is None else
+               {"exposure_record": jsonable(self.exposure_record.as_dict())}),
             **({} if self.inverse_log_sigma is None else
                {"inverse_log_sigma": np.round(np.asarray(self.inverse_log_sigma).T,
                                               7).tolist()}),
@@ -299,7 +308,8 @@ class ResponseModel:
                         vignetting=(None if d.get("vignetting") is None
                                     else Vignetting.from_dict(d["vignetting"])),
                         luminance=(None if d.get("luminance") is None
-                                   else LuminanceScale.from_dict(d["luminance"])))
+                                   else LuminanceScale.from_dict(d["luminance"])),
+                        exposure_record=_exposure_record(d))
         except KeyError as exc:
             raise bad(f"response model lacks the field {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
@@ -320,3 +330,14 @@ class ResponseModel:
         Returns the path written.
         """
         return save_model_dict(path, self.to_dict(), force=force)
+
+
+def _exposure_record(d: dict) -> BracketExposures:
+    """A model file's exposure record (version 5), or one derived from the diagnostics of
+    an older file (:func:`selfcal.exposure.resolve.record_from_diagnostics`)."""
+    if d.get("exposure_record") is not None:
+        return BracketExposures.from_dict(d["exposure_record"])
+    from ..exposure.resolve import record_from_diagnostics
+
+    return record_from_diagnostics(list(d["sources"]), np.asarray(d["exposures"], float),
+                                   list(d["exposure_times"]), dict(d.get("diagnostics") or {}))

@@ -81,12 +81,6 @@ class ResponseOptions(SolverOptions):
         ours): from the fit's covariance, or by resampling the samples.  Default
         ``"covariance"``, chosen on the tuning split (docs/decisions.md, "Curve bands: the
         covariance, σ_t = 0.02, σ_top = 0.03").
-    measure_exposures : bool
-        Measure the frames' exposures through the fitted curve from the codes kept while
-        reading them (:func:`selfcal.exposure.measured.measure_calibration_exposures`, the
-        merge's measurement; ours): the model's ``exposures`` are then these, and its
-        ``diagnostics["measured_exposures"]`` says how they were found.  Default True
-        (docs/decisions.md, "Exposures measured from the pixels: by default").
     fit_vignetting : bool
         With homography alignment (``align="homography"``, :func:`calibrate_aligned`),
         fit the lens's vignetting jointly with the response and the exposures where the
@@ -108,7 +102,6 @@ class ResponseOptions(SolverOptions):
     near_clip_blocks: int = 0
     hidden_white: bool = True
     band_method: str = DEFAULT_BAND_METHOD
-    measure_exposures: bool = True
     fit_vignetting: bool = True
 
     def __post_init__(self) -> None:

@@ -14,14 +14,11 @@ The rooms above -- :mod:`selfcal.stack.align`, the response path's "align, then 
   for linear data;
 * :func:`clip_limits`: which codes count as clipped (the calibration's rule,
   :func:`selfcal.stack.samples.frame_masks`);
-* the relative exposure ``e_j`` of each frame (:func:`resolve_exposures`): given times,
-  or EXIF ``t · ISO/100 / N²`` so that several brackets of one session come out on one
-  radiance scale.
+* :func:`model_frame_index`: which of a model's frames each frame is (files by path,
+  arrays by content).
 
-Ours, not the papers': the exposure resolution -- the given or EXIF exposures set the
-scale, and a model's estimated exposures replace them where the model refined them or
-found them contradicted by the pixels, scaled to the given units by the median ratio over
-the frames it did not contradict -- and the middle exposure as the default reference.
+The frames' exposures are not here: :mod:`selfcal.exposure` reads, resolves and records
+them.  Ours, not the papers': the middle exposure as the default reference.
 """
 
 from __future__ import annotations
@@ -32,9 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError
-from ..io.images import import_cv2, is_path, read_exposure_info, read_image, read_image_size
-from ..io.raw import is_raw_path, read_raw_exposure_info, read_raw_linear
+from ..errors import InputError
+from ..io.images import import_cv2, is_path, read_image, read_image_size
+from ..io.raw import is_raw_path, read_raw_linear
 
 #: Codes (on the 8-bit scale) within this distance of 0 or of the maximum count as clipped
 #: -- the same rule as the calibration's (``selfcal.stack.samples.frame_masks``).
@@ -386,44 +383,6 @@ def default_reference(exposures) -> int:
     return int(order[(len(order) - 1) // 2])
 
 
-def given_exposures(frames: StackFrames, exposure_times):
-    """The caller's times (checked) or EXIF ``t · ISO/100 / N²``; None where unknown."""
-    n = len(frames)
-    given: list[float | None] = [None] * n
-    source = "given"
-    if exposure_times is not None:
-        times = list(exposure_times)
-        if len(times) != n:
-            raise InputError(f"{len(times)} exposure times given for {n} frames")
-        for k, t in enumerate(times):
-            if t is None:
-                continue
-            try:
-                tf = float(t)
-            except (TypeError, ValueError):
-                raise InputError(f"exposure time {t!r} is not a number",
-                                 frames.sources[k]) from None
-            if not math.isfinite(tf) or tf <= 0:
-                raise InputError(f"exposure time {t!r} must be a positive number",
-                                 frames.sources[k])
-            given[k] = tf
-    elif any(p is not None for p in frames.paths):
-        source = "exif"
-        for k, p in enumerate(frames.paths):
-            if p is not None and frames.raw_files[k]:
-                given[k] = read_raw_exposure_info(p).relative_exposure
-            elif p is not None:
-                given[k] = read_exposure_info(p).relative_exposure
-    return given, source
-
-
-def name_arrays(text: str, sources) -> str:
-    """Replace ``array #k`` in a message by the k-th frame's name."""
-    for k in range(len(sources) - 1, -1, -1):
-        text = text.replace(f"array #{k}", str(sources[k]))
-    return text
-
-
 def model_frame_index(model, frames: StackFrames, fresh: bool):
     """Index of each frame in the model's sources (None where it is not there): files by
     their path, arrays by their content (the model's ``diagnostics["frame_digests"]``)."""
@@ -453,98 +412,3 @@ def model_frame_index(model, frames: StackFrames, fresh: bool):
             continue
         out.append(lookup.get(str(p), lookup.get(str(p.resolve()))))
     return out
-
-
-#: A time differing from the exposure the pixels measured by more than this (relative) is
-#: said (here and in :mod:`selfcal.exposure`).
-REPORT_DIFFERENCE = 0.01
-
-
-def resolve_exposures(frames: StackFrames, exposure_times, model, fresh: bool, warnings,
-                      measured: bool = False):
-    """Relative exposure e_j of each frame, and where it came from.
-
-    Given times (the caller's) or EXIF ``t · ISO/100 / N²`` set the scale; the model's
-    estimates replace them where it refined them or found them contradicted by the pixels
-    -- or, with ``measured``, where it measured them (its
-    ``diagnostics["measured_exposures"]``, :mod:`selfcal.exposure.measured`) -- (scaled
-    to the given/EXIF units by the median ratio over the frames it did not contradict),
-    and fill frames whose time is unknown.
-    """
-    n = len(frames)
-    given, source = given_exposures(frames, exposure_times)
-
-    # the model's estimates, in its own units
-    idx = model_frame_index(model, frames, fresh) if model is not None else [None] * n
-    est: list[float | None] = [None] * n
-    contradicted = set()
-    refined = by_pixels = False
-    if any(i is not None for i in idx):
-        mexp = np.asarray(model.exposures, dtype=float)
-        diag = getattr(model, "diagnostics", {}) or {}
-        by_pixels = measured and bool(diag.get("measured_exposures"))
-        refined = by_pixels or bool(diag.get("refine_exposures", False))
-        # measured exposures stand for every frame the pixels placed, contradicted or not
-        contra = {} if by_pixels else {str(c.get("frame")): c.get("estimated")
-                                       for c in diag.get("contradicting_times", []) or []}
-        msources = list(model.sources)
-        for k, i in enumerate(idx):
-            if i is None or not math.isfinite(mexp[i]) or mexp[i] <= 0:
-                continue
-            est[k] = float(mexp[i])
-            c = contra.get(msources[i])
-            if c is not None and math.isfinite(float(c)) and float(c) > 0:
-                est[k] = float(c)
-                contradicted.add(k)
-
-    use_model = set(contradicted)
-    if refined:
-        use_model |= {k for k in range(n) if est[k] is not None}
-    use_model |= {k for k in range(n) if given[k] is None and est[k] is not None}
-    missing = [frames.sources[k] for k in range(n) if given[k] is None and est[k] is None]
-    if missing:
-        raise CalibrationError(
-            f"{missing[0]}: no exposure time (give exposure_times, or a model calibrated on "
-            "these frames)" + (f"; {len(missing) - 1} more frames lack one"
-                               if len(missing) > 1 else ""))
-    if not use_model:
-        return np.array(given, dtype=float), source
-
-    # scale the model's estimates to the given/EXIF units
-    anchor = [k for k in range(n) if given[k] is not None and est[k] is not None
-              and k not in contradicted]
-    if not anchor:
-        anchor = [k for k in range(n) if given[k] is not None and est[k] is not None]
-    if anchor:
-        factor = math.exp(float(np.median([math.log(given[k] / est[k]) for k in anchor])))
-    else:
-        factor = 1.0
-        warnings.append("no exposure times known: the radiance is on a relative scale "
-                        "(the model's estimated exposures)")
-    out = np.array(given, dtype=object)
-    changed = []
-    for k in sorted(use_model):
-        estimate = est[k]
-        assert estimate is not None     # use_model holds only frames with an estimate
-        new = estimate * factor
-        if given[k] is not None:
-            dev = abs(math.log(new / given[k]))
-            if dev > 1e-6:          # any change is said, not only above 1 %
-                changed.append((dev, k, given[k], new))
-        out[k] = new
-    label = {"given": "given times", "exif": "EXIF exposures"}[source]
-    if contradicted:
-        names = ", ".join(Path(frames.sources[k]).name for k in sorted(contradicted))
-        warnings.append(f"the model found the {label} of {names} contradicted by the pixels: "
-                        "using the model's estimated exposures for them")
-    elif changed and not (by_pixels and math.exp(max(changed)[0]) - 1 <= REPORT_DIFFERENCE):
-        dev, k, g, new = max(changed)
-        how = "measured" if by_pixels else "refined"
-        warnings.append(f"using the model's {how} exposures instead of the {label} "
-                        f"for {len(changed)} frame(s) (largest difference "
-                        f"{100 * (math.exp(dev) - 1):.2g}% at {Path(frames.sources[k]).name})")
-    if any(g is None for g in given) and anchor:
-        unknown = [Path(frames.sources[k]).name for k in range(n) if given[k] is None]
-        warnings.append(f"no exposure time for {', '.join(unknown)}: using the model's "
-                        "estimates")
-    return np.array(out, dtype=float), (source + "+model" if anchor else "model")

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.images import read_image
 from ..io.raw import TIFF_SUFFIXES, is_linear_tiff
-from ..exposure.raw_ratios import split_thumbnails
+from .raw_ratios import split_thumbnails
 
 __all__ = ["linear_evidence", "PHOTOMETRIC_LINEAR_RAW", "LINEAR_RATIO_SPREAD",
            "LINEAR_EXPONENT_TOLERANCE", "LINEAR_MIN_EXPOSURE_RATIO"]
