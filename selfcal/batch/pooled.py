@@ -47,7 +47,8 @@ from ..exposure.record import BracketExposures, FrameExposure
 from ..errors import CalibrationError
 from ..response.basis import ResponseBasis
 from ..typing import ExposureTimes, ImageInput
-from ..stack.frames import DEFAULT_CLIP_MARGIN, stuck_code_levels
+from ..response.stuck_codes import stuck_code_levels
+from ..stack.frames import DEFAULT_CLIP_MARGIN
 from ..response.options import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
@@ -87,7 +88,7 @@ class SessionSamples(FrameSamples):
         ``(F, n)`` masks of :func:`selfcal.stack.samples.frame_masks` (Lin et al. §5).
     max_code : int
     stuck_codes : dict
-        :func:`selfcal.stack.frames.stuck_code_levels` of these samples.
+        :func:`selfcal.response.stuck_codes.stuck_code_levels` of these samples.
     own_intensity, own_inverse : numpy.ndarray or None
         The session's own fit (grid, f⁻¹ table), for the agreement test.
     """

@@ -403,22 +403,20 @@ class BracketExposures:
     unit: str = "seconds"
     refined: bool = False
     spread: MeasurementSpread | None = None
+    #: The exposure used per frame (NaN for frames not used), the frames' names, their
+    #: given times: read off :attr:`frames`.
+    used: np.ndarray = field(init=False, repr=False, compare=False)
+    sources: list[str] = field(init=False, repr=False, compare=False)
+    given: list[float | None] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "used", np.array(
+            [np.nan if f.used is None else f.used for f in self.frames], dtype=float))
+        object.__setattr__(self, "sources", [f.source for f in self.frames])
+        object.__setattr__(self, "given", [f.given for f in self.frames])
 
     def __len__(self) -> int:
         return len(self.frames)
-
-    @property
-    def used(self) -> np.ndarray:
-        """The exposure used per frame (NaN for frames not used)."""
-        return np.array([np.nan if f.used is None else f.used for f in self.frames])
-
-    @property
-    def sources(self) -> list[str]:
-        return [f.source for f in self.frames]
-
-    @property
-    def given(self) -> list[float | None]:
-        return [f.given for f in self.frames]
 
     def contradictions(self) -> list[FrameExposure]:
         """The frames whose given time the pixels contradict."""

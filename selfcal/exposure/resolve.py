@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError
+from .measured import measure_calibration_exposures, measure_response_exposures
 from .record import (
     BracketExposures,
     ExposureRule,
@@ -96,6 +97,34 @@ def calibration_exposures(given: GivenTimes, keep: Sequence[int], solved_log, *,
     return BracketExposures(tuple(frames), rule=rule.times, origin=given.origin,
                             unit="seconds", refined=refined,
                             spread=spread if rule.measured else None)
+
+
+def recorded_calibration(model, given: GivenTimes, keep: Sequence[int], solved_log, *,
+                         rule: ExposureRule, refined: bool, contradictions: Sequence[dict],
+                         codes=None, clip_margin: float, stuck=None):
+    """A calibrated model with its exposures measured and recorded.
+
+    With the codes the calibration kept while reading (``codes``, under the rule
+    ``"measured"``), the kept frames' exposures are measured through the model's curve
+    (:func:`selfcal.exposure.measured.measure_calibration_exposures`: the times -- or,
+    refined, the solve's exposures, with whose trend the curve was fitted -- set the scale
+    and the trend); then the record (:func:`calibration_exposures`) is attached and the
+    model's ``exposures`` are the record's used ones.  ``model.exposures`` on the way in
+    are the solve's.
+    """
+    measured = spread = None
+    if codes is not None:
+        measured, summary = measure_calibration_exposures(
+            model, codes, keep, list(given.sources), times=list(given.seconds),
+            solved=np.asarray(model.exposures, dtype=float), refined=refined,
+            clip_margin=clip_margin, stuck=stuck)
+        spread = MeasurementSpread.from_summary(summary, by="calibration")
+    record = calibration_exposures(given, keep, solved_log, rule=rule, refined=refined,
+                                   contradictions=contradictions, measured=measured,
+                                   spread=spread)
+    out = replace(model, exposure_record=record, exposures=record.used)
+    out.fit_data = model.fit_data
+    return out
 
 
 def model_exposures(model) -> BracketExposures | None:
@@ -182,6 +211,25 @@ def merge_exposures(given: GivenTimes, model_index: Sequence[int | None], model_
     return BracketExposures(tuple(frames), rule=rule.times, origin=given.origin,
                             unit="relative", refined=bool(model_record and model_record.refined),
                             spread=spread if own and rule.measured else None)
+
+
+def finish_merge_exposures(frames, model, record: BracketExposures, frame_set: Sequence[int],
+                           rule: ExposureRule, *, clip_margin: float, stuck=None,
+                           progress=None) -> tuple[BracketExposures, str | None]:
+    """A merge's exposures, final, and the run's one line about them.
+
+    Under ``"measured"`` the frames of ``frame_set`` (the merged, checked ones) are measured
+    from the pixels through the model's curve
+    (:func:`selfcal.exposure.measured.measure_response_exposures`), unless the model
+    measured every one of them on the same times (nothing is read again then).
+    """
+    if rule.measured and frame_set and not measured_by_model(record, frame_set):
+        out, summary = measure_response_exposures(frames, model, record.used, frame_set,
+                                                  clip_margin=clip_margin, stuck=stuck,
+                                                  trend=rule.trend, progress=progress)
+        record = with_measured(record, out, frame_set,
+                               MeasurementSpread.from_summary(summary, "merge"))
+    return record, exposure_message(record)
 
 
 def measured_by_model(record: BracketExposures, frame_set: Sequence[int]) -> bool:

@@ -22,7 +22,7 @@ Ours, where this differs from OpenCV's ``MergeDebevec`` and most tools:
   small triangle weight on the clipped channel;
 * **black floors and stuck ceilings**: per channel, the codes that do not move with
   exposure -- the calibration's stuck-sample test turned into code levels,
-  :func:`selfcal.stack.frames.stuck_code_levels`, carried in the model's diagnostics or measured
+  :func:`selfcal.response.stuck_codes.stuck_code_levels`, carried in the model's diagnostics or measured
   on the frames -- count as clipped (memorial's short frames sit at a floor of codes
   13-19; with weight there, f⁻¹(floor)/e of the shortest frames swamped the shadows);
 * **clipping follows exposure**, as in the calibration (``selfcal.stack.samples.frame_masks``):
@@ -89,11 +89,9 @@ from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import misalignment_warning, poor_agreement
 from ..exposure.linear import fit_log_sigma, measure_linear_exposures, stack_frames
-from ..exposure.measured import measure_response_exposures
-from ..exposure.record import BracketExposures, ExposureRule, GivenTimes, MeasurementSpread, \
-    read_given_times
-from ..exposure.resolve import exposure_message, linear_exposures, measured_by_model, \
-    merge_exposures, model_exposures, with_measured
+from ..exposure.record import BracketExposures, ExposureRule, GivenTimes, read_given_times
+from ..exposure.resolve import finish_merge_exposures, linear_exposures, merge_exposures, \
+    model_exposures
 from .weights import DEFAULT_NOISE, NoiseModel
 from .plan import frames_to_merge, looks_lossy, stuck_levels
 from .sigma import SigmaSums, add_trend_term
@@ -406,11 +404,10 @@ def merge_hdr(images: Sequence[ImageInput], exposure_times: ExposureTimes | None
     used, unchecked, ref, stuck, radius = _merge_plan(
         frames, model, fresh, exposures, ref, opts, linear=linear, warnings=warnings,
         diagnostics=diagnostics)
-    if opts.exposures.measured and not linear:
-        record = _measured_exposures(frames, model, record, used, unchecked, stuck, opts,
-                                     progress)
-        exposures = record.used
-    line = exposure_message(record)
+    record, line = finish_merge_exposures(
+        frames, model, record, [] if linear else [k for k in used if k not in unchecked],
+        opts.exposures, clip_margin=opts.clip_margin, stuck=stuck, progress=progress)
+    exposures = record.used
     if line:
         warnings.append(line)
     sigma_t, trend_sigma = None, 0.0
@@ -457,20 +454,6 @@ def _linear_exposures(frames: StackFrames, given: GivenTimes, opts: MergeOptions
                                    use="times" if opts.exposures.held else "measured",
                                    clip_margin=opts.clip_margin, progress=progress)
     return linear_exposures(given, lin, opts.exposures, fit_log_sigma(lin.measured, lin.pairs))
-
-
-def _measured_exposures(frames, model, record: BracketExposures, used, unchecked, stuck,
-                        opts: MergeOptions, progress) -> BracketExposures:
-    """The record with the checked merged frames' exposures measured from the pixels
-    (:func:`selfcal.exposure.measured.measure_response_exposures`), unless the model
-    measured every one of them on the same times (nothing is read again then)."""
-    checked = [k for k in used if k not in unchecked]
-    if measured_by_model(record, checked):
-        return record
-    out, summary = measure_response_exposures(frames, model, record.used, checked,
-                                              clip_margin=opts.clip_margin, stuck=stuck,
-                                              trend=opts.exposures.trend, progress=progress)
-    return with_measured(record, out, checked, MeasurementSpread.from_summary(summary, "merge"))
 
 
 def _sigma_result(sums: MergeSums, diagnostics: dict) -> np.ndarray:

@@ -11,7 +11,8 @@ import numpy as np
 
 from ..io.images import JPEG_SUFFIXES
 from ..response.options import DEFAULT_MAX_SAMPLES
-from ..stack.frames import StackFrames, model_frame_index, stuck_code_levels
+from ..response.stuck_codes import stuck_code_levels
+from ..stack.frames import StackFrames, model_frame_index
 from ..stack.samples import collect_samples
 
 __all__ = ["frames_to_merge", "stuck_levels", "looks_lossy"]
@@ -63,7 +64,7 @@ def stuck_levels(model, frames: StackFrames, exposures, used, clip_margin: float
                   diagnostics: dict, given=None):
     """Per channel (floor, ceiling) as normalised codes: the calibration's, else measured.
 
-    The model's ``diagnostics['stuck_codes']`` (:func:`selfcal.stack.frames.stuck_code_levels`
+    The model's ``diagnostics['stuck_codes']`` (:func:`selfcal.response.stuck_codes.stuck_code_levels`
     over the calibration's samples) when it has them -- a floor or ceiling is a property
     of the camera (or the scan), so a model of another scene's frames carries it -- else
     the same function over samples of the frames to merge.

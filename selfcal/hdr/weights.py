@@ -25,7 +25,7 @@ it exceeds what the noise model explains, as a further term ``(s(z) · x)²`` of
 variance (:func:`_excess_code_error`: the noise weights trusted codes where the
 curve is worse than the noise says); a weight of
 zero wherever *any* channel is clipped or at its stuck ceiling, and for a channel at its
-black floor (:func:`selfcal.stack.frames.stuck_code_levels`), which :class:`FrameTables` takes
+black floor (:func:`selfcal.response.stuck_codes.stuck_code_levels`), which :class:`FrameTables` takes
 as per-channel limits; and :class:`FrameTables`, which tabulates weight, weighted radiance,
 radiance and variance at every code once per frame, so that the merge and the deghosting
 are lookups (``cv2.LUT``).

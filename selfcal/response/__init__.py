@@ -26,6 +26,9 @@
 * :mod:`selfcal.response.bands` -- the confidence band of f⁻¹;
 * :mod:`selfcal.response.delta` -- δ of Eq. 12;
 * :mod:`selfcal.response.verdict` -- whether the fit can be trusted, from its evidence;
+* :mod:`selfcal.response.solved_times` -- the given times in the solve: Eq. 8's log times,
+  refined exposures anchored, the times they corrected;
+* :mod:`selfcal.response.stuck_codes` -- the black floor and stuck ceiling of a stack's codes;
 * :mod:`selfcal.response.diagnostics` -- what the fit says about itself, in the model.
 """
 

@@ -19,7 +19,8 @@ import numpy as np
 
 from ..stack.align import aligned_working_frames, estimate_alignment
 from ..errors import CalibrationError, InputError, SelfcalWarning
-from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, default_reference, stuck_code_levels
+from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames, default_reference
+from .stuck_codes import stuck_code_levels
 from ..io.images import is_path
 from ..stack.samples import KeptData, SampleSet, collect_samples, frame_masks
 from ..typing import ExposureTimes, ImageInput, Progress
@@ -28,17 +29,12 @@ from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
 from .hidden_white import white_end_masks
-from ..exposure.record import ExposureRule, GivenTimes, MeasurementSpread, read_given_times
-from ..exposure.resolve import calibration_exposures, exposure_message
-from ..exposure.times import (
-    CONTRADICTED_UNUSABLE_SHARE,
-    CONTRADICTION_FACTOR,
-    anchor_refined,
-    corrected_times,
-    log_exposure_times,
-)
+from ..exposure.record import ExposureRule, GivenTimes, read_given_times
+from ..exposure.resolve import exposure_message, recorded_calibration
+from ..exposure.times import CONTRADICTED_UNUSABLE_SHARE, CONTRADICTION_FACTOR
+from .solved_times import anchor_refined, corrected_times, log_exposure_times
 from .diagnostics import fit_diagnostics
-from ..exposure.measured import MEASURE_CODES_SIDE, measure_calibration_exposures
+from ..exposure.measured import MEASURE_CODES_SIDE
 from .frame_choice import record_ignored, subset, without_clipped_frames, without_duplicates
 from .options import ResponseOptions
 from .solver import solve_exposure_equations
@@ -232,27 +228,15 @@ def calibrate_given(frames: Sequence, given: GivenTimes, call: CalibrationCall) 
                              n_components=options.n_components, seed=call.seed,
                              method=options.band_method)
     warnings.extend(band_warnings)
-    solved_only = calibration_exposures(given, keep, solved.result.log_exposures,
-                                        rule=call.rule, refined=solved.refined,
-                                        contradictions=solved.contradictions)
-    model = _model_stage(read, usable, basis, solved, fit, solved_only, log_sigma, warnings,
+    model = _model_stage(read, usable, given, basis, solved, fit, log_sigma, warnings,
                          options)
-    if read.samples.codes is None:
-        return model
-    measured, spread = _measure_stage(model, read.samples.codes, given, keep, solved,
-                                      fit, options)
-    record = calibration_exposures(given, keep, solved.result.log_exposures, rule=call.rule,
-                                   refined=solved.refined,
-                                   contradictions=solved.contradictions, measured=measured,
-                                   spread=spread)
-    return _with_record(model, record)
-
-
-def _with_record(model: ResponseModel, record) -> ResponseModel:
-    """The model with ``record``'s exposures (its fit data kept)."""
-    out = replace(model, exposure_record=record, exposures=record.used)
-    out.fit_data = model.fit_data
-    return out
+    stuck = fit["stuck"]
+    return recorded_calibration(
+        model, given, keep, solved.result.log_exposures, rule=call.rule,
+        refined=solved.refined, contradictions=solved.contradictions,
+        codes=read.samples.codes, clip_margin=options.clip_margin,
+        stuck=None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
+                                          np.asarray(stuck["ceiling"], dtype=float)))
 
 
 def _read_stage(frames, given: GivenTimes, options: ResponseOptions, call: CalibrationCall) -> _Readout:
@@ -305,26 +289,11 @@ def _solve_stage(samples, usable: _Usable, keep, basis, options, call: Calibrati
                    reach=int(reach), hidden=hidden)
 
 
-def _measure_stage(model: ResponseModel, codes, given: GivenTimes, keep, solved: _Solved,
-                   fit, options):
-    """The exposures of the kept frames measured through the model's curve on the codes
-    kept while reading (:func:`selfcal.exposure.measured.measure_calibration_exposures`):
-    the times (or, refined, the solve's exposures: the curve was fitted with their trend)
-    set the scale and the trend.  Returns ``(measured per frame, MeasurementSpread)``."""
-    stuck = fit["stuck"]
-    levels = None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
-                                         np.asarray(stuck["ceiling"], dtype=float))
-    measured, summary = measure_calibration_exposures(
-        model, codes, keep, list(given.sources), times=list(given.seconds),
-        solved=np.asarray(model.exposures, dtype=float), refined=solved.refined,
-        clip_margin=options.clip_margin, stuck=levels)
-    return measured, MeasurementSpread.from_summary(summary, by="calibration")
-
-
-def _model_stage(read: _Readout, usable: _Usable, basis, solved: _Solved, fit, record,
-                 log_sigma, warnings, options) -> ResponseModel:
-    """The :class:`ResponseModel`: the curve, its band, the record of its exposures, the
-    diagnostics of the fit."""
+def _model_stage(read: _Readout, usable: _Usable, given: GivenTimes, basis, solved: _Solved,
+                 fit, log_sigma, warnings, options) -> ResponseModel:
+    """The :class:`ResponseModel`: the curve, its band, the diagnostics of the fit, and the
+    solve's exposures (NaN for frames it did not use); the record of its exposures is
+    :func:`selfcal.exposure.resolve.recorded_calibration`'s."""
     result = solved.result
     diagnostics = fit_diagnostics(
         result, fit, warnings=warnings, options=options, frames_used=usable.sources,
@@ -340,12 +309,20 @@ def _model_stage(read: _Readout, usable: _Usable, basis, solved: _Solved, fit, r
     diagnostics["frame_digests"] = list(read.samples.digests)
     model = ResponseModel(intensity=fit["grid"].copy(), inverse=fit["inverse"],
                           coefficients=result.coefficients, basis_name=basis.name,
-                          exposures=record.used, exposure_times=list(record.given),
-                          sources=record.sources, max_code=read.samples.max_code,
-                          diagnostics=diagnostics, inverse_log_sigma=log_sigma,
-                          frames_ignored=read.ignored, exposure_record=record)
+                          exposures=_solved_exposures(len(given), read.keep,
+                                                      result.log_exposures),
+                          exposure_times=list(given.seconds), sources=list(given.sources),
+                          max_code=read.samples.max_code, diagnostics=diagnostics,
+                          inverse_log_sigma=log_sigma, frames_ignored=read.ignored)
     model.fit_data = _btf_data(usable.samples, usable.masks, result, usable.sources)
     return model
+
+
+def _solved_exposures(n: int, keep, log_exposures) -> np.ndarray:
+    """The solve's exposures of every frame (NaN for frames it did not use)."""
+    out = np.full(n, np.nan)
+    out[keep] = np.exp(log_exposures)
+    return out
 
 
 def _judged_fit(usable: _Usable, basis, result, *, options, refined: bool, contradictions):

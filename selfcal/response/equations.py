@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..errors import CalibrationError
-from ..stack.frames import STUCK_CODES, STUCK_RATIO
+from .stuck_codes import STUCK_CODES, STUCK_RATIO
 
 
 def frame_pairs(order: np.ndarray, max_rank_gap: int):

@@ -41,7 +41,7 @@ import math
 import numpy as np
 
 from ..exposure.times import CONTRADICTED_UNUSABLE_SHARE
-from ..stack.frames import STUCK_CODES, STUCK_RATIO
+from .stuck_codes import STUCK_CODES, STUCK_RATIO
 from ..io.images import import_cv2
 
 #: Code noise (normalised) of a block mean assumed by the residual test: one 8-bit code,
@@ -115,10 +115,10 @@ def residual_evidence(values, valid, intensity, inverse, log_exposures, pairs, *
     ``σ² = Σ_{I ∈ {I_a, I_b}} (g′(I) · code_noise)² + 2 · relative²`` (the code noise
     carried through the slope of g, first order, and a relative model error): ``z = r/σ``.
     Left out as the solve leaves them out: samples that do not move with the exposure
-    (by less than :data:`selfcal.stack.frames.STUCK_CODES` between frames
-    :data:`selfcal.stack.frames.STUCK_RATIO` apart), and codes at or below a channel's black
+    (by less than :data:`selfcal.response.stuck_codes.STUCK_CODES` between frames
+    :data:`selfcal.response.stuck_codes.STUCK_RATIO` apart), and codes at or below a channel's black
     floor or at or above its stuck ceiling (``stuck_codes``, from
-    :func:`selfcal.stack.frames.stuck_code_levels`): they are bounds, not measurements.
+    :func:`selfcal.response.stuck_codes.stuck_code_levels`): they are bounds, not measurements.
 
     The frames' own noise may exceed that model (film grain, high ISO, single-pixel
     samples of small frames): it is estimated from the spread of z between samples of
@@ -452,7 +452,7 @@ def judge_calibration(samples, valid, intensity, inverse, log_exposures, pairs, 
         for; times in the wrong order are still found by :func:`time_order`).
     stuck_codes : dict, optional
         Black floors and stuck ceilings per channel
-        (:func:`selfcal.stack.frames.stuck_code_levels`), left out of the residual test.
+        (:func:`selfcal.response.stuck_codes.stuck_code_levels`), left out of the residual test.
 
     Returns
     -------
