@@ -51,7 +51,7 @@ import numpy as np
 from scipy.stats import norm
 
 from ..errors import InputError
-from .solver import SolverOptions
+from .solver import CODE_NOISE, SolverOptions
 from .equations import NormalEquations, build_pair_rows
 from .priors import ExposurePrior, PriorTerms, pca_variance_precision, white_continuation_terms
 
@@ -78,7 +78,6 @@ AMBIGUITY_LOG_GAMMA_SIGMA = 0.10
 AMBIGUITY_LOG_GAMMA_SIGMA_MAX = 0.6
 #: What the band's σ_g is computed for: the solver's defaults.
 _SOLVER = SolverOptions()
-_CODE_NOISE = 1.0 / 255.0
 #: Floor of f⁻¹ before the log in :func:`ambiguity_sigma` (the basis' log floor).
 _LOG_FLOOR = 1e-5
 #: Precision of a log exposure held as the additive gauge (no time given).
@@ -198,7 +197,7 @@ def _row_weights(normal, rows, basis, coefficients, x) -> np.ndarray:
     for c in range(3):          # np.interp: the solver's interpolation matrices, applied
         sa = np.interp(rows.Ia[:, c], grid, dg[c])
         sb = np.interp(rows.Ib[:, c], grid, dg[c])
-        var[c * m:(c + 1) * m] = _CODE_NOISE ** 2 * (sa ** 2 + sb ** 2)
+        var[c * m:(c + 1) * m] = CODE_NOISE ** 2 * (sa ** 2 + sb ** 2)
     var = np.maximum(var, 0.05 * np.median(var))
     u = normal.residual(x) / np.sqrt(var)
     scale = max(1.4826 * np.median(np.abs(u)) + 1e-12, 1e-3)

@@ -92,7 +92,9 @@ from .priors import (
 #: most likely to have moved while keeping enough samples in ordinary scenes.
 DEFAULT_SATURATION_THRESHOLD = 0.5
 
-#: Std of code noise (normalised units) assumed for block means when weighting Eq. 8.
+#: Std of code noise (normalised units) assumed for block means when weighting Eq. 8:
+#: one 8-bit code.  The one definition: the band (:mod:`.bands`) and the verdict's residual
+#: test (:mod:`.verdict`) take it from here.
 CODE_NOISE = 1.0 / 255.0
 #: IRLS iterations at most when some exposures are estimated (run to convergence).
 MAX_ITERATIONS_ESTIMATED = 60
