@@ -101,12 +101,19 @@ def test_radiance_with_on_the_fly_calibration(stack):
 def test_noise_weighting_formula():
     from selfcal.hdr.weights import noise_variance
 
-    nm = NoiseModel(shot=1e-4, read=1e-3, code=1.0)
+    nm = NoiseModel(shot=1e-4, read=1e-3, code=1.0, relative=0.0)
     v = noise_variance(np.array([0.25]), np.array([2.0]), 0.5, nm)
     expected = (1e-4 * 0.25 + 1e-6 + (2.0 / 255) ** 2) / 0.25
     np.testing.assert_allclose(v, expected)
     with pytest.raises(selfcal.InputError):
         NoiseModel(shot=-1)
+
+
+def test_the_default_noise_model_is_noise_model_with_its_own_defaults():
+    # one default (issue 43): NoiseModel()'s fields are the merge's noise model, 3 % relative
+    from selfcal.hdr.weights import DEFAULT_NOISE
+
+    assert NoiseModel() == DEFAULT_NOISE and NoiseModel().relative == 0.03
 
 
 def test_weighting_callable(stack):
