@@ -83,6 +83,7 @@ def _calibrate_outputs(args, groups, images):
 
 def cmd_calibrate(args) -> int:
     import selfcal
+    from selfcal.response import SolverOptions
     from selfcal.choose import group_inputs
     from selfcal.io import StagedOutputs
 
@@ -98,7 +99,8 @@ def cmd_calibrate(args) -> int:
         exposure_source="unknown" if args.unknown_exposures else "auto",
         refine_exposures=args.refine_exposures, align=args.align or False,
         response_options=selfcal.ResponseOptions(
-            n_components=args.components, saturation_threshold=args.saturation_threshold,
+            solver=SolverOptions(n_components=args.components,
+                                 saturation_threshold=args.saturation_threshold),
             basis=basis, measure_exposures=args.measure_exposures))
     for line in result.summary_lines():
         say(line)
@@ -205,7 +207,7 @@ def _seed(text: str) -> int:
 
 def register(sub) -> None:
     """Add the ``demo`` and ``calibrate`` commands to the main parser's subparsers."""
-    from selfcal.response.options import DEFAULT_N_COMPONENTS
+    from selfcal.response.solver import DEFAULT_N_COMPONENTS
     from selfcal.response.solver import DEFAULT_SATURATION_THRESHOLD
 
     p = sub.add_parser(

@@ -24,6 +24,7 @@ from selfcal.hdr.io import (  # noqa: E402
     write_preview,
     write_radiance,
 )
+from selfcal.response import SolverOptions  # noqa: E402
 from selfcal.response.model import ResponseModel  # noqa: E402
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -643,7 +644,8 @@ def test_calibrate_response_aligns_handheld_frames_first():
     assert err(aligned) < 0.008 < err(unaligned)
     # the calibration options reach the solve on the aligned frames
     margin4 = selfcal.calibrate_response(frames, times, align="mtb",
-                                         options=selfcal.ResponseOptions(clip_margin=4))
+                                         options=selfcal.ResponseOptions(
+                                             solver=SolverOptions(clip_margin=4)))
     assert margin4.diagnostics["clip_margin"] == 4
     with pytest.raises(selfcal.InputError, match="unknown alignment"):
         selfcal.calibrate_response(frames, times, align="sift")

@@ -47,7 +47,7 @@ from ..errors import CalibrationError
 from ..response.basis import ResponseBasis
 from ..typing import ExposureTimes, ImageInput
 from ..stack.frames import DEFAULT_CLIP_MARGIN, stuck_code_levels
-from ..response.options import DEFAULT_N_COMPONENTS
+from ..response.solver import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
 from ..response.solver import (DEFAULT_SATURATION_THRESHOLD, SolverOptions,

@@ -181,8 +181,9 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
         lacking = [src for src, t in zip(sources, times) if t is None]
         for src in lacking:
             warnings.append(f"{src}: no exposure time in EXIF; treated as unknown")
-    basis, n_components = _log_domain_basis(call.options.basis, call.options.n_components)
-    options = replace(call.options, n_components=n_components)
+    basis, n_components = _log_domain_basis(call.options.basis,
+                                            call.options.solver.n_components)
+    options = call.options.with_solver(n_components=n_components)
 
     ignored: list = []
     samples, masks, keep = _sample_usable_frames(
@@ -222,7 +223,7 @@ def _calibrate_response(images, exposure_times, call: _Call, align=False):
     fit = _judged_fit(usable, basis, result, warnings, options=options,
                       refine_exposures=refine_exposures, contradictions=contradictions)
     log_sigma = band_for_fit(usable.samples, usable.masks, basis, result, usable.log_times,
-                             fit, warnings, n_components=options.n_components,
+                             fit, warnings, options=options.solver,
                              seed=call.seed, method=options.band_method)
 
     full_exposures = np.full(len(frames), np.nan)
@@ -261,7 +262,8 @@ def _measure_own_exposures(model, codes, keep, stuck, options: ResponseOptions) 
     levels = None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
                                          np.asarray(stuck["ceiling"], dtype=float))
     measured, summary = measure_calibration_exposures(
-        model, codes, keep, model.sources, clip_margin=options.clip_margin, stuck=levels)
+        model, codes, keep, model.sources, clip_margin=options.solver.clip_margin,
+        stuck=levels)
     ok = np.isfinite(measured)
     model.exposures = np.where(ok, measured, model.exposures)
     model.diagnostics["measured_exposures"] = summary
@@ -275,14 +277,15 @@ def _judged_fit(usable: _Usable, basis, result, warnings, *, options, refine_exp
     times the pixels corrected (evidence only); otherwise the contradicted ones.
     """
     sub, log_times = usable.samples, usable.log_times
-    grid, inverse = _inverse_response(basis, result.coefficients, options.n_components)
+    grid, inverse = _inverse_response(basis, result.coefficients,
+                                      options.solver.n_components)
     valid = ~(usable.masks["clipped"] | usable.masks["saturated"])
     pairs = [tuple(p) for p in result.pair_frames]
     delta = delta_eq12(sub.values, grid, inverse, result.log_exposures, pairs, valid)
     # per channel, the black floor and stuck ceiling of the codes (the stuck-sample test
     # as code levels): the merge gives them zero weight, the verdict leaves them out
     stuck = stuck_code_levels(sub.values, result.log_exposures,
-                              clip_margin=options.clip_margin)
+                              clip_margin=options.solver.clip_margin)
     corrected = (corrected_times(result.log_exposures, log_times, usable.sources,
                                  usable.times)
                  if refine_exposures else contradictions)
@@ -307,9 +310,11 @@ def _calibrate_after_alignment(frames, exposure_times, align, call: _Call):
     if align not in ("mtb", "homography"):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
     warnings: list[str] = []
-    provisional = replace(call, options=replace(call.options, clip_margin=DEFAULT_CLIP_MARGIN))
+    provisional = replace(call,
+                          options=call.options.with_solver(clip_margin=DEFAULT_CLIP_MARGIN))
     model, _, _ = _calibrate_aligned(frames, exposure_times, provisional, method=align,
-                                     clip_margin=call.options.clip_margin, warnings=warnings)
+                                     clip_margin=call.options.solver.clip_margin,
+                                     warnings=warnings)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
@@ -344,7 +349,7 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         Reference frame; default the middle exposure.
     clip_margin : float, optional
         Clip margin of the alignment and of the calibration of the aligned frames;
-        default the ``options``' (``ResponseOptions.clip_margin``).
+        default the ``options``' (``ResponseOptions.solver.clip_margin``).
     warnings : list, optional
         Receives the alignment's warnings (they are not in the model's).
     progress : callable, optional
@@ -374,7 +379,7 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     call = _Call(options=resolved, progress=progress, refine_exposures=refine_exposures)
     model, transforms, ref = _calibrate_aligned(
         images, exposure_times, call, method=method, reference=reference,
-        clip_margin=resolved.clip_margin if clip_margin is None else clip_margin,
+        clip_margin=resolved.solver.clip_margin if clip_margin is None else clip_margin,
         warnings=warnings, max_side=max_side)
     emit_warnings(model)
     return model, transforms, ref
@@ -409,11 +414,11 @@ def _calibrate_aligned(images, exposure_times, call: _Call, *, method="mtb", ref
     times, time_source = resolve_exposure_times(frames.items, exposure_times,
                                                 list(frames.sources), call.times_source)
     aligned = replace(call, times_source=time_source,
-                      options=replace(call.options, clip_margin=clip_margin))
+                      options=call.options.with_solver(clip_margin=clip_margin))
     if call.options.fit_vignetting and method == "homography":   # [Goldman2010]
         from . import vignetting_fit as vf
 
-        basis = _log_domain_basis(call.options.basis, call.options.n_components)
+        basis = _log_domain_basis(call.options.basis, call.options.solver.n_components)
         model = vf.calibrate_with_vignetting(
             small, vf.working_transforms(transforms, frames.shape, small[0].shape[:2]), times,
             lambda f: _calibrate_response(f, times, aligned),
@@ -482,7 +487,7 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
         if progress is not None:
             progress("read", k, n, src)
 
-    clip_margin = options.clip_margin
+    clip_margin = options.solver.clip_margin
     samples = collect_samples(frames, sources=sources, max_samples=options.max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress,
                               keep=KeptData(reduced=options.correspondences != "blocks",
@@ -490,7 +495,7 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
                                             if options.measure_exposures else 0),
                               near_clip_blocks=options.near_clip_blocks)
     masks = frame_masks(samples, clip_margin=clip_margin,
-                        saturation_threshold=options.saturation_threshold)
+                        saturation_threshold=options.solver.saturation_threshold)
     keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin, ignored)
     keep = without_duplicates([samples.digests[k] for k in keep], [times[k] for k in keep],
                               [sources[k] for k in keep], warnings, keep, ignored)
@@ -519,10 +524,12 @@ def _histogram_solve(samples, usable: _Usable, keep, basis, first, options, prog
     ``options.correspondences == "histogram+blocks"``."""
     from .histogram_samples import solve_data
 
-    grid, inverse = _inverse_response(basis, first.coefficients, options.n_components)
+    grid, inverse = _inverse_response(basis, first.coefficients,
+                                      options.solver.n_components)
     data, masks, weights = solve_data(
-        samples, keep, (grid, inverse, first.log_exposures), clip_margin=options.clip_margin,
-        saturation_threshold=options.saturation_threshold,
+        samples, keep, (grid, inverse, first.log_exposures),
+        clip_margin=options.solver.clip_margin,
+        saturation_threshold=options.solver.saturation_threshold,
         blocks=((usable.samples, usable.masks)
                 if options.correspondences == "histogram+blocks" else None))
     return functools.partial(_solve, replace(usable, samples=data, masks=masks), basis,
@@ -535,7 +542,7 @@ def _solve(usable: _Usable, basis, *, options, refine_exposures, progress, weigh
         progress("solve", 0, 1, "")
     result = solve_exposure_equations(
         usable.samples, basis, usable.log_times, refine_exposures=refine_exposures,
-        masks=usable.masks, options=options, sample_weights=weights)
+        masks=usable.masks, options=options.solver, sample_weights=weights)
     if progress is not None:
         progress("solve", 1, 1, "")
     return result
@@ -553,7 +560,7 @@ def _contradicted_times(usable: _Usable, basis, options) -> list:
     contradictions = []
     free = solve_exposure_equations(
         usable.samples, basis, log_times, refine_exposures=True, masks=usable.masks,
-        options=replace(options, max_iterations=4, monotone=False))
+        options=replace(options.solver, max_iterations=4, monotone=False))
     # compare ratios, not absolute values: the prior only pins the overall scale
     dev = free.log_exposures - log_times
     dev = dev - np.nanmedian(dev[known])
