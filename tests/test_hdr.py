@@ -99,6 +99,16 @@ def test_radiance_with_on_the_fly_calibration(stack):
     assert result.model is not None and result.diagnostics["model_verdict"] == "ok"
 
 
+def test_on_the_fly_calibration_takes_the_merges_clip_margin(stack):
+    # one clip margin per merge (issue 43): the calibration's is the merge's, whatever
+    # calibrate_options say
+    opts = MergeOptions(clip_margin=4, calibrate_options=selfcal.ResponseOptions(
+        solver=SolverOptions(clip_margin=1)))
+    result = merge_hdr(stack.images, stack.exposure_times, options=opts)
+    assert result.model.diagnostics["clip_margin"] == 4
+    assert MergeOptions().clip_margin == selfcal.ResponseOptions().solver.clip_margin
+
+
 def test_noise_weighting_formula():
     from selfcal.hdr.weights import noise_variance
 

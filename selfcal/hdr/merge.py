@@ -124,8 +124,9 @@ class MergeOptions:
     noise : NoiseModel, optional
         For ``weighting="noise"`` and deghosting.  Default :data:`.weights.DEFAULT_NOISE`.
     clip_margin : float
-        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped
-        (default 2, as in calibration).
+        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped;
+        also the clip margin of a calibration on the fly.  Default
+        :data:`selfcal.stack.frames.DEFAULT_CLIP_MARGIN` (2, as in calibration).
     deghost_threshold, deghost_tolerance : float
         ``k`` and the relative error floor of the deghosting test (see ``deghost``).
     lossy : bool, optional
@@ -138,7 +139,7 @@ class MergeOptions:
         Linear frames' exposures (:func:`selfcal.exposure.linear.measure_linear_exposures`).
     calibrate_options : ResponseOptions, optional
         The options of :func:`selfcal.calibrate_response` when it runs on the fly (no
-        model given); default ``ResponseOptions()``.
+        model given), with the merge's ``clip_margin``; default ``ResponseOptions()``.
     refine_exposures : {"auto", True, False}
         ``refine_exposures`` of that calibration on the fly (see
         :func:`selfcal.calibrate_response`).
@@ -594,13 +595,15 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: Merg
         raise CalibrationError("one frame and no model: give a model (a response needs "
                                "at least two frames to calibrate)")
     transforms = ref0 = None
+    # one clip margin per merge: the calibration's is the merge's
+    options = (opts.calibrate_options or ResponseOptions()).with_solver(
+        clip_margin=opts.clip_margin)
     # its warnings are the merge's (below, in HDRResult.warnings), not warned twice
     with _pywarnings.catch_warnings():
         _pywarnings.simplefilter("ignore", SelfcalWarning)
         if align:
             # the vignetting is fitted only where the merge may use it
-            options = replace(opts.calibrate_options or ResponseOptions(),
-                              fit_vignetting=opts.vignetting in ("auto", "self"))
+            options = replace(options, fit_vignetting=opts.vignetting in ("auto", "self"))
             model, transforms, ref0 = calibrate_aligned(
                 frames, exposure_times, method=align, reference=opts.reference,
                 clip_margin=opts.clip_margin, warnings=warnings, progress=progress,
@@ -609,7 +612,7 @@ def _calibrate_on_the_fly(frames: StackFrames, exposure_times, align, opts: Merg
         else:
             model = calibrate_response(frames.items, exposure_times, progress=progress,
                                        refine_exposures=opts.refine_exposures,
-                                       options=opts.calibrate_options)
+                                       options=options)
     diag = getattr(model, "diagnostics", {})
     diagnostics["model_verdict"] = diag.get("verdict")
     for w in diag.get("warnings", []):
