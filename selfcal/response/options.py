@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import warnings
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 from ..errors import InputError
 from ..typing import PathLike
@@ -157,7 +158,7 @@ class ResponseOptions:
             raise InputError(f"near_clip_blocks must be a whole number >= 0, not "
                              f"{self.near_clip_blocks!r}")
 
-    def with_solver(self, **changes) -> ResponseOptions:
+    def with_solver(self, **changes: Any) -> ResponseOptions:
         """These options with the fields ``changes`` of :attr:`solver` replaced.
 
         ``options.with_solver(clip_margin=4)`` is
