@@ -86,8 +86,8 @@ def _calibrate_one(task):
         # the prior at ``scale`` times the default weight for a basis whose variances are
         # estimated (the library multiplies prior_weight by ESTIMATED_PRIOR_SCALE); 0: the
         # prior off, the ridge in its place, as before issue 18
-        options = ResponseOptions(prior_weight=options.prior_weight * scale
-                                  / priors.ESTIMATED_PRIOR_SCALE)
+        options = options.with_solver(prior_weight=options.solver.prior_weight * scale
+                                      / priors.ESTIMATED_PRIOR_SCALE)
     curve = sim.ToneCurve.from_table(irradiance, brightness, name=f"dorf{index}")
     pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
     scene = sim.make_scene(*size, seed=seed)

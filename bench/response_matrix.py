@@ -385,7 +385,7 @@ def main():
     parser.add_argument("--basis-mean-prior", action="store_true",
                         help="with fewer than two known times, centre selfcal's prior at "
                              "the basis mean as before issue 25 "
-                             "(ResponseOptions(centre_ambiguity=False)), for the comparison")
+                             "(SolverOptions(centre_ambiguity=False)), for the comparison")
     parser.add_argument("--correspondences", choices=("blocks", "histogram"),
                         help="selfcal's correspondences "
                              "(ResponseOptions.correspondences); default the library's")
@@ -406,7 +406,7 @@ def main():
     if args.no_hidden_white:
         SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, hidden_white=False)
     if args.basis_mean_prior:
-        SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, centre_ambiguity=False)
+        SELFCAL_OPTIONS = SELFCAL_OPTIONS.with_solver(centre_ambiguity=False)
     if args.correspondences:
         SELFCAL_OPTIONS = replace(SELFCAL_OPTIONS, correspondences=args.correspondences)
     if args.near_clip_blocks is not None:

@@ -56,9 +56,9 @@ def brightest_kept(images) -> list:
 
     opt = ResponseOptions()
     samples = collect_samples(images, max_samples=opt.max_samples,
-                              clip_margin=opt.clip_margin, seed=0)
-    masks = frame_masks(samples, clip_margin=opt.clip_margin,
-                        saturation_threshold=opt.saturation_threshold)
+                              clip_margin=opt.solver.clip_margin, seed=0)
+    masks = frame_masks(samples, clip_margin=opt.solver.clip_margin,
+                        saturation_threshold=opt.solver.saturation_threshold)
     valid = ~(masks["clipped"] | masks["saturated"])
     out = []
     for c in range(3):

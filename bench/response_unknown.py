@@ -73,9 +73,7 @@ def one_stack(args):
 
     options = ResponseOptions()
     if centre == "none":            # the prior at the basis mean, as before issue 25
-        from dataclasses import replace
-
-        options = replace(options, centre_ambiguity=False)
+        options = options.with_solver(centre_ambiguity=False)
 
     pipe = sim.default_pipeline(gamut="smooth", curves=curve, seed=seed)
     stack = sim.simulate_stack(sim.make_scene(384, 576, seed=seed), pipe, TIMES,
@@ -213,7 +211,7 @@ def main():
                         help="comma-separated cases among all, two, one, none")
     parser.add_argument("--centre", default="", choices=("", "none"),
                         help="the prior's centre with < 2 known times: 'none' (the basis "
-                        "mean, as before issue 25: ResponseOptions(centre_ambiguity=False)); "
+                        "mean, as before issue 25: SolverOptions(centre_ambiguity=False)); "
                         "default the library's")
     parser.add_argument("--band", action="store_true",
                         help="also score the 90 % band of f⁻¹ (coverage, width; issue 35)")

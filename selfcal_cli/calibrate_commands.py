@@ -96,6 +96,7 @@ def _calibrate_outputs(args, groups, images):
 
 def cmd_calibrate(args) -> int:
     import selfcal
+    from selfcal.response import SolverOptions
     from selfcal.choose import group_inputs
     from selfcal.io import StagedOutputs
 
@@ -111,7 +112,8 @@ def cmd_calibrate(args) -> int:
         exposure_source="unknown" if args.unknown_exposures else "auto",
         exposures=exposure_rule(args), align=args.align or False,
         response_options=selfcal.ResponseOptions(
-            n_components=args.components, saturation_threshold=args.saturation_threshold,
+            solver=SolverOptions(n_components=args.components,
+                                 saturation_threshold=args.saturation_threshold),
             basis=basis))
     for line in result.summary_lines():
         say(line)
@@ -218,7 +220,7 @@ def _seed(text: str) -> int:
 
 def register(sub) -> None:
     """Add the ``demo`` and ``calibrate`` commands to the main parser's subparsers."""
-    from selfcal.response.options import DEFAULT_N_COMPONENTS
+    from selfcal.response.solver import DEFAULT_N_COMPONENTS
     from selfcal.response.solver import DEFAULT_SATURATION_THRESHOLD
 
     p = sub.add_parser(

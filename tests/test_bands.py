@@ -95,6 +95,36 @@ def test_default_band_is_the_covariance(stack):
     assert np.all(np.isfinite(model.inverse_log_sigma))
 
 
+def test_the_callers_solver_options_reach_the_band(stack, monkeypatch):
+    # issue 43: the band re-forms the solve the caller asked for, not the solver's defaults
+    import dataclasses
+
+    import selfcal.response.calibrate as cal
+    from selfcal.response import ResponseOptions, SolverOptions, bands
+
+    seen = []
+    real = cal.band_for_fit
+
+    def spy(*args, **kwargs):
+        seen.append((args, kwargs))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cal, "band_for_fit", spy)
+    solver = SolverOptions(huber_k=2.5, prior_weight=30.0)
+    selfcal.calibrate_response(stack.images, TIMES, options=ResponseOptions(solver=solver))
+    (samples, masks, basis, result, log_times, *_), kwargs = seen[-1]
+    assert kwargs["options"] == solver          # N = 5 fits the basis: nothing capped
+
+    def band(options):
+        return bands.curve_band(samples, masks, basis, result.coefficients,
+                                result.log_exposures, np.isfinite(log_times), options=options)
+
+    asked = band(kwargs["options"])
+    for default in ({"huber_k": SolverOptions().huber_k},
+                    {"prior_weight": SolverOptions().prior_weight}):
+        assert not np.allclose(band(dataclasses.replace(solver, **default)), asked)
+
+
 def test_too_wide_band_is_a_verdict_reason():
     from selfcal.response import bands
 

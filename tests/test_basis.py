@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from selfcal.errors import InputError, ModelFileError, OutputExistsError
-from selfcal.response import ResponseOptions
+from selfcal.response import ResponseOptions, SolverOptions
 from selfcal.response import curve_family as cf
 from selfcal.response.basis import (
     ResponseBasis,
@@ -564,8 +564,8 @@ def test_file_basis_prior_recovers_a_curve_it_can_represent(tmp_path, monkeypatc
             truth = stack.inverse_response()
             model = selfcal.calibrate_response(stack.images, times,
                                                options=ResponseOptions(
-                                                   basis=str(path),
-                                                   estimated_prior_scale=scale))
+                                                   basis=str(path), solver=SolverOptions(
+                                                       estimated_prior_scale=scale)))
             out.append(rmse(model.inverse_response()[1:255], truth[1:255]))
         return np.array(out)
 

@@ -24,6 +24,7 @@ from selfcal.hdr.io import (  # noqa: E402
     write_preview,
     write_radiance,
 )
+from selfcal.response import SolverOptions  # noqa: E402
 from selfcal.response.model import ResponseModel  # noqa: E402
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
@@ -99,15 +100,32 @@ def test_radiance_with_on_the_fly_calibration(stack):
     assert result.model is not None and result.diagnostics["model_verdict"] == "ok"
 
 
+def test_on_the_fly_calibration_takes_the_merges_clip_margin(stack):
+    # one clip margin per merge (issue 43): the calibration's is the merge's, whatever
+    # calibrate_options say
+    opts = MergeOptions(clip_margin=4, calibrate_options=selfcal.ResponseOptions(
+        solver=SolverOptions(clip_margin=1)))
+    result = merge_hdr(stack.images, stack.exposure_times, options=opts)
+    assert result.model.diagnostics["clip_margin"] == 4
+    assert MergeOptions().clip_margin == selfcal.ResponseOptions().solver.clip_margin
+
+
 def test_noise_weighting_formula():
     from selfcal.hdr.weights import noise_variance
 
-    nm = NoiseModel(shot=1e-4, read=1e-3, code=1.0)
+    nm = NoiseModel(shot=1e-4, read=1e-3, code=1.0, relative=0.0)
     v = noise_variance(np.array([0.25]), np.array([2.0]), 0.5, nm)
     expected = (1e-4 * 0.25 + 1e-6 + (2.0 / 255) ** 2) / 0.25
     np.testing.assert_allclose(v, expected)
     with pytest.raises(selfcal.InputError):
         NoiseModel(shot=-1)
+
+
+def test_the_default_noise_model_is_noise_model_with_its_own_defaults():
+    # one default (issue 43): NoiseModel()'s fields are the merge's noise model, 3 % relative
+    from selfcal.hdr.weights import DEFAULT_NOISE
+
+    assert NoiseModel() == DEFAULT_NOISE and NoiseModel().relative == 0.03
 
 
 def test_weighting_callable(stack):
@@ -649,7 +667,8 @@ def test_calibrate_response_aligns_handheld_frames_first():
     assert err(aligned) < 0.008 < err(unaligned)
     # the calibration options reach the solve on the aligned frames
     margin4 = selfcal.calibrate_response(frames, times, align="mtb",
-                                         options=selfcal.ResponseOptions(clip_margin=4))
+                                         options=selfcal.ResponseOptions(
+                                             solver=SolverOptions(clip_margin=4)))
     assert margin4.diagnostics["clip_margin"] == 4
     with pytest.raises(selfcal.InputError, match="unknown alignment"):
         selfcal.calibrate_response(frames, times, align="sift")

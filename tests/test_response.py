@@ -14,7 +14,7 @@ import selfcal
 from conftest import rmse_vs_truth
 from selfcal import sim
 from selfcal.errors import CalibrationError, InputError, ModelFileError
-from selfcal.response import ResponseOptions
+from selfcal.response import ResponseOptions, SolverOptions
 from selfcal.stack.samples import collect_samples
 
 TIMES = list(sim.DEMO_EXPOSURE_TIMES)
@@ -254,11 +254,13 @@ def test_rejections_are_counted_by_reason():
     scene = sim.make_scene(192, 288, saturation=1.0, seed=4)
     stack = sim.simulate_stack(scene, pipe, TIMES, jitter=0.0, jpeg_quality=90, seed=4)
     model = selfcal.calibrate_response(stack.images, TIMES,
-                                       options=ResponseOptions(saturation_threshold=0.3))
+                                       options=ResponseOptions(
+                                           solver=SolverOptions(saturation_threshold=0.3)))
     rejected = model.diagnostics["samples"]["rejected"]
     assert rejected["clipped"] > 0 and rejected["saturated"] > 0
     strict = selfcal.calibrate_response(stack.images, TIMES,
-                                        options=ResponseOptions(saturation_threshold=0.15))
+                                        options=ResponseOptions(
+                                            solver=SolverOptions(saturation_threshold=0.15)))
     assert strict.diagnostics["samples"]["rejected"]["saturated"] > rejected["saturated"]
     assert strict.diagnostics["saturation_threshold"] == 0.15
 
@@ -266,19 +268,28 @@ def test_rejections_are_counted_by_reason():
 def test_options_object_and_no_keyword_forms(srgb_stack, srgb_model):
     frames = srgb_stack.images[:3]
     new = selfcal.calibrate_response(frames, TIMES[:3], options=ResponseOptions(
-        n_components=4, clip_margin=3.0, max_samples=1500))
+        solver=SolverOptions(n_components=4, clip_margin=3.0), max_samples=1500))
     assert new.diagnostics["n_components"] == 4 and new.diagnostics["clip_margin"] == 3.0
     # the 0.x keyword forms are gone: the fields are set on the options
     with pytest.raises(TypeError, match="n_components"):
         selfcal.calibrate_response(frames, TIMES[:3], n_components=4)
     with pytest.raises(selfcal.InputError, match="correspondences"):
         ResponseOptions(correspondences="pixels")
+    # the solver's fields are declared in SolverOptions only (issue 43); the keywords of 1.0
+    # still set them, with a DeprecationWarning
+    with pytest.warns(DeprecationWarning, match=r"solver=SolverOptions\(saturation_thr"):
+        flat = ResponseOptions(saturation_threshold=0.3, max_samples=1500)
+    assert flat == ResponseOptions(solver=SolverOptions(saturation_threshold=0.3),
+                                   max_samples=1500)
+    assert not hasattr(flat, "saturation_threshold")     # read through .solver
+    with pytest.raises(selfcal.InputError, match="SolverOptions"):
+        ResponseOptions(solver={"huber_k": 2.0})
+    assert ResponseOptions().with_solver(huber_k=2.0).solver == SolverOptions(huber_k=2.0)
     # the defaults are the options' defaults (the shared model was calibrated without any)
-    assert srgb_model.diagnostics["n_components"] == ResponseOptions().n_components
+    assert srgb_model.diagnostics["n_components"] == ResponseOptions().solver.n_components
 
 
 def test_solver_options_and_no_keyword_forms():
-    from selfcal.response import SolverOptions
     from selfcal.response.basis import builtin_basis
     from selfcal.response.solver import solve_exposure_equations
 

@@ -49,7 +49,7 @@ from ..response.basis import ResponseBasis
 from ..typing import ExposureTimes, ImageInput
 from ..response.stuck_codes import stuck_code_levels
 from ..stack.frames import DEFAULT_CLIP_MARGIN
-from ..response.options import DEFAULT_N_COMPONENTS
+from ..response.solver import DEFAULT_N_COMPONENTS
 from ..response.equations import frame_pairs
 from ..response.model import ResponseModel
 from ..response.solver import (DEFAULT_SATURATION_THRESHOLD, SolverOptions,

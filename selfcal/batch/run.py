@@ -412,7 +412,8 @@ def finish_session(plan: SessionPlan, options: BatchOptions, prep: SessionPrep,
             written = _merge_and_write(plan, options, prep, row)
         row["warnings"] = list(dict.fromkeys(
             prep.warnings + row.get("warnings", []) + [str(w.message) for w in caught
-                                                      if "Selfcal" in w.category.__name__]))
+                                                      if issubclass(w.category,
+                                                                    SelfcalWarning)]))
     except Exception as exc:
         return _failed(row, _error_text(exc), t0, prep.warnings)
     row["outputs"] = [str(p) for p in written]

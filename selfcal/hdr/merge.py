@@ -119,8 +119,9 @@ class MergeOptions:
     noise : NoiseModel, optional
         For ``weighting="noise"`` and deghosting.  Default :data:`.weights.DEFAULT_NOISE`.
     clip_margin : float
-        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped
-        (default 2, as in calibration).
+        Codes (8-bit scale) within this distance of 0 or the maximum count as clipped;
+        also the clip margin of a calibration on the fly.  Default
+        :data:`selfcal.stack.frames.DEFAULT_CLIP_MARGIN` (2, as in calibration).
     deghost_threshold, deghost_tolerance : float
         ``k`` and the relative error floor of the deghosting test (see ``deghost``).
     lossy : bool, optional
@@ -143,7 +144,7 @@ class MergeOptions:
         frame by frame: :attr:`HDRResult.exposure_record`.
     calibrate_options : ResponseOptions, optional
         The options of :func:`selfcal.calibrate_response` when it runs on the fly (no
-        model given); default ``ResponseOptions()``.
+        model given), with the merge's ``clip_margin``; default ``ResponseOptions()``.
     sigma : bool
         Also compute the radiance's standard deviation, :attr:`HDRResult.sigma`
         (:mod:`.sigma`: noise model, exposure uncertainty and the curve's band); two more
@@ -559,15 +560,17 @@ def _calibrate_on_the_fly(frames: StackFrames, given: GivenTimes, align, opts: M
         raise CalibrationError("one frame and no model: give a model (a response needs "
                                "at least two frames to calibrate)")
     transforms = ref0 = None
+    # one clip margin per merge: the calibration's is the merge's
+    options = (opts.calibrate_options or ResponseOptions()).with_solver(
+        clip_margin=opts.clip_margin)
     # its warnings are the merge's (below, in HDRResult.warnings), not warned twice
     with _pywarnings.catch_warnings():
         _pywarnings.simplefilter("ignore", SelfcalWarning)
-        options = opts.calibrate_options or ResponseOptions()
         if align:
             # the vignetting is fitted only where the merge may use it
-            call = CalibrationCall(options=replace(options, fit_vignetting=opts.vignetting in
-                                         ("auto", "self")),
-                         rule=opts.exposures, progress=progress)
+            call = CalibrationCall(options=replace(options, fit_vignetting=opts.vignetting
+                                                   in ("auto", "self")),
+                                   rule=opts.exposures, progress=progress)
             model, transforms, ref0, aligned_warnings = aligned_calibration(
                 frames, given, call, method=align, reference=opts.reference,
                 clip_margin=opts.clip_margin)
@@ -576,7 +579,7 @@ def _calibrate_on_the_fly(frames: StackFrames, given: GivenTimes, align, opts: M
         else:
             model = calibrate_given(frames.items, given,
                                     CalibrationCall(options=options, rule=opts.exposures,
-                                          progress=progress))
+                                                    progress=progress))
     diagnostics["model_verdict"] = model.diagnostics.get("verdict")
     warnings.extend(f"calibration: {w}" for w in model.diagnostics.get("warnings", []))
     return model, transforms, ref0

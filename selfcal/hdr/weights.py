@@ -16,7 +16,7 @@ Ours, not the papers': the code-noise term of :class:`NoiseModel` -- quantisatio
 compression, carried to the linear domain through the slope of the inverse response,
 which dominates in JPEGs -- and the variance taken from each frame's own measurement
 rather than iterated with the merged estimate as Granados et al. do; a relative term for
-errors of the response model and the exposures (:data:`DEFAULT_NOISE`); fixed default
+errors of the response model and the exposures (:attr:`NoiseModel.relative`); fixed default
 noise parameters (not estimated from the stack; docs/decisions.md, "Default weighting:
 the noise model, with a 3 % relative error"); the curve's
 own error per code, measured on the calibration's samples
@@ -81,8 +81,9 @@ class NoiseModel:
     response (first order error propagation).  For linear input (``linear=True``) the code
     term is only the quantisation of the data.
 
-    The defaults are fixed, stated here, and not estimated from the stack (see the module
-    docstring for why).
+    The defaults are fixed, stated here and nowhere else -- ``NoiseModel()`` is the merge's
+    default noise model -- and not estimated from the stack (see the module docstring for
+    why).
 
     Attributes
     ----------
@@ -96,14 +97,15 @@ class NoiseModel:
         compression adds about a code).  Default 1.0.
     relative : float
         A term ``(relative · x)²`` for errors proportional to the signal: of the response
-        model and of the exposures (ours).  Default 0; :data:`DEFAULT_NOISE`, the merge's
-        default, has 0.03.
+        model and of the exposures (ours).  Default 0.03, chosen on the tuning split
+        (docs/decisions.md, "Default weighting: the noise model, with a 3 % relative
+        error"); 0 leaves the shot, read and code terms only.
     """
 
     shot: float = 1e-4
     read: float = 1e-3
     code: float = 1.0
-    relative: float = 0.0
+    relative: float = 0.03
 
     def __post_init__(self):
         for name in ("shot", "read", "code", "relative"):
@@ -112,10 +114,9 @@ class NoiseModel:
                 raise InputError(f"NoiseModel.{name} must be a finite number >= 0, got {v!r}")
 
 
-#: The merge's default noise model: the defaults of :class:`NoiseModel` and a relative
-#: (model and exposure) error of 3 %, chosen on the tuning split (docs/decisions.md,
-#: "Default weighting: the noise model, with a 3 % relative error").
-DEFAULT_NOISE = NoiseModel(relative=0.03)
+#: The merge's default noise model: ``NoiseModel()``, whose field defaults are the values
+#: (a name for it, not a second set of defaults).
+DEFAULT_NOISE = NoiseModel()
 
 
 
@@ -139,7 +140,8 @@ def noise_variance(x: np.ndarray, slope: np.ndarray, exposure: float,
         Linearised values and the slope of f⁻¹ at the codes (normalised code units).
     exposure : float
         Relative exposure ``e`` of the frame.
-    noise : NoiseModel
+    noise : NoiseModel, optional
+        Default ``NoiseModel()`` (the merge's default, with its 3 % relative term).
     code_std : float, optional
         Code noise in normalised units, overriding ``noise.code / 255``.
     code_error : array_like, optional

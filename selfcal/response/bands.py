@@ -51,7 +51,7 @@ import numpy as np
 from scipy.stats import norm
 
 from ..errors import InputError
-from .solver import SolverOptions
+from .solver import CODE_NOISE, SolverOptions
 from .equations import NormalEquations, build_pair_rows
 from .priors import ExposurePrior, PriorTerms, pca_variance_precision, white_continuation_terms
 
@@ -76,9 +76,6 @@ AMBIGUITY_LOG_GAMMA_SIGMA = 0.10
 #: prior missed by γ ≈ 2.7) over the 90 % quantile 1.645.  Without it a curve unlike any
 #: camera's (E in the hundreds) got a band a hundred times f⁻¹ wide, far beyond any γ seen.
 AMBIGUITY_LOG_GAMMA_SIGMA_MAX = 0.6
-#: What the band's σ_g is computed for: the solver's defaults.
-_SOLVER = SolverOptions()
-_CODE_NOISE = 1.0 / 255.0
 #: Floor of f⁻¹ before the log in :func:`ambiguity_sigma` (the basis' log floor).
 _LOG_FLOOR = 1e-5
 #: Precision of a log exposure held as the additive gauge (no time given).
@@ -122,7 +119,7 @@ def _top_sigma(values, valid, grid, sigma) -> np.ndarray:
 
 
 def curve_band(samples, masks, basis, coefficients, log_exposures, known, *,
-               n_components: int, settings: BandSettings = BandSettings()) -> np.ndarray:
+               options: SolverOptions, settings: BandSettings = BandSettings()) -> np.ndarray:
     """σ_g = std of log f⁻¹ on the basis grid, per channel, from a fitted solve.
 
     Parameters
@@ -140,7 +137,13 @@ def curve_band(samples, masks, basis, coefficients, log_exposures, known, *,
     known : ndarray of bool, shape (F,)
         Frames with a given time (their log exposure gets the prior of σ_t); the others
         are free, except one held as the additive gauge when no time is given.
-    n_components : int
+    options : SolverOptions
+        The settings the solve was fitted with (the calibration's ``options.solver``, its
+        ``n_components`` capped at the basis' size): the band re-forms that solve's
+        normal equations -- pairs (``max_rank_gap``), Huber weights (``huber_k``), priors
+        (``prior_weight``, ``estimated_prior_scale``, ``ridge``,
+        ``white_continuation_sigma``) -- so that it is the spread of the curve that was
+        fitted.  (β and the clip margin reach it through ``masks``.)
     settings : BandSettings
 
     Returns
@@ -150,20 +153,22 @@ def curve_band(samples, masks, basis, coefficients, log_exposures, known, *,
     """
     if settings.method not in ("bootstrap", "covariance"):
         raise InputError(f"unknown band method {settings.method!r} (bootstrap or covariance)")
-    N = int(n_components)
+    N = int(options.n_components)
     values = samples.values
     F = values.shape[0]
     valid = ~(masks["clipped"] | masks["saturated"])
     K = np.asarray(log_exposures, dtype=float)
     order = np.lexsort((values.mean(axis=(1, 2)), K))
-    rows = build_pair_rows(values, valid, order, K, basis, N, _SOLVER.max_rank_gap)
+    rows = build_pair_rows(values, valid, order, K, basis, N, options.max_rank_gap)
     normal = NormalEquations(rows.dH, rows.rhs, rows.pa, rows.pb, F, N)
     x = np.concatenate([np.asarray(coefficients, float).ravel(), K])
-    w = _row_weights(normal, rows, basis, coefficients, x)
+    w = _row_weights(normal, rows, basis, coefficients, x, options.huber_k)
     priors = PriorTerms(
-        coefficient_precision=pca_variance_precision(basis, N, _SOLVER.prior_weight), ridge=_SOLVER.ridge,
+        coefficient_precision=pca_variance_precision(basis, N, options.prior_weight,
+                                                     options.estimated_prior_scale),
+        ridge=options.ridge,
         white_continuation=white_continuation_terms(values, valid, basis, N),
-        white_continuation_sigma=_SOLVER.white_continuation_sigma,
+        white_continuation_sigma=options.white_continuation_sigma,
         exposure=ExposurePrior(mean=K, frames=np.zeros(F, bool), sigma=1.0))
     precision = _exposure_precision(np.asarray(known, bool), K, settings.exposure_log_sigma)
     H = basis.components[:N].T                                  # (K grid, N)
@@ -187,8 +192,9 @@ def _statistical_sigma(normal, rows, w, priors, precision, K, H, N, n_locations,
                             settings)
 
 
-def _row_weights(normal, rows, basis, coefficients, x) -> np.ndarray:
-    """The robust fit's row weights at its solution: slope noise and Huber (as the solver)."""
+def _row_weights(normal, rows, basis, coefficients, x, huber_k: float) -> np.ndarray:
+    """The robust fit's row weights at its solution: slope noise and Huber (as the solver,
+    with its ``huber_k``)."""
     N = coefficients.shape[1]
     grid = basis.intensity
     g_grid = basis.mean[None, :] + coefficients @ basis.components[:N]
@@ -198,11 +204,11 @@ def _row_weights(normal, rows, basis, coefficients, x) -> np.ndarray:
     for c in range(3):          # np.interp: the solver's interpolation matrices, applied
         sa = np.interp(rows.Ia[:, c], grid, dg[c])
         sb = np.interp(rows.Ib[:, c], grid, dg[c])
-        var[c * m:(c + 1) * m] = _CODE_NOISE ** 2 * (sa ** 2 + sb ** 2)
+        var[c * m:(c + 1) * m] = CODE_NOISE ** 2 * (sa ** 2 + sb ** 2)
     var = np.maximum(var, 0.05 * np.median(var))
     u = normal.residual(x) / np.sqrt(var)
     scale = max(1.4826 * np.median(np.abs(u)) + 1e-12, 1e-3)
-    robust = np.minimum(1.0, _SOLVER.huber_k * scale / np.maximum(np.abs(u), 1e-12))
+    robust = np.minimum(1.0, huber_k * scale / np.maximum(np.abs(u), 1e-12))
     return robust / (var * scale ** 2)
 
 
@@ -380,10 +386,13 @@ def band_reason(intensity, inverse, log_sigma, max_code: int):
 
 
 def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
-                 n_components: int, seed: int = 0,
+                 options: SolverOptions, seed: int = 0,
                  method: str = DEFAULT_BAND_METHOD) -> np.ndarray:
     """:func:`curve_band` of a :class:`.solver.SolveResult`, judged (:func:`judge_band`):
     the hook of the calibration.  Returns σ_g, (K, 3).
+
+    ``options`` are the solver options the result was fitted with (see
+    :func:`curve_band`; ``options.n_components`` the fit's N).
 
     When the solve left the exponential ambiguity to the prior
     (``result.ambiguity_prior``: fewer than two different known times),
@@ -396,11 +405,12 @@ def band_for_fit(samples, masks, basis, result, log_times, fit, warnings, *,
     """
     known = np.isfinite(np.asarray(log_times, dtype=float))
     log_sigma = curve_band(samples, masks, basis, result.coefficients, result.log_exposures,
-                           known, n_components=n_components,
+                           known, options=options,
                            settings=BandSettings(method=method, seed=seed))
     judge_band(fit, log_sigma, samples.max_code, warnings)
     if getattr(result, "ambiguity_prior", False):
-        sigma_gamma, energy = ambiguity_gamma_sigma(basis, result.coefficients, n_components)
+        sigma_gamma, energy = ambiguity_gamma_sigma(basis, result.coefficients,
+                                                    options.n_components)
         fit["evidence"]["ambiguity_gamma_sigma"] = sigma_gamma
         fit["evidence"]["ambiguity_energy"] = energy
         log_sigma = np.sqrt(log_sigma ** 2 + ambiguity_sigma(fit["inverse"], sigma_gamma) ** 2)

@@ -208,8 +208,9 @@ def calibrate_given(frames: Sequence, given: GivenTimes, call: CalibrationCall) 
     if len(frames) < 2:
         raise CalibrationError(
             "one frame only: a response needs at least two frames at different exposures")
-    basis, n_components = _log_domain_basis(call.options.basis, call.options.n_components)
-    options = replace(call.options, n_components=n_components)
+    basis, n_components = _log_domain_basis(call.options.basis,
+                                            call.options.solver.n_components)
+    options = call.options.with_solver(n_components=n_components)
     read = _read_stage(frames, given, options, call)
     keep = read.keep
     sub_times = [given.seconds[k] for k in keep]
@@ -225,7 +226,7 @@ def calibrate_given(frames: Sequence, given: GivenTimes, call: CalibrationCall) 
     band_warnings: list[str] = []
     log_sigma = band_for_fit(usable.samples, usable.masks, basis, solved.result,
                              usable.log_times, fit, band_warnings,
-                             n_components=options.n_components, seed=call.seed,
+                             options=options.solver, seed=call.seed,
                              method=options.band_method)
     warnings.extend(band_warnings)
     model = _model_stage(read, usable, given, basis, solved, fit, log_sigma, warnings,
@@ -234,7 +235,7 @@ def calibrate_given(frames: Sequence, given: GivenTimes, call: CalibrationCall) 
     return recorded_calibration(
         model, given, keep, solved.result.log_exposures, rule=call.rule,
         refined=solved.refined, contradictions=solved.contradictions,
-        codes=read.samples.codes, clip_margin=options.clip_margin,
+        codes=read.samples.codes, clip_margin=options.solver.clip_margin,
         stuck=None if stuck is None else (np.asarray(stuck["floor"], dtype=float),
                                           np.asarray(stuck["ceiling"], dtype=float)))
 
@@ -332,14 +333,15 @@ def _judged_fit(usable: _Usable, basis, result, *, options, refined: bool, contr
     otherwise the contradicted ones.
     """
     sub, log_times = usable.samples, usable.log_times
-    grid, inverse = _inverse_response(basis, result.coefficients, options.n_components)
+    grid, inverse = _inverse_response(basis, result.coefficients,
+                                      options.solver.n_components)
     valid = ~(usable.masks["clipped"] | usable.masks["saturated"])
     pairs = [tuple(p) for p in result.pair_frames]
     delta = delta_eq12(sub.values, grid, inverse, result.log_exposures, pairs, valid)
     # per channel, the black floor and stuck ceiling of the codes (the stuck-sample test
     # as code levels): the merge gives them zero weight, the verdict leaves them out
     stuck = stuck_code_levels(sub.values, result.log_exposures,
-                              clip_margin=options.clip_margin)
+                              clip_margin=options.solver.clip_margin)
     corrected = (corrected_times(result.log_exposures, log_times, usable.sources,
                                  usable.times)
                  if refined else contradictions)
@@ -362,9 +364,10 @@ def _calibrate_after_alignment(frames: StackFrames, given: GivenTimes, align, ca
         align = "mtb"
     if align not in ("mtb", "homography"):
         raise InputError(f"unknown alignment {align!r} (mtb or homography)")
-    provisional = replace(call, options=replace(call.options, clip_margin=DEFAULT_CLIP_MARGIN))
+    provisional = replace(call,
+                          options=call.options.with_solver(clip_margin=DEFAULT_CLIP_MARGIN))
     model, _, _, warnings = aligned_calibration(frames, given, provisional, method=align,
-                                                clip_margin=call.options.clip_margin)
+                                                clip_margin=call.options.solver.clip_margin)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     return model
 
@@ -381,6 +384,32 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     calibration that supplies the exposures the homography needs) and the response is
     calibrated on the aligned frames, downscaled to ``max_side``
     (:func:`selfcal.stack.align.aligned_working_frames`: the calibration uses block means only).
+
+    Ours, not the paper's: with unknown times, a provisional calibration on the unaligned
+    frames supplies the exposures the homography needs; the model's sources and messages
+    name the original frames.
+
+    Parameters
+    ----------
+    images : sequence
+        Frames (arrays or paths).
+    exposure_times : sequence of float or None, optional
+        As for :func:`selfcal.calibrate_response`.
+    method : {"mtb", "homography"}
+        Alignment (see :func:`selfcal.stack.align.estimate_alignment`).
+    reference : int, optional
+        Reference frame; default the middle exposure.
+    clip_margin : float, optional
+        Clip margin of the alignment and of the calibration of the aligned frames;
+        default the ``options``' (``ResponseOptions.solver.clip_margin``).
+    progress : callable, optional
+        As for :func:`calibrate_response`.
+    max_side : int
+        Long side (pixels) of the aligned frames the response is calibrated on.
+    exposures : ExposureRule, optional
+        As for :func:`calibrate_response`.
+    options : ResponseOptions, optional
+        The calibration's finer settings (default ``ResponseOptions()``).
 
     Returns
     -------
@@ -400,7 +429,7 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
     given = read_given_times(frames.items, exposure_times, frames.sources)
     model, transforms, ref, warnings = aligned_calibration(
         frames, given, call, reference=reference,
-        clip_margin=resolved.clip_margin if clip_margin is None else clip_margin,
+        clip_margin=resolved.solver.clip_margin if clip_margin is None else clip_margin,
         method=method, max_side=max_side)
     model.diagnostics["warnings"] = warnings + model.diagnostics["warnings"]
     emit_warnings(model)
@@ -438,12 +467,12 @@ def aligned_calibration(frames: StackFrames, given: GivenTimes, call: Calibratio
                                     progress=progress)
     small = aligned_working_frames(frames, transforms, max_side=max_side)
     # the solve gets the frames' own times (seconds, None where unknown), as unaligned
-    aligned = replace(call, options=replace(call.options, clip_margin=clip_margin))
+    aligned = replace(call, options=call.options.with_solver(clip_margin=clip_margin))
     times = list(given.seconds)
     if call.options.fit_vignetting and method == "homography":   # [Goldman2010]
         from . import vignetting_fit as vf
 
-        basis = _log_domain_basis(call.options.basis, call.options.n_components)
+        basis = _log_domain_basis(call.options.basis, call.options.solver.n_components)
         model = vf.calibrate_with_vignetting(
             small, vf.working_transforms(transforms, frames.shape, small[0].shape[:2]), times,
             lambda f: calibrate_given(f, given, aligned),
@@ -498,7 +527,7 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
         if progress is not None:
             progress("read", k, n, src)
 
-    clip_margin = options.clip_margin
+    clip_margin = options.solver.clip_margin
     samples = collect_samples(frames, sources=sources, max_samples=options.max_samples,
                               clip_margin=clip_margin, seed=seed, progress=frame_progress,
                               keep=KeptData(reduced=options.correspondences != "blocks",
@@ -506,7 +535,7 @@ def _sample_usable_frames(frames, sources, times, warnings, *, options: Response
                                             if keep_codes else 0),
                               near_clip_blocks=options.near_clip_blocks)
     masks = frame_masks(samples, clip_margin=clip_margin,
-                        saturation_threshold=options.saturation_threshold)
+                        saturation_threshold=options.solver.saturation_threshold)
     keep = without_clipped_frames(samples, masks, sources, warnings, clip_margin, ignored)
     keep = without_duplicates([samples.digests[k] for k in keep], [times[k] for k in keep],
                               [sources[k] for k in keep], warnings, keep, ignored)
@@ -535,10 +564,12 @@ def _histogram_solve(samples, usable: _Usable, keep, basis, first, options, prog
     ``options.correspondences == "histogram+blocks"``."""
     from .histogram_samples import solve_data
 
-    grid, inverse = _inverse_response(basis, first.coefficients, options.n_components)
+    grid, inverse = _inverse_response(basis, first.coefficients,
+                                      options.solver.n_components)
     data, masks, weights = solve_data(
-        samples, keep, (grid, inverse, first.log_exposures), clip_margin=options.clip_margin,
-        saturation_threshold=options.saturation_threshold,
+        samples, keep, (grid, inverse, first.log_exposures),
+        clip_margin=options.solver.clip_margin,
+        saturation_threshold=options.solver.saturation_threshold,
         blocks=((usable.samples, usable.masks)
                 if options.correspondences == "histogram+blocks" else None))
     return functools.partial(_solve, replace(usable, samples=data, masks=masks), basis,
@@ -551,7 +582,7 @@ def _solve(usable: _Usable, basis, *, options, refine_exposures, progress, weigh
         progress("solve", 0, 1, "")
     result = solve_exposure_equations(
         usable.samples, basis, usable.log_times, refine_exposures=refine_exposures,
-        masks=usable.masks, options=options, sample_weights=weights)
+        masks=usable.masks, options=options.solver, sample_weights=weights)
     if progress is not None:
         progress("solve", 1, 1, "")
     return result
@@ -569,7 +600,7 @@ def _contradicted_times(usable: _Usable, basis, options) -> list:
     contradictions = []
     free = solve_exposure_equations(
         usable.samples, basis, log_times, refine_exposures=True, masks=usable.masks,
-        options=replace(options, max_iterations=4, monotone=False))
+        options=replace(options.solver, max_iterations=4, monotone=False))
     # compare ratios, not absolute values: the prior only pins the overall scale
     dev = free.log_exposures - log_times
     dev = dev - np.nanmedian(dev[known])

@@ -102,7 +102,7 @@ def white_end_masks(samples, masks: dict, basis, result, options) -> tuple[int, 
     from .white_end import mask_near_clip
 
     grid = basis.intensity
-    inverse = basis.channel_inverses(result.coefficients, options.n_components)
+    inverse = basis.channel_inverses(result.coefficients, options.solver.n_components)
     reach = (mask_near_clip(samples, masks, result, grid, inverse)
              if options.measure_ringing else 0)
     hidden = 0

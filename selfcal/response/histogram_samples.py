@@ -43,7 +43,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..stack.frames import DEFAULT_CLIP_MARGIN
 from ..stack.samples import FrameSamples, hsv_saturation
+from .solver import DEFAULT_SATURATION_THRESHOLD
 
 #: Pixels at a code for a histogram point to get full weight (fewer: proportionally less).
 FULL_WEIGHT_PIXELS = 20.0
@@ -245,8 +247,8 @@ def _predicted_codes(prediction, a, b, c, xa, max_code):
     return np.interp(np.minimum(lin, 1.0), inv, grid) * max_code
 
 
-def histogram_correspondences(reduced, *, clip_margin: float = 2.0,
-                              saturation_threshold: float = 0.5,
+def histogram_correspondences(reduced, *, clip_margin: float = DEFAULT_CLIP_MARGIN,
+                              saturation_threshold: float = DEFAULT_SATURATION_THRESHOLD,
                               grow: int | None = None, prediction=None) -> HistogramSamples:
     """Transfer-function points of every frame pair and channel from the reduced frames.
 
@@ -255,10 +257,11 @@ def histogram_correspondences(reduced, *, clip_margin: float = 2.0,
     reduced : list of selfcal.stack.samples.ReducedFrame
         The stack's frames (every pixel, or block means for large frames).
     clip_margin : float
-        Codes (8-bit scale) from 0 or the top code that count as clipped.
+        Codes (8-bit scale) from 0 or the top code that count as clipped.  Default
+        :data:`selfcal.stack.frames.DEFAULT_CLIP_MARGIN`.
     saturation_threshold : float
         β of [Lin2011] §5: pixels whose HSV saturation exceeds it in either frame are left
-        out (≥ 1: none).
+        out (≥ 1: none).  Default :data:`.solver.DEFAULT_SATURATION_THRESHOLD`.
     grow : int, optional
         Blocks the other channels' clip maps are grown by (default :data:`CLIP_GROW`).
     prediction : tuple, optional

@@ -1,7 +1,9 @@
 """``ResponseOptions``: the finer settings of :func:`selfcal.calibrate_response`, its
 sampling and its solve, which travel together through the stages of
 :mod:`.calibrate` (samples, frame choice, the solve of [Lin2011] Eq. 8, δ, the verdict)
--- and the defaults they start from.
+-- and the defaults they start from.  The solve's own settings are a
+:class:`.solver.SolverOptions` held in :attr:`ResponseOptions.solver` (composed, not
+inherited: each field is declared in one class).
 
 References
 ----------
@@ -10,7 +12,10 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import functools
+import warnings
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 from ..errors import InputError
 from ..typing import PathLike
@@ -18,39 +23,65 @@ from .bands import DEFAULT_BAND_METHOD
 from .basis import ResponseBasis
 from .solver import SolverOptions
 
-#: Basis functions per channel (N of Eq. 7 of [Lin2011]); chosen before the split rule
-#: (docs/decisions.md, "Basis functions per channel: N = 5").
-DEFAULT_N_COMPONENTS = 5
 #: Sample locations drawn from a stack (block means; stratified, see collect_samples).
 DEFAULT_MAX_SAMPLES = 4000
 #: The values of :attr:`ResponseOptions.correspondences`.
 CORRESPONDENCE_KINDS = ("blocks", "histogram", "histogram+blocks")
 
 
+def _solver_keywords_accepted(cls):
+    """Let ``cls(...)`` take :class:`SolverOptions`' fields as keywords, as 1.0 did
+    (``ResponseOptions(saturation_threshold=0.3)``), with a DeprecationWarning: they set
+    the fields of ``solver``.  The fields stay declared in :class:`SolverOptions` only;
+    ``dataclasses.replace(options, huber_k=2.0)`` works through the same door."""
+    names = frozenset(f.name for f in fields(SolverOptions))
+    generated = cls.__init__
+
+    @functools.wraps(generated)
+    def __init__(self, *args, **kwargs):
+        flat = {k: kwargs.pop(k) for k in tuple(kwargs) if k in names}
+        if flat:
+            given = ", ".join(f"{k}={v!r}" for k, v in flat.items())
+            warnings.warn(f"ResponseOptions({given}): the solve's settings are in "
+                          f"ResponseOptions.solver; write "
+                          f"ResponseOptions(solver=SolverOptions({given}))",
+                          DeprecationWarning, stacklevel=2)
+            solver = kwargs.get("solver", args[0] if args else SolverOptions())
+            kwargs["solver"] = replace(solver, **flat)
+            args = args[1:]
+        generated(self, *args, **kwargs)
+
+    cls.__init__ = __init__
+    return cls
+
+
+@_solver_keywords_accepted
 @dataclass(frozen=True)
-class ResponseOptions(SolverOptions):
+class ResponseOptions:
     """The finer settings of :func:`calibrate_response`: its sampling and its solve.
 
-    Every field of :class:`selfcal.response.solver.SolverOptions` (``saturation_threshold``
-    β, ``clip_margin``, ``huber_k``, the priors' weights, ``centre_ambiguity``, ...), and
-    the fields of the sampling and the correspondences below.
+    The solve's settings -- the number of basis functions N, β (``saturation_threshold``),
+    ``clip_margin``, ``huber_k``, the priors' weights, ``centre_ambiguity``, ... -- are
+    the :class:`selfcal.response.solver.SolverOptions` in :attr:`solver`, which serves the
+    sampling's masks too; the fields of the sampling and the correspondences are below.
+    The keywords of 1.0, ``ResponseOptions(saturation_threshold=0.3)``, still set the
+    fields of :attr:`solver`, with a DeprecationWarning; they are read as
+    ``options.solver.saturation_threshold``.
 
     Attributes
     ----------
+    solver : SolverOptions
+        The settings of the solve of [Lin2011] Eq. 8 and of the samples' masks (clipped,
+        β), read by every stage that needs them (samples, frame choice, solve, band,
+        verdict).  ``n_components`` there is capped at the basis' size.  Default
+        ``SolverOptions()``.
     basis : ResponseBasis or path, optional
         The response basis of Eq. 7 (a :class:`.basis.ResponseBasis`, or a file
         :func:`.basis.load_basis_file` reads: ``invemor.txt``, ``.npz``); default the
         built-in log-PCA basis.
-    n_components : int
-        Number of PCA basis functions per channel (N of Eq. 7); see
-        :data:`DEFAULT_N_COMPONENTS`.  Capped at the basis' size.
-    saturation_threshold : float
-        β: samples whose HSV saturation exceeds it in either frame of a pair are rejected.
-        Default 0.5 (see :data:`selfcal.response.solver.DEFAULT_SATURATION_THRESHOLD`).
-    clip_margin : float
-        Codes (8-bit scale) from 0 or the maximum code that count as clipped.
     max_samples : int
-        Number of sample locations (block means) drawn from the stack.
+        Number of sample locations (block means) drawn from the stack.  Default
+        :data:`DEFAULT_MAX_SAMPLES` (4000).
     correspondences : {"blocks", "histogram", "histogram+blocks"}
         What Eq. 8 is solved on: ``"blocks"`` (default), the stratified flat block samples
         of :func:`selfcal.stack.samples.collect_samples`; ``"histogram"``, transfer
@@ -89,12 +120,14 @@ class ResponseOptions(SolverOptions):
 
     Examples
     --------
-    >>> options = ResponseOptions(saturation_threshold=0.3)
-    >>> options.saturation_threshold, options.n_components, options.max_samples
+    >>> options = ResponseOptions(solver=SolverOptions(saturation_threshold=0.3))
+    >>> options.solver.saturation_threshold, options.solver.n_components, options.max_samples
     (0.3, 5, 4000)
+    >>> options.with_solver(huber_k=2.0).solver.huber_k
+    2.0
     """
 
-    n_components: int = DEFAULT_N_COMPONENTS
+    solver: SolverOptions = field(default_factory=SolverOptions)
     max_samples: int = DEFAULT_MAX_SAMPLES
     basis: ResponseBasis | PathLike | None = field(default=None, repr=False, compare=False)
     correspondences: str = "blocks"
@@ -105,6 +138,9 @@ class ResponseOptions(SolverOptions):
     fit_vignetting: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.solver, SolverOptions):
+            raise InputError(f"ResponseOptions.solver must be a SolverOptions, not "
+                             f"{type(self.solver).__name__}")
         if self.correspondences not in CORRESPONDENCE_KINDS:
             raise InputError(f"correspondences must be one of "
                              f"{', '.join(CORRESPONDENCE_KINDS)}, not {self.correspondences!r}")
@@ -114,3 +150,11 @@ class ResponseOptions(SolverOptions):
         if int(self.near_clip_blocks) != self.near_clip_blocks or self.near_clip_blocks < 0:
             raise InputError(f"near_clip_blocks must be a whole number >= 0, not "
                              f"{self.near_clip_blocks!r}")
+
+    def with_solver(self, **changes: Any) -> ResponseOptions:
+        """These options with the fields ``changes`` of :attr:`solver` replaced.
+
+        ``options.with_solver(clip_margin=4)`` is
+        ``replace(options, solver=replace(options.solver, clip_margin=4))``.
+        """
+        return replace(self, solver=replace(self.solver, **changes))

@@ -43,10 +43,9 @@ import numpy as np
 from ..exposure.times import CONTRADICTED_UNUSABLE_SHARE
 from .stuck_codes import STUCK_CODES, STUCK_RATIO
 from ..io.images import import_cv2
-
-#: Code noise (normalised) of a block mean assumed by the residual test: one 8-bit code,
-#: as the solver's noise weights (:data:`selfcal.response.solver.CODE_NOISE`).
-CODE_NOISE = 1.0 / 255.0
+# the code noise (normalised) of a block mean the residual test assumes: one 8-bit code,
+# the solver's noise weights' (defined there, once)
+from .solver import CODE_NOISE
 #: Relative error of each frame's linearised value a correct fit still leaves (model and
 #: exposure error), as the merge's default noise model (``selfcal.hdr.weights``: 3 %).
 RELATIVE_ERROR = 0.03
