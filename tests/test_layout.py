@@ -3,8 +3,12 @@
 - the library is in floors: no module of ``selfcal/`` imports one on a floor above its
   own (function-level imports count), and nothing imports ``selfcal_cli/``;
 - no module of ``selfcal/`` or ``selfcal_cli/`` imports one that imports it back;
-- no module over 700 lines, no function over 100 lines (its docstring not counted), no
-  public function with more than 10 parameters -- the simulator included.
+- no public function with more than 10 parameters -- the simulator included;
+- no private name of one module imported in another (``from m import _x``);
+- an alarm, not a budget: a module over 1,000 lines or a function body over 150 lines
+  (its docstring not counted) fails.  The limits are far above what a module or function
+  of this tree needs, so that nobody trims lines to fit under them; a failure means a
+  module or a function has grown into several, not that it wants a few lines shorter.
 """
 
 from __future__ import annotations
@@ -15,8 +19,10 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = {"selfcal": REPO / "selfcal", "selfcal_cli": REPO / "selfcal_cli"}
-MAX_FUNCTION_LINES = 100
-MAX_MODULE_LINES = 700
+#: the alarms of the size rules (module docstring): far above every module and function of
+#: the tree, so that a failure means something grew into two, never a count to trim to
+MAX_FUNCTION_BODY_LINES = 150
+MAX_MODULE_LINES = 1000
 MAX_PARAMETERS = 10
 #: The floors of the library, lowest first (README's table says the same).  A module may
 #: import modules of its own floor and of the floors below it.
@@ -213,14 +219,14 @@ def _function_nodes():
                 yield name, node
 
 
-def _code_lines(node) -> int:
-    """Lines of a function, its docstring not counted."""
-    length = node.end_lineno - node.lineno + 1
-    first = node.body[0]
-    if (isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant)
+def _body_lines(node) -> int:
+    """Lines of a function's body: its signature and its docstring not counted."""
+    body = node.body
+    first = body[0]
+    if (len(body) > 1 and isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant)
             and isinstance(first.value.value, str)):
-        length -= first.end_lineno - first.lineno + 1
-    return length
+        body = body[1:]
+    return node.end_lineno - body[0].lineno + 1
 
 
 def _parameters(node) -> int:
@@ -230,9 +236,15 @@ def _parameters(node) -> int:
     return count - (1 if names and names[0].arg in ("self", "cls") else 0)
 
 
-def test_no_function_over_a_page():
-    long = [f"{name}.{node.name}: {_code_lines(node)} lines"
-            for name, node in _function_nodes() if _code_lines(node) > MAX_FUNCTION_LINES]
+def test_body_lines_count_neither_signature_nor_docstring():
+    node = ast.parse('def f(\n    a,\n):\n    """Doc.\n\n    More.\n    """\n    x = a\n'
+                     '    return x\n').body[0]
+    assert _body_lines(node) == 2
+
+
+def test_no_function_body_over_the_alarm():
+    long = [f"{name}.{node.name}: {_body_lines(node)} lines"
+            for name, node in _function_nodes() if _body_lines(node) > MAX_FUNCTION_BODY_LINES]
     assert long == []
 
 
@@ -243,7 +255,7 @@ def test_no_public_function_with_too_many_parameters():
     assert many == []
 
 
-def test_no_module_over_the_limit():
+def test_no_module_over_the_alarm():
     lengths = {name: path.read_text(encoding="utf-8").count("\n")
                for name, path in _modules().items()}
     assert len(lengths) > 50  # the walk saw the tree
