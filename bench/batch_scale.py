@@ -62,7 +62,7 @@ def write_card(root: Path, files: int, height: int, width: int) -> int:
         for k in range(8):
             scene = mixed_scene(height, width, 100 + k)[2:2 + height, 2:2 + width]
             stack = sim.simulate_stack(scene, body.pipeline, list(SPEEDS), seed=k)
-            encoded[b, k] = stack._encoded
+            encoded[b, k] = stack.jpeg_bytes
     start = datetime(2024, 7, 1, 8, 0, 0)
     sessions = files // FRAMES
     counters = [0, 0]

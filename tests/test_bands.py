@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
+import cv2
 import numpy as np
 import pytest
 
@@ -86,13 +88,19 @@ def test_negative_band_is_refused(model, tmp_path):
         selfcal.load_model(bad)
 
 
-def test_default_band_is_the_covariance(stack):
+def test_default_band_is_the_covariance(stack, model):
     from selfcal.response import bands
+    from selfcal.response.options import ResponseOptions
 
-    model = selfcal.calibrate_response(stack.images, TIMES)
-    assert bands.DEFAULT_BAND_METHOD == "covariance"
-    # the two estimates of the statistical part differ, but not by an order of magnitude
+    assert bands.DEFAULT_BAND_METHOD == "covariance"   # the ``model`` fixture's band
+    booted = selfcal.calibrate_response(stack.images, TIMES,
+                                        options=ResponseOptions(band_method="bootstrap"))
     assert np.all(np.isfinite(model.inverse_log_sigma))
+    # the two estimates of the statistical part differ, but not by an order of magnitude
+    assert not np.allclose(booted.inverse_log_sigma, model.inverse_log_sigma)
+    body = slice(len(model.intensity) // 10, len(model.intensity) * 9 // 10)
+    ratio = booted.inverse_log_sigma[body] / model.inverse_log_sigma[body]
+    assert 0.1 < ratio.min() and ratio.max() < 10
 
 
 def test_the_callers_solver_options_reach_the_band(stack, monkeypatch):
@@ -143,8 +151,17 @@ def test_show_prints_the_widest_band_and_the_plot_shades_it(model, tmp_path):
 
     text = format_description(describe(model))
     assert "90 % band of f⁻¹" in text and "widest ±" in text
-    png = plot_response(model, tmp_path / "curve.png")
-    assert (tmp_path / "curve.png").stat().st_size > 1000 or png
+    # the shading: the curves' panel of the model inks more pixels than the same model
+    # without its band
+    bare = copy.copy(model)
+    bare.inverse_log_sigma = None
+    inked = []
+    for which, name in ((model, "curve.png"), (bare, "bare.png")):
+        png = plot_response(which, tmp_path / name)
+        assert png == tmp_path / name
+        image = cv2.imread(str(png))
+        inked.append(np.mean(np.any(image[:, : image.shape[1] // 2] < 250, axis=2)))
+    assert inked[0] > inked[1] + 0.005
 
 
 # ------------------------------------------------------------------ issue 35: unknown times

@@ -281,6 +281,8 @@ def test_script_is_deterministic(tmp_path):
     assert builtin_basis().log_floor == mod.LOG_FLOOR
 
 
+# slow: the full regeneration (6,000 curves) in a process
+@pytest.mark.slow
 @pytest.mark.skipif(int(np.__version__.split(".")[0]) < 2,
                     reason="the shipped basis was written under numpy 2; under numpy 1.26 the "
                            "regenerated mean differs by 2.4e-4 (a curve family draw differs; "

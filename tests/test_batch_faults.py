@@ -33,6 +33,10 @@ from selfcal.sim.cards import Shots, write_library
 
 distributed = pytest.importorskip("distributed", reason='needs pip install "selfcal[batch]"')
 
+#: A cluster of processes and a batch in its own, killed and signalled: `-m slow` (.ci/run);
+#: test_batch.py keeps the faults of a session in the default run.
+pytestmark = pytest.mark.slow
+
 SHOTS = Shots(height=48, width=72)
 
 

@@ -64,6 +64,8 @@ def _camera_rows(out):
     return [json.loads(line) for line in (out / "cameras.jsonl").read_text().splitlines()]
 
 
+# slow: the card's batch on a two-process LocalCluster (module fixture)
+@pytest.mark.slow
 def test_the_camera_model_is_written_beside_the_curve_with_its_loso_figures(batch, card):
     out, cam = batch["out"], batch["camera"]
     assert {r["status"] for r in batch["result"].rows} == {"ok"}
@@ -85,6 +87,7 @@ def test_the_camera_model_is_written_beside_the_curve_with_its_loso_figures(batc
     assert os.path.getsize(row["plot"]) > 10_000
 
 
+@pytest.mark.slow
 def test_the_model_renders_a_scene_it_never_saw_close_to_the_truth(batch, card):
     import selfcal
     from selfcal import sim
@@ -98,6 +101,7 @@ def test_the_model_renders_a_scene_it_never_saw_close_to_the_truth(batch, card):
     assert err < 6.0, err
 
 
+@pytest.mark.slow
 def test_batch_model_is_the_library_call_and_cli_reads_it(batch, card, tmp_path):
     """The fit in a worker process equals the library call here (λ, figures, model), and
     ``selfcal to-raw`` / ``render`` with the batch's file give what the library's gives."""
@@ -128,6 +132,7 @@ def test_batch_model_is_the_library_call_and_cli_reads_it(batch, card, tmp_path)
                                   read_image(tmp_path / "want.jpg"))
 
 
+@pytest.mark.slow
 def test_a_rerun_reuses_the_camera_model(batch, card):
     out = batch["out"]
     model = out / "cameras" / batch["camera"]["camera"] / RAW_MODEL
@@ -160,6 +165,8 @@ def test_an_unwritable_model_fails_its_fit_cleanly_and_the_rerun_writes_it(card,
     assert {r["status"] for r in second.rows} == {"skipped"}
 
 
+# slow: two batches with a RAW-path fit (the unwritable-model test is the fast one)
+@pytest.mark.slow
 def test_a_raw_fit_lost_on_the_cluster_is_recorded_and_the_rerun_fits_it(card, tmp_path,
                                                                          monkeypatch):
     """A RAW-path task that dies (as with its worker) fails that fit only: the sessions
@@ -195,6 +202,8 @@ def test_cli_batch_can_leave_the_raw_library_out(card, tmp_path, capsys):
     assert not list(out.rglob(RAW_MODEL))
 
 
+# slow: the command line's default RAW-path fit
+@pytest.mark.slow
 def test_a_card_of_single_raw_jpeg_shots_gets_its_camera_model(tmp_path, capsys):
     """No bracket, so no session: each RAW+JPEG shot is a scene of its camera's library."""
     from selfcal_cli.main import main
@@ -210,6 +219,7 @@ def test_a_card_of_single_raw_jpeg_shots_gets_its_camera_model(tmp_path, capsys)
     assert (out / "cameras" / row["camera"] / RAW_MODEL).is_file()
 
 
+@pytest.mark.slow
 def test_other_fit_settings_fit_again(batch, card):
     from selfcal.batch.raw_camera import reusable_raw_camera_fit
 

@@ -175,6 +175,8 @@ def test_auto_applies_the_lens_profile_the_exif_names(tmp_path, scene_and_pipeli
     assert _error(kept, base, r > 0.85) < -0.3       # the falloff at f/1.8, left in
 
 
+# slow: two handheld merges with the fit on the fly (test_vignetting_fit fits fast)
+@pytest.mark.slow
 def test_a_handheld_merge_on_the_fly_fits_and_divides_the_falloff():
     """merge_hdr(align="homography") without a model: the calibration on the fly fits the
     vignetting from the frames' motion, and auto divides it out per frame."""

@@ -120,6 +120,8 @@ def test_diagnostics_report_both_backward_variants(model):
 
 # ---- the parts -------------------------------------------------------------------------
 
+# slow: the literal half-space count over 100,000 directions, three rows
+@pytest.mark.slow
 def test_fast_search_reaches_the_literal_count():
     p = sim.simulate_raw_jpeg_pair(seed=2)
     raw = p["raw"].reshape(-1, 3).astype(np.float64)
@@ -280,6 +282,8 @@ def test_a_damaged_model_file_is_rejected(tmp_path, model):
         selfcal.load_model(bad)
 
 
+# slow: three RAW-path fits (test_golden pins the fixed-seed outputs)
+@pytest.mark.slow
 def test_same_seed_same_model_other_seed_other_sets(pair):
     raw, jpg = pair["raw"], pair["jpg"] / 255.0
     three = PipelineOptions(n_sets=3)
@@ -367,6 +371,8 @@ def test_one_shot_140_samples(pair):
 
 # ---- baselines --------------------------------------------------------------------------
 
+# slow: the two baselines' fits (benchmark peers, not the library's path)
+@pytest.mark.slow
 def test_baselines_fit_and_invert(pair):
     tr = pair["train"]
     raw, jpg = pair["raw"][tr], pair["jpg"][tr] / 255.0

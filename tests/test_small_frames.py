@@ -63,6 +63,8 @@ def test_small_stack_plan_is_bounded(small_jpegs):
     assert rmse < 0.02, rmse
 
 
+# slow: a 24 MP JPEG
+@pytest.mark.slow
 def test_a_24_mp_jpeg_block_is_a_whole_number_of_half_size_pixels(tmp_path):
     """6000x4000 JPEGs: block 7 by the target, read at half size, so 8 (4 reduced px)."""
     from selfcal.io import encode_image

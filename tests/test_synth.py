@@ -284,11 +284,11 @@ def test_stack_sharpening_and_chroma_subsampling():
     assert a.sharpening is usm and a.chroma_subsampling is None
     default = simulate_stack(scene, p, times, jpeg_quality=90, seed=1)
     assert default.chroma_subsampling == "4:2:0"
-    assert default._encoded[0] == io.encode_image(
+    assert default.jpeg_bytes[0] == io.encode_image(
         np.round(p.render(default.raws[0]) * 255).astype(np.uint8), ".jpg", jpeg_quality=90)
     full = simulate_stack(scene, p, times, jpeg_quality=90, seed=1,
                           output=sim.FrameOutput(chroma_subsampling="4:4:4"))
-    assert full.chroma_subsampling == "4:4:4" and full._encoded[0] != default._encoded[0]
+    assert full.chroma_subsampling == "4:4:4" and full.jpeg_bytes[0] != default.jpeg_bytes[0]
     np.testing.assert_array_equal(full.raws[0], default.raws[0])
     with pytest.raises(InputError, match="chroma_subsampling"):
         sim.FrameOutput(chroma_subsampling="4:1:1")
@@ -367,7 +367,7 @@ def _ideal_stack(saturation, seed=0):
 def test_stack_codes_equal_the_pipeline_model():
     stack = _ideal_stack(0.5)
     p = stack.pipeline
-    assert stack._encoded is None
+    assert stack.jpeg_bytes is None
     np.testing.assert_array_equal(stack.true_exposures, stack.exposure_times)
     for image, t, raw in zip(stack.images, stack.true_exposures, stack.raws):
         x = np.clip(stack.radiance.astype(np.float64) * (stack.exposure_scale * t), 0, 1)

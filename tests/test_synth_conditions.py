@@ -119,8 +119,8 @@ def test_jitter_changes_the_true_times_not_the_nominal_ones():
 def test_chroma_420_is_subsampled_and_444_is_not():
     a, b = _stack("saturated/base"), _stack("saturated/jpeg444")
     assert a.chroma_subsampling == "4:2:0" and b.chroma_subsampling == "4:4:4"
-    assert _sof_sampling(a._encoded[0]) == [(2, 2), (1, 1), (1, 1)]
-    assert _sof_sampling(b._encoded[0]) == [(1, 1), (1, 1), (1, 1)]
+    assert _sof_sampling(a.jpeg_bytes[0]) == [(2, 2), (1, 1), (1, 1)]
+    assert _sof_sampling(b.jpeg_bytes[0]) == [(1, 1), (1, 1), (1, 1)]
     # decoded: the chroma planes of 4:2:0 frames hold far less detail within 2x2 blocks
     for x, y in zip(a.images, b.images):
         assert _chroma_detail(x) < 0.5 * _chroma_detail(y)

@@ -65,7 +65,6 @@ def test_tripod_stack_is_not_observable():
     assert model.vignetting is None
     diag = model.diagnostics["vignetting"]
     assert diag["observable"] is False and "did not move" in diag["reason"]
-    assert any("vignetting not observable" in w for w in model.diagnostics["warnings"])
 
 
 def test_model_round_trip(handheld, tmp_path):
@@ -77,6 +76,8 @@ def test_model_round_trip(handheld, tmp_path):
     assert back.diagnostics["vignetting"]["observable"] is True
 
 
+# slow: a second handheld calibration (the fixture's stays fast)
+@pytest.mark.slow
 def test_same_input_same_model(handheld):
     stack, model = handheld
     again = _calibrate(stack)
@@ -84,6 +85,8 @@ def test_same_input_same_model(handheld):
     assert np.array_equal(again.inverse, model.inverse)
 
 
+# slow: the panorama test runs the same path fast enough
+@pytest.mark.slow
 def test_single_exposure_frames_use_the_prior_curve():
     times = (1 / 50,) * 5
     stack = _stack(seed=6, times=times)

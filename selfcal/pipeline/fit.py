@@ -623,6 +623,6 @@ def _baked_model(fwd, bwd, diagnostics, bake_size, training_colours) -> Pipeline
                           backward=bwd.variant, diagnostics=diagnostics,
                           bake_size=bake_size, training_colours=training_colours)
     t0 = time.perf_counter()
-    model._table(bwd.variant)
+    model.bake_backward(bwd.variant)
     diagnostics["seconds"]["bake"] = time.perf_counter() - t0
     return model

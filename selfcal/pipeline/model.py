@@ -300,6 +300,26 @@ class PipelineModel:
                 np.float32)
         return self._tables[variant]
 
+    def bake_backward(self, variant: str | None = None) -> None:
+        """Bake the dense backward table of ``variant`` now.
+
+        :meth:`to_raw` bakes each variant's table on its first call and keeps it;
+        baking it here moves that cost to a moment the caller chooses
+        (:func:`selfcal.pipeline.fit_pipeline` bakes the chosen variant's, so that
+        ``to_raw`` is fast from the first call).
+
+        Parameters
+        ----------
+        variant : {"lut", "rbf"}, optional
+            The backward variant (default: :attr:`backward`, the one chosen at fit time).
+
+        Raises
+        ------
+        InputError
+            For an unknown variant, or ``"rbf"`` on a model without an RBF mapping.
+        """
+        self._table(self._check_variant(variant))
+
     def _coords(self, e: np.ndarray) -> np.ndarray:
         lo, hi = self._e_box()
         t = np.clip((e - lo) / (hi - lo), 0.0, 1.0)

@@ -131,7 +131,7 @@ def write_session(root, body: SimulatedBody, counter: int, stack, when: datetime
         path = folder / f"{body.prefix}{n:04d}.JPG"
         exif = camera_exif(body, when=when, exposure_time=float(t),
                            bias=round(float(np.log2(t / mid)) * 3) / 3)
-        path.write_bytes(jpeg_with_exif(stack._encoded[i], exif))
+        path.write_bytes(jpeg_with_exif(stack.jpeg_bytes[i], exif))
         frames.append(path)
         when += timedelta(seconds=float(t) + 0.3)
     return frames

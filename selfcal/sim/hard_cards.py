@@ -131,8 +131,8 @@ def _render(scene, pipe, t, scale, motion, seed, size, quality):
     y0, x0 = (H - h) // 2, (W - w) // 2
     stack = simulate_stack(np.ascontiguousarray(moved[y0:y0 + h, x0:x0 + w]), pipe, [t],
                            exposure_scale=scale, seed=seed, jpeg_quality=quality)
-    assert stack._encoded is not None
-    return stack._encoded[0], float(stack.exposure_times[0])
+    assert stack.jpeg_bytes is not None
+    return stack.jpeg_bytes[0], float(stack.exposure_times[0])
 
 
 def write_hard_card(root, *, seed: int = 0, events_per_body: int = 5, height: int = 64,

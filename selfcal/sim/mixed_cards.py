@@ -106,8 +106,8 @@ def _render(scene, pipe, t, scale, shift, seed, size, quality):
     crop = scene[2 + dy:2 + dy + h, 2 + dx:2 + dx + w]
     stack = simulate_stack(crop, pipe, [t], exposure_scale=scale, seed=seed,
                            jpeg_quality=quality)
-    assert stack._encoded is not None   # a JPEG card's frames are encoded
-    return stack._encoded[0], float(stack.exposure_times[0])
+    assert stack.jpeg_bytes is not None   # a JPEG card's frames are encoded
+    return stack.jpeg_bytes[0], float(stack.exposure_times[0])
 
 
 def _scale(scene, speeds) -> float:

@@ -86,6 +86,10 @@ class SyntheticStack:
         The reference frame of ``transforms``.
     vignetting : Vignetting or None
         The lens falloff the frames went through (the truth), None for none.
+    jpeg_bytes : list of bytes or None
+        Each frame's JPEG file as the simulated camera encoded it (no EXIF block; it
+        decodes to exactly the frame of :attr:`images`); None when the frames went
+        through no JPEG.  :meth:`write` and the simulated cards write these bytes.
     """
 
     images: list
@@ -101,7 +105,7 @@ class SyntheticStack:
     jitter: float = 0.0
     f_number: float = 8.0
     iso: float = 100.0
-    _encoded: list | None = field(default=None, repr=False)
+    jpeg_bytes: list | None = field(default=None, repr=False)
     chroma_subsampling: str | None = None
     sharpening: UnsharpMask | None = None
     condition: str | None = None
@@ -183,8 +187,8 @@ class SyntheticStack:
             t = float(self.exposure_times[i])
             meta: dict[str, Any] = {"exposure_time": t, "f_number": self.f_number,
                                     "iso": self.iso}
-            if ext == "jpg" and self._encoded is not None:
-                data = jpeg_with_exif(self._encoded[i], exif_bytes(**meta))
+            if ext == "jpg" and self.jpeg_bytes is not None:
+                data = jpeg_with_exif(self.jpeg_bytes[i], exif_bytes(**meta))
                 write_bytes_atomic(path, data, force=force)
             elif ext == "jpg":
                 write_image(path, image, force=force, jpeg_quality=jpeg_quality,
@@ -363,7 +367,7 @@ def simulate_stack(scene: np.ndarray, pipeline: CameraPipeline, exposure_times: 
                           seed=seed,
                           jpeg_quality=(int(jpeg_quality) if use_jpeg and jpeg_quality is not None
                                         else None),
-                          jitter=jitter, _encoded=encoded if use_jpeg else None,
+                          jitter=jitter, jpeg_bytes=encoded if use_jpeg else None,
                           chroma_subsampling=output.chroma_subsampling if use_jpeg else None,
                           sharpening=output.sharpening)
 
