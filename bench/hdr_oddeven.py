@@ -73,11 +73,12 @@ METHODS = ("selfcal default", "selfcal noise", "selfcal hat", "OpenCV",
 #: Not a candidate for the "lowest" column: the default before issue 26's change.
 BEFORE = "selfcal before"
 #: With --exposure-variants: the default merge with the measured exposures' trend over the
-#: bracket the pixels' (``MergeOptions(exposure_trend="pixels")``), and with the times as
-#: they are (``measure_exposures=False``, the default before issue 35); not candidates of
-#: the "lowest" column either.
-MEASURED = {"selfcal, pixels' trend": {"exposure_trend": "pixels"},
-            "selfcal before 35": {"measure_exposures": False}}
+#: bracket the pixels' (``ExposureRule(trend="pixels")``), and with the times held as they
+#: are (``ExposureRule(times="held")``, the default before issue 35); not candidates of the
+#: "lowest" column either.  The values are the fields of the merge's
+#: :class:`selfcal.ExposureRule` (``MergeOptions(exposures=ExposureRule(**fields))``).
+MEASURED = {"selfcal, pixels' trend": {"trend": "pixels"},
+            "selfcal before 35": {"times": "held"}}
 NOT_CANDIDATES = (BEFORE, *MEASURED)
 #: Block size of the block-averaged score (every method) and the sizes of the scaling table.
 BLOCK = 8
@@ -111,7 +112,8 @@ def selfcal_merges(frames, times, halves, methods=METHODS):
                                                           merge_unchecked=False)}),
                 ("selfcal default", dict), ("selfcal noise", lambda: {"weighting": "noise"}),
                 ("selfcal hat", lambda: {"weighting": "hat"})]
-    variants += [(m, lambda fields=fields: {"options": MergeOptions(**fields)})
+    variants += [(m, lambda fields=fields: {
+        "options": MergeOptions(exposures=selfcal.ExposureRule(**fields))})
                  for m, fields in MEASURED.items()]
     for label, make in variants:
         if label not in methods:

@@ -137,11 +137,9 @@ def one_stack(task):
     result = selfcal.merge_hdr(images, TIMES, model)
     out["selfcal"] = scores(result.radiance, e_true, scored, readable, result.unmeasured)
     if with_measured:
-        from dataclasses import replace
-
         from selfcal.hdr import MergeOptions
 
-        options = replace(MergeOptions(), exposure_trend=with_measured)
+        options = MergeOptions(exposures=selfcal.ExposureRule(trend=with_measured))
         r = selfcal.merge_hdr(images, TIMES, model, options=options)
         out["measured_e"] = scores(r.radiance, e_true, scored, readable, r.unmeasured)
     unflagged = clipped_all & ~result.unmeasured
@@ -233,7 +231,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dorf_stack_arguments(parser)
     parser.add_argument("--exposure-trend", choices=("pixels", "times"),
-                        help="add selfcal's merge with MergeOptions(exposure_trend=...): the "
+                        help="add selfcal's merge with ExposureRule(trend=...): the "
                         "measured exposures' trend over the bracket the pixels' or the "
                         "times' (the default merge's)")
     args = parser.parse_args()

@@ -86,7 +86,8 @@ def _measure(name, split, scene, times, sensor, jitter, seed, with_times, root: 
     t0 = time.perf_counter()
     result = selfcal.merge_hdr(paths, linear=True)
     seconds = time.perf_counter() - t0
-    nominal = selfcal.merge_hdr(paths, list(times), linear=True, options=selfcal.hdr.MergeOptions(linear_exposures="times"))
+    held = selfcal.hdr.MergeOptions(exposures=selfcal.ExposureRule(times="held"))
+    nominal = selfcal.merge_hdr(paths, list(times), linear=True, options=held)
     true_r = true / true[0]
     meas_r = result.exposures / result.exposures[0]
     nom_r = np.asarray(times) / times[0]

@@ -21,19 +21,21 @@ Merges of each stack (``merge_hdr``, all with ``sigma=True``):
 * **selfcal**: ``calibrate_response(images, TIMES, **CALIBRATE)`` with the nominal times,
   then ``merge_hdr(images, TIMES, model, options=MergeOptions(sigma=True, **OPTIONS))``;
   ``OPTIONS``: the ``--options KEY=VALUE`` given, ``CALIBRATE``: the ``--calibrate
-  KEY=VALUE`` (none by default).  The frames are arrays, so the merge never takes the
-  model's own (refined) exposures (``selfcal.stack.frames.model_frame_index`` matches
-  files only): ``refine_exposures`` changes the curve alone;
+  KEY=VALUE`` (none by default); the keys ``times``, ``refine`` and ``trend`` are the
+  fields of the :class:`selfcal.ExposureRule` passed as ``exposures=`` (to the merge for
+  ``--options``, to the calibration for ``--calibrate``).  The frames are arrays, matched
+  to the model's by content (``selfcal.stack.frames.model_frame_index``), so the merge
+  takes the model's own measured exposures of them under the default rule;
 * **oracle**: the true inverse response (``stack.inverse_response()``) and the true
   (jittered) exposures, in a ``ResponseModel`` built as ``bench.hdr_synthetic``'s
   "true f⁻¹, t"; always ``MergeOptions(sigma=True)`` (a fixed reference whatever
   ``--options`` says);
-* **curve only**: selfcal's calibrated curve with the true exposures (the model's
-  exposures set to them, its refined/contradicted-times diagnostics cleared so the merge
-  uses them as given); ``OPTIONS`` but ``measure_exposures=False``: what the curve costs;
-* **times only**: the true curve with the nominal times, ``OPTIONS`` (so with
-  ``measure_exposures=true`` the exposures are measured through the true curve): what the
-  exposures cost.
+* **curve only**: selfcal's calibrated curve with the true exposures given as the times
+  (the model's exposures set to them too), ``OPTIONS`` but with the times held
+  (``ExposureRule(times="held")``: the merge uses them exactly): what the curve costs;
+* **times only**: the true curve with the nominal times, ``OPTIONS`` (so under the
+  default rule the exposures are measured through the true curve): what the exposures
+  cost.
 
 Truth and scores (``selfcal.sim.scoring.truth_masks``, ``bench.metrics``): the radiance
 ``E_true = M ρ · exposure_scale`` on the scored channels (frames that measure a pixel: no
@@ -66,7 +68,7 @@ The summary table is per condition (medians over its stacks; seconds: the sum of
 stacks' seconds); the per-stack table has every score and the frames' exposure errors.
 
     python3 -m bench.merge_oracle --split held-out [--step 10] [--size 256x384] [--jobs 2]
-        [--options measure_exposures=true ...] [--calibrate refine_exposures=true]
+        [--options times=held ...] [--calibrate refine=true]
 """
 
 from __future__ import annotations
@@ -90,10 +92,15 @@ MERGES = ("selfcal", "oracle", "curve", "times")
 TARGET_RATIO = 1.05
 TARGET_Z = (0.6, 0.8)
 TARGET_EXPOSURE = 0.005
-#: MergeOptions fields ``--options`` cannot set: σ is always on, the rest are objects.
-NOT_SETTABLE = ("sigma", "noise", "calibrate_options")
-#: The keywords of ``calibrate_response`` that ``--calibrate`` sets.
-CALIBRATE_KEYS = ("refine_exposures", "seed")
+#: MergeOptions fields ``--options`` cannot set: σ is always on, the rest are objects
+#: (``exposures`` is set by the keys of :data:`RULE_KEYS`).
+NOT_SETTABLE = ("sigma", "noise", "calibrate_options", "exposures")
+#: The fields of :class:`selfcal.ExposureRule` that ``--options`` and ``--calibrate`` set
+#: (``times=held``, ``refine=true``, ``trend=pixels``): they make the ``exposures=`` rule.
+RULE_KEYS = ("times", "refine", "trend")
+#: The keywords of ``calibrate_response`` that ``--calibrate`` sets (besides
+#: :data:`RULE_KEYS`).
+CALIBRATE_KEYS = ("seed",)
 
 
 def _init_worker():
@@ -107,11 +114,15 @@ def _init_worker():
 
 def parse_options(pairs, fields=None, flag="--options") -> dict:
     """``["KEY=VALUE", ...]`` -> keyword arguments (true/false, none, numbers, else the
-    text); KEY one of ``fields`` (default: the MergeOptions fields ``--options`` sets)."""
+    text); KEY one of ``fields`` (default: the MergeOptions fields ``--options`` sets) or
+    of :data:`RULE_KEYS`, which make one ``exposures=ExposureRule(...)``."""
+    from selfcal import ExposureRule
+    from selfcal.errors import InputError
     from selfcal.hdr import MergeOptions
 
     if fields is None:
         fields = {f.name for f in dataclasses.fields(MergeOptions)} - set(NOT_SETTABLE)
+    fields = set(fields) | set(RULE_KEYS)
     out = {}
     for pair in pairs or ():
         key, sep, text = pair.partition("=")
@@ -133,6 +144,12 @@ def parse_options(pairs, fields=None, flag="--options") -> dict:
                 except ValueError:
                     value = text
         out[key] = value
+    rule = {k: out.pop(k) for k in RULE_KEYS if k in out}
+    if rule:
+        try:
+            out["exposures"] = ExposureRule(**rule)
+        except InputError as e:
+            raise SystemExit(f"{flag}: {e}") from None
     return out
 
 
@@ -184,11 +201,9 @@ def one_stack(task):
     true_e = np.asarray(stack.true_exposures, float)
 
     opts = MergeOptions(sigma=True, **options)
-    given = dataclasses.replace(opts, measure_exposures=False)
+    given = dataclasses.replace(opts, exposures=selfcal.ExposureRule(times="held"))
     model = selfcal.calibrate_response(images, TIMES, **calibrate)
-    diag = dict(model.diagnostics or {})
-    diag.update(refine_exposures=False, contradicting_times=[])
-    curve_true_e = dataclasses.replace(model, exposures=true_e.copy(), diagnostics=diag)
+    curve_true_e = dataclasses.replace(model, exposures=true_e.copy())
     results = {
         "selfcal": selfcal.merge_hdr(images, TIMES, model, options=opts),
         "oracle": selfcal.merge_hdr(images, true_e, _truth_model(stack, true_e),
@@ -288,12 +303,13 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     dorf_stack_arguments(parser)
     parser.add_argument("--options", action="append", metavar="KEY=VALUE",
-                        help="a MergeOptions field for selfcal's merge (repeatable), e.g. "
-                        "measure_exposures=true")
+                        help="a MergeOptions field for selfcal's merge, or a field of its "
+                        f"ExposureRule ({', '.join(RULE_KEYS)}) (repeatable), e.g. "
+                        "times=held")
     parser.add_argument("--calibrate", action="append", metavar="KEY=VALUE",
                         help="a keyword of calibrate_response for selfcal's calibration "
-                        f"(repeatable; one of {', '.join(CALIBRATE_KEYS)}), e.g. "
-                        "refine_exposures=true")
+                        f"(repeatable; one of {', '.join(CALIBRATE_KEYS + RULE_KEYS)}: "
+                        "the last three make its ExposureRule), e.g. refine=true")
     args = parser.parse_args()
     stacks, (h, w) = dorf_stacks(parser, args)
     options = parse_options(args.options)

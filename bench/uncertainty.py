@@ -214,10 +214,12 @@ def sim_report(results) -> list:
 # σ on real odd/even halves
 # --------------------------------------------------------------------------------------
 
-#: --exposure-variants: the full σ with the times as they are (``MergeOptions(
-#: measure_exposures=False)``, the default before issue 35) and with the measured
-#: exposures but the fixed σ_t = 0.02 (``sigma_exposure_from_fit=False``).
-MEASURED = (("full, times as given", {"measure_exposures": False}),
+#: --exposure-variants: the full σ with the times held as they are (``MergeOptions(
+#: exposures=ExposureRule(times="held"))``, the default before issue 35) and with the
+#: measured exposures but the fixed σ_t = 0.02 (``sigma_exposure_from_fit=False``).  The
+#: values are MergeOptions fields; ``"exposures"`` holds the fields of its
+#: :class:`selfcal.ExposureRule`.
+MEASURED = (("full, times as given", {"exposures": {"times": "held"}}),
             ("full, σ_t 0.02", {"sigma_exposure_from_fit": False}))
 
 
@@ -258,8 +260,11 @@ def real_task(task):
             out["kappa"] = [r.diagnostics["sigma_noise_scale"] for r in res]
             out["pixels"] = float(keep.mean())
         if label == "full":     # the default measures the exposures: its σ_t
-            out["σ_t fit"] = [r.diagnostics["measured_exposures"]["log_sigma"] for r in res]
+            out["σ_t fit"] = [float("nan") if r.exposure_record.spread is None
+                              else r.exposure_record.spread.log_sigma for r in res]
     for label, fields in (MEASURED if with_measured else ()):
+        if "exposures" in fields:
+            fields = {**fields, "exposures": selfcal.ExposureRule(**fields["exposures"])}
         res = [selfcal.merge_hdr([frames[k] for k in h], [times[k] for k in h], model,
                                  options=MergeOptions(sigma=True, **fields))
                for h in halves]

@@ -15,7 +15,9 @@ Wrong-data cases:
   turned by up to ±0.5° (``cv2.warpAffine``, seeded), calibrated without alignment; and
   the real handheld bracket ``piccante_canon_t2i/stack_alignment`` (with ``--align
   homography`` it is a good case, as are piccante and ntu with ``--refine-exposures``);
-* ``wrong time``: one mid-bracket frame's time doubled, given by the caller (held, not refined);
+* ``wrong time``: one mid-bracket frame's time doubled, given by the caller and held
+  (``ExposureRule(times="held")``, ``--hold-times``: the default rule would refine the
+  time the pixels contradict, the caller's as EXIF's);
 * ``two scenes``: the frames of two stacks fed together (the second resized to the first's
   size when needed), each with its own times;
 * ``one stop``: two frames of a stack one stop apart; ``flat scene`` (synthetic): a scene
@@ -104,8 +106,9 @@ def _split(name):
 
 
 def _files(name):
-    """The stack's files as a user gives them: times from EXIF (read by the library, which
-    refines those the pixels contradict), or memorial's from its list."""
+    """The stack's files as a user gives them: times from EXIF (read by the library), or
+    memorial's from its list; under the default rule the library refines the times the
+    pixels contradict, EXIF's and the caller's alike."""
     def build():
         paths, times = _stacks()[name]
         return [str(p) for p in paths], (list(times) if name == "memorial" else None), {}
@@ -131,14 +134,21 @@ def _handheld(name, seed=1):
     return build
 
 
+def _rule(**fields):
+    """The calibration's :class:`selfcal.ExposureRule` (``calibrate_response(exposures=)``)."""
+    import selfcal
+
+    return selfcal.ExposureRule(**fields)
+
+
 def _wrong_time(name, factor=2.0):
-    """One mid-bracket frame's time off by ``factor``, given by the caller (whose times are
-    held, unlike EXIF times the pixels contradict)."""
+    """One mid-bracket frame's time off by ``factor``, given by the caller and held
+    (``ExposureRule(times="held")``: by default a time the pixels contradict is refined)."""
     def build():
         images, times = _decoded(name)
         times = list(times)
         times[len(times) // 2] *= factor
-        return images, times, {}
+        return images, times, {"exposures": _rule(times="held")}
     return build
 
 
@@ -197,7 +207,8 @@ def real_cases():
                           base=n))
     for n in ["piccante", "ntu"]:       # the remedy the verdict names for their times
         cases.append(Case(f"{n} --refine-exposures", "held-out", "good",
-                          lambda n=n: (_files(n)()[:2] + ({"refine_exposures": True},))))
+                          lambda n=n: (_files(n)()[:2]
+                                       + ({"exposures": _rule(refine=True)},))))
     for a, b, split in [("memorial", "fujifilm_xh1/scene1", "tuning"),
                         ("memorial", "sony_ilce6400/scene1", "tuning"),
                         ("fujifilm_xh1/scene2", "fujifilm_xh1/scene3", "held-out"),
@@ -266,7 +277,7 @@ def synthetic_cases(seeds):
             st = _synthetic(seed)
             times = list(st.exposure_times)
             times[3] *= 2.0
-            return st.images, times, {}
+            return st.images, times, {"exposures": _rule(times="held")}
 
         def stop(seed=seed):
             st = _synthetic(seed, times=[1 / 60, 1 / 30])

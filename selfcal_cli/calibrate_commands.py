@@ -193,7 +193,7 @@ def cmd_demo(args) -> int:
     exp_err = np.abs(model.exposures / stack.true_exposures - 1)
     say(f"exposures: largest error against the true (jittered) exposures {100 * exp_err.max():.1f}% "
          "(measured from the pixels through the curve, the EXIF times keeping their scale and "
-         "trend; calibrate --no-measure-exposures keeps the solve's)")
+         "trend; calibrate --hold-times uses the times as they are)")
     return EXIT_OK
 
 

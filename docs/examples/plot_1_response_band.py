@@ -27,7 +27,10 @@ print("nominal times (s):", np.round(stack.exposure_times, 4))
 
 # %%
 # Calibrate from the arrays and the nominal times.  (From files, pass the paths and the
-# times come from their EXIF.)  By default the times the pixels contradict are refined.
+# times come from their EXIF: the same rule applies to both.)  By default the exposures
+# are measured from the pixels through the fitted curve, the times keeping their scale
+# and trend, and the times the pixels contradict are refined in the solve.  The run says
+# in one warning which frames moved, if any.
 model = selfcal.calibrate_response(stack.images, stack.exposure_times)
 
 # %%
@@ -36,14 +39,28 @@ model = selfcal.calibrate_response(stack.images, stack.exposure_times)
 # line writes nothing and exits 4 unless ``--force``).
 diag = model.diagnostics
 print("verdict:", diag["verdict"], diag.get("verdict_reasons") or "")
-print("exposure source:", diag["exposure_source"])
-print("exposures used (s):", np.round(model.exposures, 5))
-print("true exposures (s):", np.round(stack.true_exposures, 5))
 
 # %%
-# Times given by the caller are held (``refine_exposures="auto"``): the ±3 % jitter is
-# within what the pixels accept.  ``refine_exposures=True`` (``selfcal calibrate
-# --refine-exposures``) would treat them as a prior and re-estimate them.
+# Every frame's exposures are in one record, :attr:`~selfcal.ResponseModel.exposure_record`:
+# the given time, the solve's estimate, the exposure measured from the pixels, which of
+# them is used, and whether the pixels contradict the time.
+# :func:`selfcal.exposure.exposure_message` is the run's one line about them.
+from selfcal.exposure import exposure_message  # noqa: E402
+
+record = model.exposure_record
+print("times from:", record.origin, "| rule:", record.rule, "| refined:", record.refined)
+for frame, true in zip(record.frames, stack.true_exposures):
+    print(f"{frame.source}: given {frame.given:.5f}  used {frame.used:.5f} "
+          f"({frame.used_from}, {100 * frame.moved:+.1f} %)  true {true:.5f}")
+print(exposure_message(record))
+
+# %%
+# ``ExposureRule(times="held")`` (``selfcal calibrate --hold-times``) uses every time
+# exactly as given; ``ExposureRule(refine=True)`` (``--refine-exposures``) treats every
+# time as a prior in the solve, not only those the pixels contradict.
+held = selfcal.calibrate_response(stack.images, stack.exposure_times,
+                                  exposures=selfcal.ExposureRule(times="held"))
+print("held:", np.round(held.exposures, 5), "| used from:", held.exposure_record.used_from)
 
 # %%
 # The band and the truth at every code.  :meth:`~selfcal.ResponseModel.band_at_codes` is

@@ -36,10 +36,13 @@ out = Path(tempfile.mkdtemp(prefix="selfcal-merge-"))
 print([f.name for f in frames])
 
 # %%
-# Calibrate from the files: the times are read from their EXIF.
+# Calibrate from the files: the times are read from their EXIF, and the exposures used
+# are measured from the pixels (the times keeping their scale and trend;
+# ``ExposureRule(times="held")``, ``--hold-times``, would use the times as they are).
 model = selfcal.calibrate_response(frames)
-print("verdict:", model.diagnostics["verdict"], "| times from:",
-      model.diagnostics["exposure_source"])
+record = model.exposure_record
+print("verdict:", model.diagnostics["verdict"], "| times from:", record.origin,
+      "| used:", record.used_from)
 print("exposures (s):", np.round(model.exposures, 5))
 
 # %%
@@ -48,6 +51,10 @@ print("exposures (s):", np.round(model.exposures, 5))
 hdr = selfcal.merge_hdr(frames, model=model, options=selfcal.MergeOptions(sigma=True))
 print("radiance", hdr.radiance.shape, hdr.radiance.dtype, "| sigma", hdr.sigma.shape)
 print(f"unmeasured: {hdr.unmeasured.mean():.1%} of the pixels")
+# the merge takes the model's measured exposures of these files (nothing is measured
+# again); its record says so frame by frame, and ``exposure_source`` in words
+print("exposures:", hdr.exposure_source,
+      [f.used_from for f in hdr.exposure_record.frames])
 for w in hdr.warnings:
     print("warning:", w)
 
