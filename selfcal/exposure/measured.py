@@ -16,10 +16,15 @@ on ``f⁻¹(codes)``.  Ours:
   kept while reading them (every pixel of a :data:`MEASURE_CODES_SIDE` subsample, no
   frame read again: :func:`measure_calibration_exposures`), and its model's exposures are
   these; a merge of those frames takes the same numbers, and measures only frames the
-  model has not seen, with a pre-pass (:func:`measure_response_exposures`: arrays
-  linearised at full size and area-averaged, files decoded with libjpeg's DCT scaling
-  when large, down to :data:`PREPASS_MIN_SIDE`, whose block means of *codes* are biased
-  where the texture within a block is strong);
+  model has not seen, with a pre-pass (:func:`measure_response_exposures`) on the same
+  kind of codes, once per frame: the :func:`code_subsample` (every ``s``-th pixel of
+  every ``s``-th row, unaveraged, to a :data:`MEASURE_CODES_SIDE` long side) of an array
+  -- the very pixels its calibration would keep -- or of a file decoded with libjpeg's
+  DCT scaling when large, down to :data:`PREPASS_MIN_SIDE` (its codes are block means,
+  biased where the texture within a block is strong), in :data:`PREPASS_THREADS`
+  threads.  Only these ~175,000 codes a frame are linearised (until issue 43 an array's
+  24 MP were, then area-averaged: 89 % of a merge; docs/decisions.md, "Exposures
+  measured from the pixels: one pass over subsampled codes");
 * **pairs**: a pair counts when the frames share :data:`MIN_PAIR_OVERLAP` of a
   thumbnail's values (frames far apart share a few at the ends of both ranges);
 * **the trend** over the bracket is the times' (``MergeOptions.exposure_trend``,
@@ -45,6 +50,7 @@ unchecked) keep their time.  The constants and the choices are in docs/decisions
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -57,7 +63,7 @@ from .linear import MEASURE_SIDE, MIN_LOG_SIGMA, fit_log_sigma, scale_to_times, 
 from .raw_ratios import split_thumbnails
 
 __all__ = ["measure_response_exposures", "measure_calibration_exposures", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
-           "PAIR_GAP", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
+           "PREPASS_THREADS", "PAIR_GAP", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
@@ -66,6 +72,9 @@ __all__ = ["measure_response_exposures", "measure_calibration_exposures", "PREPA
 #: "Exposures measured from the pixels: an option, with the times' trend").
 PREPASS_REDUCE = 8
 PREPASS_MIN_SIDE = 1500
+#: Threads decoding the files of the pre-pass side by side (libjpeg releases the GIL);
+#: the merge that follows reads ahead with one thread beside its own.
+PREPASS_THREADS = 2
 #: Long side of the codes a calibration keeps of each frame it reads, for the measurement
 #: after its fit (:func:`measure_calibration_exposures`): the thumbnails' two halves then
 #: hold every kept pixel, unaveraged; 175,000 pixels a 3:2 frame, and on ntu's 24 MP
@@ -98,11 +107,29 @@ def _prepass_reduce(frames, min_side: int = PREPASS_MIN_SIDE) -> int:
     return r
 
 
-def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
-    """Frame ``k`` linearised by ``model`` with its clipped codes excluded, as the split
-    thumbnails of :func:`selfcal.exposure.raw_ratios.split_thumbnails`."""
+def code_subsample(codes: np.ndarray, side: int = MEASURE_CODES_SIDE) -> np.ndarray:
+    """Every ``s``-th code of every ``s``-th row, ``s`` the smallest stride bringing the
+    long side to at most ``side``: no averaging (``f⁻¹`` of a mean of codes is not the
+    mean of ``f⁻¹``).  The rule of the calibration's kept codes
+    (``selfcal.stack.samples.KeptData.codes_side``), so a frame given as an array is
+    measured on the same pixels by a merge as by the calibration of its model (ours)."""
+    stride = max(1, -(-max(codes.shape[:2]) // int(side)))
+    return np.ascontiguousarray(codes[::stride, ::stride])
+
+
+def _frame_codes(frames, k: int, reduce: int) -> np.ndarray:
+    """The codes frame ``k`` is measured on: :func:`code_subsample` of the array, or of
+    the file decoded at 1/``reduce`` by libjpeg's DCT scaling (each decoded code a block
+    mean: :data:`PREPASS_MIN_SIDE` bounds the blocks' size)."""
     item = frames.items[k]
     img = read_image(item, reduce=reduce) if frames.paths[k] is not None else np.asarray(item)
+    return code_subsample(img)
+
+
+def _linear_thumbnails(img, model, clip_margin: float, stuck):
+    """Codes ``img`` linearised by ``model`` with its clipped codes excluded, as the split
+    thumbnails of :func:`selfcal.exposure.raw_ratios.split_thumbnails` (no reduction
+    when ``img`` is a :func:`code_subsample`: every kept code, unaveraged)."""
     mc = max_code_of(img)
     lin = Lineariser(model, False, mc)
     lo, hi, floor = frame_limits(mc, clip_margin, False, stuck)
@@ -115,6 +142,12 @@ def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
     dark = img <= lo if floor is None else (img <= lo) | (img < floor)
     x[np.broadcast_to(white, x.shape) | dark] = _EXCLUDED
     return split_thumbnails(x, max_side=MEASURE_SIDE, clip_level=_CLIP_LEVEL)
+
+
+def _thumbnail(frames, k: int, model, clip_margin: float, stuck, reduce: int):
+    """Frame ``k``'s split thumbnails for the measurement: :func:`_linear_thumbnails` of
+    its :func:`_frame_codes`."""
+    return _linear_thumbnails(_frame_codes(frames, k, reduce), model, clip_margin, stuck)
 
 
 def _trend_residuals(rel, times):
@@ -185,6 +218,11 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
                                progress=None, names=None):
     """The frames' exposures with their ratios measured from the pixels through ``model``.
 
+    [Lin2011] §5's ratios of linear values, on ``f⁻¹`` of each frame's
+    :func:`code_subsample` (of the file decoded at 1/``reduce``), the frames' split
+    thumbnails (:func:`selfcal.exposure.raw_ratios.split_thumbnails`) compared pair by
+    pair (:func:`.linear.thumbnail_exposures`); what is ours is in the module docstring.
+
     Parameters
     ----------
     frames : selfcal.stack.frames.StackFrames
@@ -216,19 +254,43 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
         exposures, ``differences`` ``time / measured − 1`` per frame, ``log_sigma`` of
         :func:`.linear.fit_log_sigma`, the pre-pass ``reduce``).
     """
+    if trend not in TRENDS:
+        raise InputError(f"trend must be one of {', '.join(TRENDS)}, not {trend!r}")
     reduce = _prepass_reduce(frames) if reduce is None else int(reduce)
+    frame_set = list(frame_set)
+
+    def thumbnail(k):
+        return _thumbnail(frames, k, model, clip_margin, stuck, reduce)
+
     made = {}
-    for q, k in enumerate(frame_set):
-        made[k] = _thumbnail(frames, k, model, clip_margin, stuck, reduce)
-        if progress is not None:
-            progress("exposures", q + 1, len(frame_set), frames.sources[k])
+    # files: decoded in PREPASS_THREADS threads (libjpeg releases the GIL); a model's own
+    # to_raw is called from this thread only.  Each frame's result is its own: the same
+    # whatever the threads' timing.
+    files = (any(p is not None for p in frames.paths) and hasattr(model, "inverse_response")
+             and len(frame_set) > 1)
+    pool = ThreadPoolExecutor(max_workers=PREPASS_THREADS) if files else None
+    try:
+        for q, (k, thumbs) in enumerate(zip(frame_set, map(thumbnail, frame_set) if pool is None
+                                            else pool.map(thumbnail, frame_set))):
+            made[k] = thumbs
+            if progress is not None:
+                progress("exposures", q + 1, len(frame_set), frames.sources[k])
+    finally:
+        if pool is not None:
+            pool.shutdown()
+    return _measured_from_thumbnails(made, frames, exposures, trend=trend, reduce=reduce,
+                                     names=names)
+
+
+def _measured_from_thumbnails(made: dict, frames, exposures, *, trend: str, reduce: int,
+                              names=None):
+    """:func:`measure_response_exposures` from the frames' split thumbnails (``made``,
+    frame index -> ``(values, selection)``)."""
     # by exposure, frames of one exposure by their content: the pairs, and so the
     # result, do not depend on the order the frames came in
     frame_set = sorted(made, key=lambda k: (float(exposures[k]),
                                             float(np.nansum(made[k][0], dtype=np.float64)), k))
     thumbs = [made[k] for k in frame_set]
-    if trend not in TRENDS:
-        raise InputError(f"trend must be one of {', '.join(TRENDS)}, not {trend!r}")
     rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP, min_count=_min_overlap(thumbs))
     times = [float(exposures[k]) for k in frame_set]
     scatter = fit_log_sigma(rel, pairs)

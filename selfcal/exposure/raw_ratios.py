@@ -19,13 +19,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ..errors import InputError
 from ..io.images import import_cv2
 
-__all__ = ["check_linear_raw", "raw_thumbnail", "split_thumbnails", "raw_exposure_ratios"]
+__all__ = ["check_linear_raw", "raw_thumbnail", "split_thumbnails", "raw_exposure_ratios",
+           "PAIR_THREADS"]
+
+#: Threads measuring the pairs of frames of :func:`raw_exposure_ratios` side by side (each
+#: pair's result is its own: the same numbers with one thread).
+PAIR_THREADS = 2
 
 
 def check_linear_raw(raw_rgb: np.ndarray) -> np.ndarray:
@@ -88,21 +94,24 @@ def split_thumbnails(raw_rgb: np.ndarray, *, max_side: int = 512,
     return np.concatenate([even, odd]), np.concatenate([odd, even])
 
 
-def _pair_log_ratio(vi, vj, both, statistic: str):
-    """log(v_j / v_i) over the chosen values: the median of the log ratios, or (``"sum"``)
-    the log ratio of the values' sums -- values at or below zero included, as leaving
-    them out would bias it -- after dropping log ratios beyond 5 robust deviations of the
-    median (a moving object, a hot pixel); and the median absolute deviation of the log
-    ratios."""
-    vi, vj = vi[both], vj[both]
-    positive = (vi > 0) & (vj > 0)
-    d = np.log(vj[positive]) - np.log(vi[positive])
+def _pair_log_ratio(vi, vj, positive, statistic: str):
+    """log(v_j / v_i) over the chosen values ``vi``, ``vj`` (float64, gathered; ``positive``
+    where both are above zero): the median of the log ratios, or (``"sum"``) the log
+    ratio of the values' sums -- values at or below zero included, as leaving them out
+    would bias it -- after dropping log ratios beyond 5 robust deviations of the median (a
+    moving object, a hot pixel); and the median absolute deviation of the log ratios."""
+    every = bool(positive.all())        # the usual case: no gathering again
+    d = (np.log(vj) - np.log(vi)) if every else (np.log(vj[positive]) - np.log(vi[positive]))
     med = float(np.median(d))
     mad = float(np.median(np.abs(d - med)))
     if statistic == "median":
         return med, mad
-    keep = ~positive
-    keep[positive] = np.abs(d - med) <= 5.0 * 1.4826 * max(mad, 1e-6)
+    near = np.abs(d - med) <= 5.0 * 1.4826 * max(mad, 1e-6)
+    if every:
+        keep = near
+    else:
+        keep = ~positive
+        keep[positive] = near
     return float(np.log(vj[keep].sum() / vi[keep].sum())), mad
 
 
@@ -175,22 +184,36 @@ def raw_exposure_ratios(raws: Sequence[np.ndarray], *, low: float = 0.02, high: 
             raise InputError(f"raw #{k} has size {t.shape[:2]}, raw #0 {shape[:2]}: the "
                              "exposure ratios need frames of the same size")
     values, chosen = [], []
+    # float32 values, compared with the float64 band and gathered before they turn to
+    # float64: the numbers of a float64 copy of every value, without the copy
+    lo64, hi64 = np.float64(low), np.float64(high)
     for t, c in zip(thumbs, chooser):
-        v = t.reshape(-1).astype(np.float64)
-        c = c.reshape(-1).astype(np.float64)
+        v = t.reshape(-1)
+        c = c.reshape(-1)
         values.append(v)
-        chosen.append(np.isfinite(c) & (c >= low) & (c <= high) & np.isfinite(v)
-                      & ((v > 0) if statistic == "median" else True))
-    edges, spreads = [], []
-    for i in range(n):
-        for j in range(i + 1, n if max_gap is None else min(n, i + 1 + max_gap)):
-            both = chosen[i] & chosen[j]
-            cnt = int(both.sum())
-            if cnt < min_count or not ((values[i][both] > 0) & (values[j][both] > 0)).any():
-                continue
-            med, mad = _pair_log_ratio(values[i], values[j], both, statistic)
-            edges.append((i, j, med, cnt))
-            spreads.append(mad)
+        ok = np.isfinite(c) & (c >= lo64) & (c <= hi64) & np.isfinite(v)
+        if statistic == "median":
+            ok &= v > 0
+        chosen.append(ok)
+    def pair(ij):
+        i, j = ij
+        both = np.flatnonzero(chosen[i] & chosen[j])
+        if both.size < min_count:
+            return None
+        vi = values[i][both].astype(np.float64)
+        vj = values[j][both].astype(np.float64)
+        positive = (vi > 0) & (vj > 0)
+        if not positive.any():
+            return None
+        return (i, j, *_pair_log_ratio(vi, vj, positive, statistic), int(both.size))
+
+    candidates = [(i, j) for i in range(n)
+                  for j in range(i + 1, n if max_gap is None else min(n, i + 1 + max_gap))]
+    # pairs side by side (their medians' partitions release the GIL), kept in order
+    with ThreadPoolExecutor(max_workers=max(1, min(PAIR_THREADS, len(candidates)))) as pool:
+        measured = [m for m in pool.map(pair, candidates) if m is not None]
+    edges = [(i, j, med, cnt) for i, j, med, _, cnt in measured]
+    spreads = [mad for _, _, _, mad, _ in measured]
     # connected components
     parent = list(range(n))
 
