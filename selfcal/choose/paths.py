@@ -454,7 +454,8 @@ def _run_response(plan: ResponsePlan, resp_opts: dict, *, progress, pipeline_fol
     try:
         model = calibrate_response(
             [str(p) for p in plan.frames], plan.times, progress=progress,
-            times_source=plan.exposure_kind if plan.times is not None else "given",
+            times_source=(plan.exposure_kind or "given") if plan.times is not None
+            else "given",
             seed=resp_opts["seed"], exposures=resp_opts["exposures"],
             align=resp_opts["align"], options=resp_opts["options"])
     except CalibrationError as exc:

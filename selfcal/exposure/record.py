@@ -63,8 +63,10 @@ ORIGINS = ("given", "exif", "raw", "none")
 #: Which of a frame's exposures is used.
 USED_FROM = ("given", "solved", "measured")
 
-Origin = Literal["given", "exif", "raw", "none"]
-UsedFrom = Literal["given", "solved", "measured"]
+#: Where a frame's given time came from (one of :data:`ORIGINS`) and which of its
+#: exposures is used (one of :data:`USED_FROM`): checked where a record is read from a file.
+Origin = str
+UsedFrom = str
 
 
 @dataclass(frozen=True)
@@ -87,9 +89,9 @@ class ExposureRule:
         ratios as they are.
     """
 
-    times: Literal["measured", "held"] = DEFAULT_RULE
+    times: str = DEFAULT_RULE
     refine: Literal["auto", True] = "auto"
-    trend: Literal["times", "pixels"] = "times"
+    trend: str = "times"
 
     def __post_init__(self):
         if self.times not in RULES:
@@ -178,7 +180,7 @@ class GivenTimes:
 
     times: tuple[GivenTime, ...]
     sources: tuple[str, ...]
-    origin: Literal["given", "exif", "raw", "unknown"]
+    origin: str
     read_from_files: bool = False
     seconds: tuple[float | None, ...] = field(init=False)
     relative: tuple[float | None, ...] = field(init=False)
@@ -228,7 +230,7 @@ def _checked_time(value, source: str) -> float | None:
 
 
 def read_given_times(frames: Sequence, exposure_times=None, sources: Sequence[str] | None = None,
-                     *, origin: Literal["given", "raw"] = "given") -> GivenTimes:
+                     *, origin: str = "given") -> GivenTimes:
     """Each frame's given time: the caller's (checked: the one validator), else EXIF.
 
     Parameters
@@ -372,8 +374,10 @@ class FrameExposure:
 
     @classmethod
     def from_dict(cls, d: dict) -> FrameExposure:
-        return cls(**{k: d.get(k) for k in ("source", "given", "origin", "solved", "measured",
-                                            "contradicted", "used", "used_from")})
+        return cls(source=str(d["source"]), given=d.get("given"),
+                   origin=str(d.get("origin", "given")), solved=d.get("solved"),
+                   measured=d.get("measured"), contradicted=d.get("contradicted"),
+                   used=d.get("used"), used_from=str(d.get("used_from", "given")))
 
 
 @dataclass(frozen=True)

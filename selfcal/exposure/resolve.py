@@ -173,9 +173,9 @@ def merge_exposures(given: GivenTimes, model_index: Sequence[int | None], model_
         if i is not None and model_record is not None and i < len(model_record.frames):
             matched[k] = model_record.frames[i]
     # the scale of the model's exposures for frames without a time
-    anchors = [math.log(given.relative[k] / (m.used * given.to_relative[k]))
-               for k, m in enumerate(matched)
-               if m is not None and m.used and given.relative[k] is not None]
+    anchors = [math.log(g / (m.used * given.to_relative[k]))
+               for k, (m, g) in enumerate(zip(matched, given.relative))
+               if m is not None and m.used and g is not None]
     unknown_scale = math.exp(float(np.median(anchors))) if anchors else 1.0
     frames = []
     for k in range(n):
@@ -303,12 +303,13 @@ def exposure_message(record: BracketExposures, *, hold_flag: str = "--hold-times
                      f"the {label} by more than {100 * REPORT_DIFFERENCE:.0f}%, up to "
                      f"{100 * abs(worst.moved):.1f}% at {Path(worst.source).name} "
                      f"({hold_flag} keeps the times)")
-    held = [f for f in record.frames if f.contradicted is not None and f.used_from == "given"]
+    held = [(f, f.contradicted / f.given) for f in record.frames
+            if f.contradicted is not None and f.given and f.used_from == "given"]
     if held:
-        worst = max(held, key=lambda f: abs(math.log(f.contradicted / f.given)))
-        parts.append(f"the pixels contradict the {label} of {_names(held)} (up to "
-                     f"×{max(worst.contradicted / worst.given, worst.given / worst.contradicted):.2f}"
-                     f" at {Path(worst.source).name}); held as given")
+        worst, ratio = max(held, key=lambda p: abs(math.log(p[1])))
+        parts.append(f"the pixels contradict the {label} of {_names([f for f, _ in held])} "
+                     f"(up to ×{max(ratio, 1 / ratio):.2f} at {Path(worst.source).name}); "
+                     "held as given")
     untimed = [f for f in record.frames if f.given is None and f.used is not None]
     if untimed and record.origin != "unknown":
         parts.append(f"no exposure time for {_names(untimed)}: the solve's estimates are used")

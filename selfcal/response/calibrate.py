@@ -37,7 +37,7 @@ from .diagnostics import fit_diagnostics
 from ..exposure.measured import MEASURE_CODES_SIDE
 from .frame_choice import record_ignored, subset, without_clipped_frames, without_duplicates
 from .options import ResponseOptions
-from .solver import solve_exposure_equations
+from .solver import SolveResult, solve_exposure_equations
 from .verdict import judge_calibration
 
 #: A frame sharing fewer unclipped samples than this with every other frame is ignored:
@@ -186,7 +186,7 @@ class _Solved:
     """The solve stage's result: the fit of Eq. 8, the times it refined or holds, the
     contradicted ones, the measured ringing reach and hidden white samples."""
 
-    result: object
+    result: SolveResult
     refined: bool
     contradictions: list
     reach: int
