@@ -60,7 +60,7 @@ def test_band_is_deterministic(stack, model):
 def test_band_round_trip(model, tmp_path):
     path = model.save(tmp_path / "m.json")
     doc = json.loads(path.read_text())
-    assert doc["version"] == 4 and len(doc["inverse_log_sigma"]) == 3
+    assert doc["version"] == 5 and len(doc["inverse_log_sigma"]) == 3
     loaded = selfcal.load_model(path)
     np.testing.assert_allclose(loaded.inverse_band()[0], model.inverse_band()[0], rtol=1e-6)
     assert "band_width_90" in loaded.diagnostics["verdict_evidence"]

@@ -75,7 +75,7 @@ def test_reworded_warnings_give_the_same_radiance_bit_for_bit(far_stack, tmp_pat
     # the same through a saved file whose warnings were reworded
     path = model.save(tmp_path / "m.json")
     doc = json.loads(path.read_text())
-    assert doc["version"] == 4
+    assert doc["version"] == 5
     assert [f["reason"] for f in doc["frames_ignored"]] == ["unchecked", "duplicate"]
     doc["diagnostics"]["warnings"] = _reworded(doc["diagnostics"]["warnings"])
     doc["diagnostics"]["verdict_reasons"] = _reworded(doc["diagnostics"]["verdict_reasons"])

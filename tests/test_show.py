@@ -54,7 +54,7 @@ def test_show_response_numbers_are_the_models(response_file, capsys):
     np.testing.assert_allclose(est, model.exposures, rtol=1e-5)
     given = [float(m) for m in re.findall(r"given \S+ s \(([0-9.eE+-]+)\)", out)]
     np.testing.assert_allclose(given, model.exposure_times, rtol=1e-5)
-    assert re.search(r"^exposure times from\s+exif$", out, re.M)
+    assert re.search(r"^exposure times from\s+exif; used measured from the pixels", out, re.M)
     # the verdict level is the model's
     level = re.search(r"^verdict: (\w+)", out, re.M).group(1)
     assert level == model.diagnostics["verdict"]

@@ -50,6 +50,7 @@ from ..errors import InputError
 from ..io.exif import ExposureInfo, read_exposure_info
 from ..io.images import is_path
 from ..io.raw import is_raw_path, read_raw_exposure_info
+from ..typing import ExposureTimes
 
 __all__ = ["GivenTime", "GivenTimes", "FrameExposure", "BracketExposures", "MeasurementSpread",
            "ExposureRule", "read_given_times", "RULES", "DEFAULT_RULE", "ORIGINS", "USED_FROM"]
@@ -229,7 +230,8 @@ def _checked_time(value, source: str) -> float | None:
     return t
 
 
-def read_given_times(frames: Sequence, exposure_times=None, sources: Sequence[str] | None = None,
+def read_given_times(frames: Sequence, exposure_times: ExposureTimes | None = None,
+                     sources: Sequence[str] | None = None,
                      *, origin: str = "given") -> GivenTimes:
     """Each frame's given time: the caller's (checked: the one validator), else EXIF.
 
@@ -270,6 +272,8 @@ def read_given_times(frames: Sequence, exposure_times=None, sources: Sequence[st
         if not is_path(f):
             out.append(GivenTime(None, origin="none"))
             continue
+        if Path(f).is_file() and Path(f).stat().st_size == 0:
+            raise InputError("the file is empty", f)
         info = read_raw_exposure_info(f) if is_raw_path(f) else read_exposure_info(f)
         out.append(GivenTime(info.exposure_time, info.f_number, info.iso,
                              origin="exif" if info.exposure_time is not None else "none"))
@@ -445,8 +449,11 @@ class BracketExposures:
                 return kind
         return "given"
 
-    def with_frames(self, frames: Sequence[FrameExposure], **changes) -> BracketExposures:
-        return replace(self, frames=tuple(frames), **changes)
+    def with_frames(self, frames: Sequence[FrameExposure], *,
+                    spread: MeasurementSpread | None = None) -> BracketExposures:
+        """The record with ``frames`` (and ``spread``, when given) in place of its own."""
+        return replace(self, frames=tuple(frames),
+                       spread=self.spread if spread is None else spread)
 
     def as_dict(self) -> dict:
         """JSON-ready (the model file's ``"exposures"`` section)."""

@@ -127,7 +127,7 @@ def recorded_calibration(model, given: GivenTimes, keep: Sequence[int], solved_l
     return out
 
 
-def model_exposures(model) -> BracketExposures | None:
+def model_exposures(model: object) -> BracketExposures | None:
     """The model's record: ``model.exposure_record``, or for a model without one (a
     pipeline model, a response model read from an older file) one derived from its
     ``exposures``, ``exposure_times`` and ``sources`` (the model's exposures used, its
@@ -150,7 +150,8 @@ def _same_time(a: float | None, b: float | None) -> bool:
     return abs(a / b - 1.0) <= SAME_TIME
 
 
-def merge_exposures(given: GivenTimes, model_index: Sequence[int | None], model_record,
+def merge_exposures(given: GivenTimes, model_index: Sequence[int | None],
+                    model_record: BracketExposures | None,
                     rule: ExposureRule) -> BracketExposures:
     """A merge's exposures before its own measurement (:func:`with_measured`).
 
