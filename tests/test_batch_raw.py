@@ -145,6 +145,8 @@ def test_a_rerun_reuses_the_camera_model(batch, card):
     assert _camera_rows(out)[0]["raw_loso_forward"] == batch["camera"]["raw_loso_forward"]
 
 
+# slow: two batches with a RAW-path fit each (leaving the library out stays fast)
+@pytest.mark.slow
 def test_an_unwritable_model_fails_its_fit_cleanly_and_the_rerun_writes_it(card, tmp_path):
     out = tmp_path / "out"
     plans, _ = plan_batch(discover([card.root]), out, ONE)
@@ -165,7 +167,7 @@ def test_an_unwritable_model_fails_its_fit_cleanly_and_the_rerun_writes_it(card,
     assert {r["status"] for r in second.rows} == {"skipped"}
 
 
-# slow: two batches with a RAW-path fit (the unwritable-model test is the fast one)
+# slow: two batches with a RAW-path fit
 @pytest.mark.slow
 def test_a_raw_fit_lost_on_the_cluster_is_recorded_and_the_rerun_fits_it(card, tmp_path,
                                                                          monkeypatch):

@@ -85,7 +85,7 @@ def test_same_input_same_model(handheld):
     assert np.array_equal(again.inverse, model.inverse)
 
 
-# slow: the panorama test runs the same path fast enough
+# slow: a calibration of equal-exposure frames (the panorama test is slow too)
 @pytest.mark.slow
 def test_single_exposure_frames_use_the_prior_curve():
     times = (1 / 50,) * 5
@@ -122,6 +122,8 @@ def test_an_implausible_falloff_is_refused():
     assert "brighter" in implausible_falloff(lens(0.3), 200, 300)
 
 
+# slow: a third handheld calibration (the fixture's and the tripod's stay fast)
+@pytest.mark.slow
 def test_a_panorama_frame_the_alignment_cannot_place_is_left_out(monkeypatch):
     """One frame of equal-exposure frames that ORB cannot match (as OpenCV 4.8 did on the
     oldest dependencies) is left out; the rest still fit."""
