@@ -289,12 +289,27 @@ def add_exposure_flags(parser) -> None:
     group.add_argument("--refine-exposures", action="store_true",
                        help="treat every time as a prior in the response solve, not only "
                             "those the pixels contradict")
+    # 1.0's flags, until 2.0: each means --hold-times (or the default), said when used
+    group.add_argument("--no-refine-exposures", dest="legacy_hold", action="append_const",
+                       const="--no-refine-exposures", help=argparse.SUPPRESS)
+    parser.add_argument("--no-measure-exposures", dest="legacy_hold", action="append_const",
+                        const="--no-measure-exposures", help=argparse.SUPPRESS)
+    parser.add_argument("--linear-exposures", dest="legacy_linear",
+                        choices=("auto", "measured", "times"), help=argparse.SUPPRESS)
 
 
 def exposure_rule(args):
     """The :class:`selfcal.exposure.ExposureRule` of ``--hold-times`` / ``--refine-exposures``."""
     from selfcal.exposure import ExposureRule
 
-    if getattr(args, "hold_times", False):
+    legacy = list(getattr(args, "legacy_hold", None) or [])
+    if getattr(args, "legacy_linear", None) == "times":
+        legacy.append("--linear-exposures times")
+    elif getattr(args, "legacy_linear", None):
+        warn(f"--linear-exposures {args.legacy_linear} is the 1.0 flag, removed in 2.0: "
+             "the exposures are measured by default")
+    for flag in legacy:
+        warn(f"{flag} is the 1.0 flag, removed in 2.0: write --hold-times")
+    if getattr(args, "hold_times", False) or legacy:
         return ExposureRule(times="held")
     return ExposureRule(refine=True if getattr(args, "refine_exposures", False) else "auto")

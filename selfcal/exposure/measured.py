@@ -27,7 +27,7 @@ on ``f⁻¹(codes)``.  Ours:
   measured from the pixels: one pass over subsampled codes");
 * **pairs**: a pair counts when the frames share :data:`MIN_PAIR_OVERLAP` of a
   thumbnail's values (frames far apart share a few at the ends of both ranges);
-* **the trend** over the bracket is the times' (``MergeOptions.exposure_trend``,
+* **the trend** over the bracket is the times' (``ExposureRule.trend``,
   :func:`_times_trend`): the pixels cannot see it -- ``f⁻¹ → (f⁻¹)^γ`` and ``e → e^γ``
   fit them equally, §4's exponential ambiguity -- and a curve whose slope is slightly off
   makes the measured ratios drift by a few per cent per stop; the line is Theil-Sen's,
@@ -84,7 +84,7 @@ MEASURE_CODES_SIDE = MEASURE_SIDE
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3
-#: The values of ``MergeOptions.exposure_trend``: what sets the measured exposures' trend
+#: The values of ``ExposureRule.trend``: what sets the measured exposures' trend
 #: over the bracket, the pixels' ratios as they are or the times' (:func:`_times_trend`).
 TRENDS = ("times", "pixels")
 #: A pair of frames counts when it shares this fraction of a thumbnail's values

@@ -29,6 +29,7 @@ from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
 from .hidden_white import white_end_masks
+from ..exposure.legacy import rule_from_legacy
 from ..exposure.record import ExposureRule, GivenTimes, read_given_times
 from ..exposure.resolve import exposure_message, recorded_calibration
 from ..exposure.times import CONTRADICTED_UNUSABLE_SHARE, CONTRADICTION_FACTOR
@@ -59,7 +60,8 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
                        *, exposures: ExposureRule | None = None, seed: int = 0,
                        align: bool | str = False, progress: Progress | None = None,
                        times_source: str = "given",
-                       options: ResponseOptions | None = None) -> ResponseModel:
+                       options: ResponseOptions | None = None,
+                       **legacy: object) -> ResponseModel:
     """Estimate each channel's camera response from an exposure stack.
 
     Implements [Lin2011] §5: log-domain PCA model (Eq. 7) fitted to the exposure equation
@@ -98,6 +100,9 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         The finer settings of the sampling and the solve (number of components, β, clip
         margin, samples, Huber threshold, priors, correspondences); default
         ``ResponseOptions()``.
+    **legacy
+        1.0's ``refine_exposures=``, accepted with a DeprecationWarning until 2.0
+        (:mod:`selfcal.exposure.legacy`).
 
     Returns
     -------
@@ -124,6 +129,8 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
+    if legacy:
+        exposures = rule_from_legacy(legacy, exposures, where="calibrate_response")
     call = CalibrationCall(options=ResponseOptions() if options is None else options,
                  rule=ExposureRule() if exposures is None else exposures, seed=seed,
                  progress=progress)
@@ -375,7 +382,7 @@ def _calibrate_after_alignment(frames: StackFrames, given: GivenTimes, align, ca
 def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
                       clip_margin: float | None = None, progress=None, max_side: int = 2048,
                       exposures: ExposureRule | None = None,
-                      options: ResponseOptions | None = None):
+                      options: ResponseOptions | None = None, **legacy: object):
     """Align a handheld stack to its reference frame, then calibrate its response.
 
     Misaligned frames give wrong correspondences, and the solve of [Lin2011] Eq. 8 then
@@ -410,6 +417,8 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         As for :func:`calibrate_response`.
     options : ResponseOptions, optional
         The calibration's finer settings (default ``ResponseOptions()``).
+    **legacy
+        1.0's ``refine_exposures=``, accepted with a DeprecationWarning until 2.0.
 
     Returns
     -------
@@ -423,6 +432,8 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         The model's warnings (:func:`model_warnings`), the alignment's first.
     """
     resolved = ResponseOptions() if options is None else options
+    if legacy:
+        exposures = rule_from_legacy(legacy, exposures, where="calibrate_aligned")
     call = CalibrationCall(options=resolved, progress=progress,
                  rule=ExposureRule() if exposures is None else exposures)
     frames = images if isinstance(images, StackFrames) else StackFrames(images, False)

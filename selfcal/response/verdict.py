@@ -446,7 +446,7 @@ def judge_calibration(samples, valid, intensity, inverse, log_exposures, pairs, 
     contradictions : sequence of dict
         ``contradicting_times`` of the calibration (``frame``, ``given``, ``estimated``).
     refined : bool
-        The exposures were refined (``refine_exposures``): ``contradictions`` are the
+        The solve refined the given times (:class:`selfcal.exposure.ExposureRule`): ``contradictions`` are the
         times the pixels corrected, evidence only (correcting them is what refining is
         for; times in the wrong order are still found by :func:`time_order`).
     stuck_codes : dict, optional
@@ -552,8 +552,8 @@ def _time_findings(values, valid, log_times, sources, contradictions, refined: b
             names = ", ".join(os.path.basename(str(c["frame"])) for c in big[:4])
             found.append(("doubtful", f"{len(big)} given exposure time(s) contradict the "
                           f"pixels by {CONTRADICTION_DOUBTFUL:g}× or more ({names}), and the "
-                          "fit held them: refine them (refine_exposures, "
-                          "--refine-exposures)"))
+                          "fit held them: leave them to the pixels (without --hold-times, "
+                          "the default)"))
     return found
 
 
