@@ -76,7 +76,8 @@ PREPASS_MIN_SIDE = 1500
 #: the merge that follows reads ahead with one thread beside its own.
 PREPASS_THREADS = 2
 #: Long side of the codes a calibration keeps of each frame it reads, for the measurement
-#: after its fit (:func:`measure_calibration_exposures`): the thumbnails' two halves then
+#: after its fit (:func:`measure_calibration_exposures`), and of the codes the merge's
+#: pre-pass measures a frame on (:func:`code_subsample`): the thumbnails' two halves then
 #: hold every kept pixel, unaveraged; 175,000 pixels a 3:2 frame, and on ntu's 24 MP
 #: frames a quarter of the cost of twice this side (docs/decisions.md, "Exposures
 #: measured from the pixels: by default").
