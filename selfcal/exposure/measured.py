@@ -134,14 +134,23 @@ def _linear_thumbnails(img, model, clip_margin: float, stuck):
     mc = max_code_of(img)
     lin = Lineariser(model, False, mc)
     lo, hi, floor = frame_limits(mc, clip_margin, False, stuck)
-    if lin.kind == "lut":
+    if lin.kind == "lut" and mc is not None:
         assert lin.table is not None        # made for the frame's max code
-        x = apply_lut(img, lin.table.astype(np.float32))
+        # the tests below, per channel and code, made tables: a channel at or below its
+        # black limit or floor looks up the sentinel, a pixel with one channel at or
+        # beyond its white limit gets it in all three (one lookup each, no float compare)
+        codes = np.arange(mc + 1)[:, None]
+        dark = codes <= lo if floor is None else (codes <= lo) | (codes < floor)
+        table = np.where(dark, _EXCLUDED, lin.table).astype(np.float32)
+        x = apply_lut(img, table)
+        over = apply_lut(img, (codes >= hi).astype(np.float32))
+        white = (over[..., 0] + over[..., 1] + over[..., 2]) > 0
+        np.copyto(x, _EXCLUDED, where=white[..., None])
     else:
         x = lin.values(img)
-    white = np.any(img >= hi, axis=2, keepdims=True)
-    dark = img <= lo if floor is None else (img <= lo) | (img < floor)
-    x[np.broadcast_to(white, x.shape) | dark] = _EXCLUDED
+        white = np.any(img >= hi, axis=2, keepdims=True)
+        dark = img <= lo if floor is None else (img <= lo) | (img < floor)
+        x[np.broadcast_to(white, x.shape) | dark] = _EXCLUDED
     return split_thumbnails(x, max_side=MEASURE_SIDE, clip_level=_CLIP_LEVEL)
 
 
@@ -289,8 +298,12 @@ def _measured_from_thumbnails(made: dict, frames, exposures, *, trend: str, redu
     frame index -> ``(values, selection)``)."""
     # by exposure, frames of one exposure by their content: the pairs, and so the
     # result, do not depend on the order the frames came in
-    frame_set = sorted(made, key=lambda k: (float(exposures[k]),
-                                            float(np.nansum(made[k][0], dtype=np.float64)), k))
+    # (the content's sum only where two frames share an exposure: the same order)
+    shared = [float(exposures[k]) for k in made]
+    shared = {e for e in shared if shared.count(e) > 1}
+    frame_set = sorted(made, key=lambda k: (
+        float(exposures[k]), float(np.nansum(made[k][0], dtype=np.float64))
+        if float(exposures[k]) in shared else 0.0, k))
     thumbs = [made[k] for k in frame_set]
     rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP, min_count=_min_overlap(thumbs))
     times = [float(exposures[k]) for k in frame_set]

@@ -53,17 +53,18 @@ def raw_thumbnail(raw_rgb: np.ndarray, *, max_side: int = 512, clip_level: float
     clipped values in.
     """
     cv2 = import_cv2()
-    raw = check_linear_raw(raw_rgb).astype(np.float32)
+    raw = check_linear_raw(raw_rgb).astype(np.float32)     # a copy
     h, w = raw.shape[:2]
     f = max(1.0, max(h, w) / float(max_side))
-    clip = (raw >= clip_level).astype(np.float32)
     if f > 1.0:
+        clip = (raw >= clip_level).astype(np.float32)
         size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
         small = cv2.resize(raw, size, interpolation=cv2.INTER_AREA)
         clip = cv2.resize(clip, size, interpolation=cv2.INTER_AREA)
-    else:
-        small = raw.copy()
-    small[clip > 1e-6] = np.nan
+        small[clip > 1e-6] = np.nan
+    else:       # nothing averaged: NaN where the value itself is clipped
+        small = raw
+        np.copyto(small, np.float32(np.nan), where=raw >= clip_level)
     return small
 
 
