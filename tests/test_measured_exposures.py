@@ -148,7 +148,7 @@ def test_the_merge_takes_the_calibrations_own_numbers(stack, tmp_path):
     np.testing.assert_allclose(r.exposures, model.exposures, rtol=1e-9)
 
 
-def test_prepass_measures_a_subsample_of_codes_as_every_pixel_would(stack, monkeypatch):
+def test_prepass_measures_a_subsample_of_codes_as_every_pixel_would(stack):
     """Issue 43: the pre-pass linearises a strided subsample of an array's codes
     (PREPASS_CODES_SIDE a side), not every pixel, before averaging to the thumbnails; on
     the simulator it agrees with the truth and with every pixel."""
@@ -168,11 +168,14 @@ def test_prepass_measures_a_subsample_of_codes_as_every_pixel_would(stack, monke
     assert max(frames.shape) <= measured.PREPASS_CODES_SIDE
     same, _ = measured.measure_response_exposures(frames, model, times, range(6), **kw)
     np.testing.assert_array_equal(same, old)
-    # a subsample (every other row and column here)
-    monkeypatch.setattr(measured, "PREPASS_CODES_SIDE", 512)
-    sub = measured.code_subsample(stack.images[0], measured.PREPASS_CODES_SIDE)
+    # a subsample (every other row and column here), as measure_response_exposures
+    # measures frames over PREPASS_CODES_SIDE a side
+    sub = measured.code_subsample(stack.images[0], 512)
     np.testing.assert_array_equal(sub, stack.images[0][::2, ::2])
-    new, summary = measured.measure_response_exposures(frames, model, times, range(6), **kw)
+    made = {k: measured._linear_thumbnails(measured.code_subsample(stack.images[k], 512),
+                                           model, 2.0, None) for k in range(6)}
+    new, summary = measured._measured_from_thumbnails(made, frames, times, trend="pixels",
+                                                      reduce=1)
     # the subsample's codes are the frame's own, unaveraged: block means of 4×4 codes,
     # linearised, are off by 0.009 here
     assert np.abs(np.log(_relative(new, true))).max() < 0.004      # the truth
@@ -181,16 +184,21 @@ def test_prepass_measures_a_subsample_of_codes_as_every_pixel_would(stack, monke
     assert summary["measurement_log_sigma"] < 0.01
 
 
-def test_prepass_threads_do_not_change_the_numbers(stack, tmp_path, monkeypatch):
+def test_prepass_threads_do_not_change_the_numbers(stack, tmp_path):
     from selfcal.exposure import measured
 
     true = np.asarray(stack.true_exposures, float)
     paths = stack.write(tmp_path, fmt="jpg")
     frames = StackFrames(paths, False)
-    args = (frames, true_model(stack), true * OFF, range(len(paths)))
-    two, s2 = measured.measure_response_exposures(*args, clip_margin=2.0)
-    monkeypatch.setattr(measured, "PREPASS_THREADS", 1)
-    one, s1 = measured.measure_response_exposures(*args, clip_margin=2.0)
+    model, times = true_model(stack), true * OFF
+    two, s2 = measured.measure_response_exposures(frames, model, times, range(len(paths)),
+                                                  clip_margin=2.0)
+    assert measured.PREPASS_THREADS > 1
+    # the frames' thumbnails one after another, in this thread
+    made = {k: measured._thumbnail(frames, k, model, 2.0, None, s2["reduce"])
+            for k in range(len(paths))}
+    one, s1 = measured._measured_from_thumbnails(made, frames, times, trend="times",
+                                                 reduce=s2["reduce"])
     np.testing.assert_array_equal(one, two)
     assert s1 == s2
     assert np.abs(_relative(two, true) - 1).max() < 0.015
