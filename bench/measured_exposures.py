@@ -6,8 +6,12 @@ decoded at 1/4 for the arrays), one model is calibrated from all frames as there
 :func:`selfcal.exposure.measured.measure_response_exposures` measures every frame's
 exposure (scale from the EXIF times or memorial's shutter_times.txt):
 
-* **from arrays** (the frames decoded at full size, linearised, area-averaged): the
-  reference;
+* **from arrays** (the frames decoded at full size): the reference, as the merge measures
+  arrays since issue 43 (a strided subsample of the codes, unaveraged, linearised:
+  ``selfcal.exposure.measured.code_subsample``); and, as before issue 43, **every pixel**
+  linearised then area-averaged to the thumbnails: the median and largest
+  ``|log(e_subsample / e_every)|`` (column "arrays: subsample vs every pixel"), and the
+  files' default against every pixel;
 * **from files**, with the pre-pass decoded at 1/K by libjpeg's DCT scaling (block means of
   *codes*, then f⁻¹: biased on texture) for K = the default and 2, 4, 8: the median and
   largest ``|log(e_file / e_array)|`` over the frames (each set rescaled to its geometric
@@ -53,6 +57,22 @@ def measure(frames, model, times, reduce=None):
     return e, summary
 
 
+def measure_every_pixel(frames, model, times):
+    """The measurement before issue 43: every pixel of the arrays linearised, then
+    area-averaged to the thumbnails (``measured._linear_thumbnails`` of the whole frame)."""
+    from selfcal.exposure import measured
+    from selfcal.stack.frames import DEFAULT_CLIP_MARGIN
+
+    levels = (model.diagnostics or {}).get("stuck_codes")
+    stuck = None if levels is None else (np.asarray(levels["floor"], float),
+                                         np.asarray(levels["ceiling"], float))
+    made = {k: measured._linear_thumbnails(np.asarray(frames.items[k]), model,
+                                           DEFAULT_CLIP_MARGIN, stuck)
+            for k in range(len(times))}
+    return measured._measured_from_thumbnails(made, frames, np.asarray(times, float),
+                                              trend="times", reduce=1)
+
+
 def log_spread(a, b):
     d = np.log(np.asarray(a, float)) - np.log(np.asarray(b, float))
     d = np.abs(d - np.mean(d))
@@ -67,11 +87,13 @@ def run_stack(name, paths, times, repeats):
     arrays, paths, times = sorted_frames(name, paths, times, 1)
     model = selfcal.calibrate_response(arrays, times)
     e_arr, s_arr = measure(StackFrames(arrays, False), model, times)
+    e_every, _ = measure_every_pixel(StackFrames(arrays, False), model, times)
     files = StackFrames(paths, False)
     e_def, s_def = measure(files, model, times)
     row = {"name": name, "frames": len(paths),
            "size": "{}×{}".format(*reversed(files.shape)), "reduce": s_def["reduce"],
            "times off": log_spread(times, e_arr), "default": log_spread(e_def, e_arr),
+           "every": log_spread(e_arr, e_every), "default every": log_spread(e_def, e_every),
            "log_sigma": s_arr["log_sigma"]}
     jpeg = paths[0].suffix.lower() in (".jpg", ".jpeg")
     for r in REDUCES:
@@ -106,11 +128,13 @@ def main(argv=None):
         return "-" if v is None else f"{v[0]:.4f} / {v[1]:.4f}"
 
     head = (["stack", "frames", "size", "times off (median / max)", "σ_t fit",
-             "pre-pass 1/K", "files at default K vs arrays"]
+             "pre-pass 1/K", "arrays: subsample vs every pixel",
+             "files at default K vs arrays", "files at default K vs every pixel"]
             + [f"files at 1/{r} vs arrays" for r in REDUCES]
             + ["full decode s", "decode at 1/8 s", "pre-pass s", "pre-pass / decode"])
     out = [[r["name"], str(r["frames"]), r["size"], pair(r["times off"]),
-            f"{r['log_sigma']:.4f}", f"1/{r['reduce']}", pair(r["default"])]
+            f"{r['log_sigma']:.4f}", f"1/{r['reduce']}", pair(r["every"]), pair(r["default"]),
+            pair(r["default every"])]
            + [pair(r[k]) for k in REDUCES]
            + [f"{r['decode']:.2f}", f"{r['decode8']:.2f}", f"{r['prepass']:.2f}",
               f"{100 * r['prepass'] / r['decode']:.0f} %"] for r in rows]

@@ -149,46 +149,56 @@ def test_the_merge_takes_the_calibrations_own_numbers(stack, tmp_path):
 
 
 def test_prepass_measures_a_subsample_of_codes_as_every_pixel_would(stack):
-    """Issue 43: the pre-pass linearises a strided subsample of an array's codes (the
-    calibration's rule), not every pixel then area-averaged; both agree with the truth,
-    and with each other, on the simulator."""
+    """Issue 43: the pre-pass linearises a strided subsample of an array's codes
+    (PREPASS_CODES_SIDE a side), not every pixel, before averaging to the thumbnails; on
+    the simulator it agrees with the truth and with every pixel."""
     from selfcal.exposure import measured
 
     true = np.asarray(stack.true_exposures, float)
     times = true * OFF
     model = true_model(stack)
     frames = StackFrames(stack.images, False)
-    assert max(frames.shape) > measured.MEASURE_CODES_SIDE       # a subsample is taken
-    sub = measured.code_subsample(stack.images[0])
-    assert max(sub.shape[:2]) <= measured.MEASURE_CODES_SIDE
-    np.testing.assert_array_equal(sub, stack.images[0][::2, ::2])
     kw = dict(clip_margin=2.0, trend="pixels")
-    new, summary = measured.measure_response_exposures(frames, model, times, range(6), **kw)
-    # the merge measures an array on the very codes its calibration keeps of it
-    kept = StackFrames([measured.code_subsample(im) for im in stack.images], False)
-    same, _ = measured.measure_response_exposures(kept, model, times, range(6), **kw)
-    np.testing.assert_array_equal(new, same)
     # before issue 43: every pixel linearised, then area-averaged to the thumbnails
     every = {k: measured._linear_thumbnails(stack.images[k], model, 2.0, None)
              for k in range(6)}
     old, _ = measured._measured_from_thumbnails(every, frames, times, trend="pixels",
                                                 reduce=1)
-    # (block means of 4×4 codes, linearised, are off by 0.009 here)
+    # frames up to PREPASS_CODES_SIDE a side: every pixel, the same numbers
+    assert max(frames.shape) <= measured.PREPASS_CODES_SIDE
+    same, _ = measured.measure_response_exposures(frames, model, times, range(6), **kw)
+    np.testing.assert_array_equal(same, old)
+    # a subsample (every other row and column here), as measure_response_exposures
+    # measures frames over PREPASS_CODES_SIDE a side
+    sub = measured.code_subsample(stack.images[0], 512)
+    np.testing.assert_array_equal(sub, stack.images[0][::2, ::2])
+    made = {k: measured._linear_thumbnails(measured.code_subsample(stack.images[k], 512),
+                                           model, 2.0, None) for k in range(6)}
+    new, summary = measured._measured_from_thumbnails(made, frames, times, trend="pixels",
+                                                      reduce=1)
+    # the subsample's codes are the frame's own, unaveraged: block means of 4×4 codes,
+    # linearised, are off by 0.009 here
     assert np.abs(np.log(_relative(new, true))).max() < 0.004      # the truth
-    assert np.abs(np.log(_relative(new, old))).max() < 0.001      # the old path
+    assert np.abs(np.log(_relative(new, old))).max() < 0.001      # every pixel
+    assert 0 < np.abs(np.log(new / old)).max()                   # (it was a subsample)
     assert summary["measurement_log_sigma"] < 0.01
 
 
-def test_prepass_threads_do_not_change_the_numbers(stack, tmp_path, monkeypatch):
+def test_prepass_threads_do_not_change_the_numbers(stack, tmp_path):
     from selfcal.exposure import measured
 
     true = np.asarray(stack.true_exposures, float)
     paths = stack.write(tmp_path, fmt="jpg")
     frames = StackFrames(paths, False)
-    args = (frames, true_model(stack), true * OFF, range(len(paths)))
-    two, s2 = measured.measure_response_exposures(*args, clip_margin=2.0)
-    monkeypatch.setattr(measured, "PREPASS_THREADS", 1)
-    one, s1 = measured.measure_response_exposures(*args, clip_margin=2.0)
+    model, times = true_model(stack), true * OFF
+    two, s2 = measured.measure_response_exposures(frames, model, times, range(len(paths)),
+                                                  clip_margin=2.0)
+    assert measured.PREPASS_THREADS > 1
+    # the frames' thumbnails one after another, in this thread
+    made = {k: measured._thumbnail(frames, k, model, 2.0, None, s2["reduce"])
+            for k in range(len(paths))}
+    one, s1 = measured._measured_from_thumbnails(made, frames, times, trend="times",
+                                                 reduce=s2["reduce"])
     np.testing.assert_array_equal(one, two)
     assert s1 == s2
     assert np.abs(_relative(two, true) - 1).max() < 0.015

@@ -16,15 +16,16 @@ on ``f⁻¹(codes)``.  Ours:
   kept while reading them (every pixel of a :data:`MEASURE_CODES_SIDE` subsample, no
   frame read again: :func:`measure_calibration_exposures`), and its model's exposures are
   these; a merge of those frames takes the same numbers, and measures only frames the
-  model has not seen, with a pre-pass (:func:`measure_response_exposures`) on the same
-  kind of codes, once per frame: the :func:`code_subsample` (every ``s``-th pixel of
-  every ``s``-th row, unaveraged, to a :data:`MEASURE_CODES_SIDE` long side) of an array
-  -- the very pixels its calibration would keep -- or of a file decoded with libjpeg's
-  DCT scaling when large, down to :data:`PREPASS_MIN_SIDE` (its codes are block means,
-  biased where the texture within a block is strong), in :data:`PREPASS_THREADS`
-  threads.  Only these ~175,000 codes a frame are linearised (until issue 43 an array's
-  24 MP were, then area-averaged: 89 % of a merge; docs/decisions.md, "Exposures
-  measured from the pixels: one pass over subsampled codes");
+  model has not seen, with a pre-pass (:func:`measure_response_exposures`) that reads
+  each frame once: the :func:`code_subsample` (every ``s``-th pixel of every ``s``-th
+  row, unaveraged, to a :data:`PREPASS_CODES_SIDE` long side) of an array, or of a file
+  decoded with libjpeg's DCT scaling when large, down to :data:`PREPASS_MIN_SIDE` (its
+  codes are block means, biased where the texture within a block is strong), in
+  :data:`PREPASS_THREADS` threads; those codes are linearised, then area-averaged to
+  the thumbnails.  Only these ~700,000 codes a frame are linearised (until issue 43 an
+  array's 24 MP were: 89 % of a merge; frames up to PREPASS_CODES_SIDE a side are
+  measured as before; docs/decisions.md, "Exposures measured from the pixels: one pass
+  over subsampled codes");
 * **pairs**: a pair counts when the frames share :data:`MIN_PAIR_OVERLAP` of a
   thumbnail's values (frames far apart share a few at the ends of both ranges);
 * **the trend** over the bracket is the times' (``ExposureRule.trend``,
@@ -63,7 +64,7 @@ from .linear import MEASURE_SIDE, MIN_LOG_SIGMA, fit_log_sigma, scale_to_times, 
 from .raw_ratios import split_thumbnails
 
 __all__ = ["measure_response_exposures", "measure_calibration_exposures", "PREPASS_REDUCE", "PREPASS_MIN_SIDE",
-           "PREPASS_THREADS", "PAIR_GAP", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
+           "PREPASS_THREADS", "PREPASS_CODES_SIDE", "PAIR_GAP", "TRENDS", "MEASURE_CODES_SIDE", "MIN_PAIR_OVERLAP"]
 
 #: Files are decoded at 1/PREPASS_REDUCE (DCT scaling) for the measurement, less where
 #: the decoded long side would fall below PREPASS_MIN_SIDE: block means of codes,
@@ -76,11 +77,18 @@ PREPASS_MIN_SIDE = 1500
 #: the merge that follows reads ahead with one thread beside its own.
 PREPASS_THREADS = 2
 #: Long side of the codes a calibration keeps of each frame it reads, for the measurement
-#: after its fit (:func:`measure_calibration_exposures`): the thumbnails' two halves then
+#: after its fit (:func:`measure_calibration_exposures`), and of the codes the merge's
+#: pre-pass measures a frame on (:func:`code_subsample`): the thumbnails' two halves then
 #: hold every kept pixel, unaveraged; 175,000 pixels a 3:2 frame, and on ntu's 24 MP
 #: frames a quarter of the cost of twice this side (docs/decisions.md, "Exposures
 #: measured from the pixels: by default").
 MEASURE_CODES_SIDE = MEASURE_SIDE
+#: Long side of the codes the merge's pre-pass linearises of a frame (a strided
+#: subsample, :func:`code_subsample`), before their linear values are area-averaged to
+#: the :data:`MEASURE_SIDE` thumbnails: twice it, so a frame of up to 1024 pixels a side
+#: is measured on every pixel as before issue 43 (at 512, memorial's 768-pixel frames
+#: moved by a median 0.033 in log, the pairs' scatter from 0.0037 to 0.0086).
+PREPASS_CODES_SIDE = 2 * MEASURE_SIDE
 #: Frames are paired with the next PAIR_GAP frames by exposure only (the pairs' cost grows
 #: with the square of the frame count; far pairs share few well-exposed pixels).
 PAIR_GAP = 3
@@ -111,36 +119,55 @@ def code_subsample(codes: np.ndarray, side: int = MEASURE_CODES_SIDE) -> np.ndar
     """Every ``s``-th code of every ``s``-th row, ``s`` the smallest stride bringing the
     long side to at most ``side``: no averaging (``f⁻¹`` of a mean of codes is not the
     mean of ``f⁻¹``).  The rule of the calibration's kept codes
-    (``selfcal.stack.samples.KeptData.codes_side``), so a frame given as an array is
-    measured on the same pixels by a merge as by the calibration of its model (ours)."""
+    (``selfcal.stack.samples.KeptData.codes_side``), which keeps :data:`MEASURE_CODES_SIDE`;
+    the merge's pre-pass keeps :data:`PREPASS_CODES_SIDE` (ours)."""
     stride = max(1, -(-max(codes.shape[:2]) // int(side)))
     return np.ascontiguousarray(codes[::stride, ::stride])
 
 
 def _frame_codes(frames, k: int, reduce: int) -> np.ndarray:
-    """The codes frame ``k`` is measured on: :func:`code_subsample` of the array, or of
+    """The codes frame ``k`` is measured on: :func:`code_subsample` (to
+    :data:`PREPASS_CODES_SIDE`) of the array, or of
     the file decoded at 1/``reduce`` by libjpeg's DCT scaling (each decoded code a block
     mean: :data:`PREPASS_MIN_SIDE` bounds the blocks' size)."""
     item = frames.items[k]
     img = read_image(item, reduce=reduce) if frames.paths[k] is not None else np.asarray(item)
-    return code_subsample(img)
+    return code_subsample(img, PREPASS_CODES_SIDE)
 
 
 def _linear_thumbnails(img, model, clip_margin: float, stuck):
     """Codes ``img`` linearised by ``model`` with its clipped codes excluded, as the split
-    thumbnails of :func:`selfcal.exposure.raw_ratios.split_thumbnails` (no reduction
-    when ``img`` is a :func:`code_subsample`: every kept code, unaveraged)."""
+    thumbnails of :func:`selfcal.exposure.raw_ratios.split_thumbnails` (linear values
+    area-averaged to :data:`MEASURE_SIDE`; none when ``img`` is that small)."""
     mc = max_code_of(img)
     lin = Lineariser(model, False, mc)
     lo, hi, floor = frame_limits(mc, clip_margin, False, stuck)
-    if lin.kind == "lut":
+    if lin.kind == "lut" and mc is not None:
         assert lin.table is not None        # made for the frame's max code
-        x = apply_lut(img, lin.table.astype(np.float32))
+        # the tests below, per channel and code, made tables: a channel at or below its
+        # black limit or floor looks up the sentinel, a pixel with one channel at or
+        # beyond its white limit gets it in all three (one lookup each, no float compare)
+        codes = np.arange(mc + 1)[:, None]
+        dark = codes <= lo if floor is None else (codes <= lo) | (codes < floor)
+        table = np.where(dark, _EXCLUDED, lin.table).astype(np.float32)
+        h, width = img.shape[0], img.shape[1] - img.shape[1] % 2
+        small = width >= 2 and max(h, width // 2) <= MEASURE_SIDE
+        if small:
+            # split_thumbnails' halves with nothing to average: the even and the odd
+            # columns' codes stacked, looked up once (the same values, fewer copies)
+            img = np.concatenate([img[:, 0:width:2], img[:, 1:width:2]])
+        x = apply_lut(img, table)
+        over = apply_lut(img, (codes >= hi).astype(np.float32))
+        white = (over[..., 0] + over[..., 1] + over[..., 2]) > 0
+        np.copyto(x, _EXCLUDED, where=white[..., None])
+        if small:
+            np.copyto(x, np.float32(np.nan), where=x >= _CLIP_LEVEL)
+            return x, np.concatenate([x[h:], x[:h]])
     else:
         x = lin.values(img)
-    white = np.any(img >= hi, axis=2, keepdims=True)
-    dark = img <= lo if floor is None else (img <= lo) | (img < floor)
-    x[np.broadcast_to(white, x.shape) | dark] = _EXCLUDED
+        white = np.any(img >= hi, axis=2, keepdims=True)
+        dark = img <= lo if floor is None else (img <= lo) | (img < floor)
+        x[np.broadcast_to(white, x.shape) | dark] = _EXCLUDED
     return split_thumbnails(x, max_side=MEASURE_SIDE, clip_level=_CLIP_LEVEL)
 
 
@@ -219,7 +246,8 @@ def measure_response_exposures(frames, model, exposures, frame_set, *, clip_marg
     """The frames' exposures with their ratios measured from the pixels through ``model``.
 
     [Lin2011] §5's ratios of linear values, on ``f⁻¹`` of each frame's
-    :func:`code_subsample` (of the file decoded at 1/``reduce``), the frames' split
+    :func:`code_subsample` (of the file decoded at 1/``reduce``) area-averaged to the
+    frames' split
     thumbnails (:func:`selfcal.exposure.raw_ratios.split_thumbnails`) compared pair by
     pair (:func:`.linear.thumbnail_exposures`); what is ours is in the module docstring.
 
@@ -288,8 +316,12 @@ def _measured_from_thumbnails(made: dict, frames, exposures, *, trend: str, redu
     frame index -> ``(values, selection)``)."""
     # by exposure, frames of one exposure by their content: the pairs, and so the
     # result, do not depend on the order the frames came in
-    frame_set = sorted(made, key=lambda k: (float(exposures[k]),
-                                            float(np.nansum(made[k][0], dtype=np.float64)), k))
+    # (the content's sum only where two frames share an exposure: the same order)
+    shared = [float(exposures[k]) for k in made]
+    shared = {e for e in shared if shared.count(e) > 1}
+    frame_set = sorted(made, key=lambda k: (
+        float(exposures[k]), float(np.nansum(made[k][0], dtype=np.float64))
+        if float(exposures[k]) in shared else 0.0, k))
     thumbs = [made[k] for k in frame_set]
     rel, pairs = thumbnail_exposures(thumbs, max_gap=PAIR_GAP, min_count=_min_overlap(thumbs))
     times = [float(exposures[k]) for k in frame_set]

@@ -53,17 +53,18 @@ def raw_thumbnail(raw_rgb: np.ndarray, *, max_side: int = 512, clip_level: float
     clipped values in.
     """
     cv2 = import_cv2()
-    raw = check_linear_raw(raw_rgb).astype(np.float32)
+    raw = check_linear_raw(raw_rgb).astype(np.float32)     # a copy
     h, w = raw.shape[:2]
     f = max(1.0, max(h, w) / float(max_side))
-    clip = (raw >= clip_level).astype(np.float32)
     if f > 1.0:
+        clip = (raw >= clip_level).astype(np.float32)
         size = (max(1, int(round(w / f))), max(1, int(round(h / f))))
         small = cv2.resize(raw, size, interpolation=cv2.INTER_AREA)
         clip = cv2.resize(clip, size, interpolation=cv2.INTER_AREA)
-    else:
-        small = raw.copy()
-    small[clip > 1e-6] = np.nan
+        small[clip > 1e-6] = np.nan
+    else:       # nothing averaged: NaN where the value itself is clipped
+        small = raw
+        np.copyto(small, np.float32(np.nan), where=raw >= clip_level)
     return small
 
 
@@ -113,6 +114,33 @@ def _pair_log_ratio(vi, vj, positive, statistic: str):
         keep = ~positive
         keep[positive] = near
     return float(np.log(vj[keep].sum() / vi[keep].sum())), mad
+
+
+def _measured_pairs(values, chosen, max_gap, min_count: int, statistic: str):
+    """``(edges, spreads)`` of :func:`raw_exposure_ratios`: ``(i, j, log ratio, count)``
+    and the median absolute deviation of every pair of frames at most ``max_gap`` apart
+    sharing ``min_count`` chosen values, measured in :data:`PAIR_THREADS` threads (their
+    medians' partitions release the GIL; each pair's result is its own, kept in order)."""
+    n = len(values)
+
+    def pair(ij):
+        i, j = ij
+        both = np.flatnonzero(chosen[i] & chosen[j])
+        if both.size < min_count:
+            return None
+        vi = values[i][both].astype(np.float64)
+        vj = values[j][both].astype(np.float64)
+        positive = (vi > 0) & (vj > 0)
+        if not positive.any():
+            return None
+        return (i, j, *_pair_log_ratio(vi, vj, positive, statistic), int(both.size))
+
+    candidates = [(i, j) for i in range(n)
+                  for j in range(i + 1, n if max_gap is None else min(n, i + 1 + max_gap))]
+    with ThreadPoolExecutor(max_workers=max(1, min(PAIR_THREADS, len(candidates)))) as pool:
+        measured = [m for m in pool.map(pair, candidates) if m is not None]
+    return ([(i, j, med, cnt) for i, j, med, _, cnt in measured],
+            [mad for _, _, _, mad, _ in measured])
 
 
 def raw_exposure_ratios(raws: Sequence[np.ndarray], *, low: float = 0.02, high: float = 0.9,
@@ -195,25 +223,7 @@ def raw_exposure_ratios(raws: Sequence[np.ndarray], *, low: float = 0.02, high: 
         if statistic == "median":
             ok &= v > 0
         chosen.append(ok)
-    def pair(ij):
-        i, j = ij
-        both = np.flatnonzero(chosen[i] & chosen[j])
-        if both.size < min_count:
-            return None
-        vi = values[i][both].astype(np.float64)
-        vj = values[j][both].astype(np.float64)
-        positive = (vi > 0) & (vj > 0)
-        if not positive.any():
-            return None
-        return (i, j, *_pair_log_ratio(vi, vj, positive, statistic), int(both.size))
-
-    candidates = [(i, j) for i in range(n)
-                  for j in range(i + 1, n if max_gap is None else min(n, i + 1 + max_gap))]
-    # pairs side by side (their medians' partitions release the GIL), kept in order
-    with ThreadPoolExecutor(max_workers=max(1, min(PAIR_THREADS, len(candidates)))) as pool:
-        measured = [m for m in pool.map(pair, candidates) if m is not None]
-    edges = [(i, j, med, cnt) for i, j, med, _, cnt in measured]
-    spreads = [mad for _, _, _, mad, _ in measured]
+    edges, spreads = _measured_pairs(values, chosen, max_gap, min_count, statistic)
     # connected components
     parent = list(range(n))
 
