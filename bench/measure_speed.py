@@ -13,7 +13,7 @@ within each round with their median over the rounds:
    none of them the model's: ``selfcal.merge_hdr(arrays, times, model)`` by default
    (exposures measured: the pre-pass of
    :func:`selfcal.exposure.measured.measure_response_exposures`), the same with
-   ``MergeOptions(measure_exposures=False)``, and ``cv2.createMergeDebevec().process``
+   ``MergeOptions(exposures=ExposureRule(times="held"))``, and ``cv2.createMergeDebevec().process``
    on the same arrays (BGR) with the model's response as a 256×1×3 table.  Targets: the
    default ≤ 1.15× the merge without, and ≤ 0.5× OpenCV.
 2. **files**: all 17 ntu files from disk (12 of them the model's, 5 not: the merge
@@ -127,7 +127,7 @@ def main(argv=None):
     dt_cal, _, model = _timed(lambda: selfcal.calibrate_response(others))
     print(f"model: calibrated from the {len(others)} ntu frames outside {SPEED_FRAMES} "
           f"in {dt_cal:.1f} s")
-    without = selfcal.MergeOptions(measure_exposures=False)
+    without = selfcal.MergeOptions(exposures=selfcal.ExposureRule(times="held"))
     response = model.inverse_response()[:, ::-1].astype(np.float32).reshape(256, 1, 3)
 
     images = [read_image(p) for p in speed]
@@ -141,7 +141,7 @@ def main(argv=None):
     seconds = _side_by_side({
         "merge_hdr (default: exposures measured)":
             lambda: selfcal.merge_hdr(images, times, model),
-        "merge_hdr (measure_exposures=False)":
+        "merge_hdr (times held)":
             lambda: selfcal.merge_hdr(images, times, model, options=without),
         "OpenCV MergeDebevec": lambda: cv2.createMergeDebevec().process(bgr, t32, response),
         "pre-pass alone (measure_response_exposures)":
@@ -150,7 +150,7 @@ def main(argv=None):
     h, w = images[0].shape[:2]
     _report(f"arrays: {len(images)} frames of {w}x{h} the model has not seen (measured by: "
             f"{by}); seconds over {args.repeats} rounds", seconds,
-            "merge_hdr (default: exposures measured)", "merge_hdr (measure_exposures=False)",
+            "merge_hdr (default: exposures measured)", "merge_hdr (times held)",
             "OpenCV MergeDebevec")
     print("measured / EXIF exposures: "
           + " ".join(f"{e / t:.4f}" for e, t in zip(e_with, times)))
@@ -170,7 +170,7 @@ def main(argv=None):
 
     seconds = _side_by_side({
         "merge_hdr (default: exposures measured)": lambda: selfcal.merge_hdr(paths, model=model),
-        "merge_hdr (measure_exposures=False)":
+        "merge_hdr (times held)":
             lambda: selfcal.merge_hdr(paths, model=model, options=without),
         "OpenCV: imread all, MergeDebevec": opencv_files,
         "pre-pass alone (measure_response_exposures)":
@@ -179,7 +179,7 @@ def main(argv=None):
     }, args.repeats)
     _report(f"files: the {len(paths)} ntu files from disk (12 the model's, 5 not: measured "
             f"by: {by}); seconds over {args.repeats} rounds", seconds,
-            "merge_hdr (default: exposures measured)", "merge_hdr (measure_exposures=False)",
+            "merge_hdr (default: exposures measured)", "merge_hdr (times held)",
             "OpenCV: imread all, MergeDebevec")
 
 
