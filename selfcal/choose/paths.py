@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..exposure.legacy import rule_from_legacy
+from ..exposure.legacy import legacy_keywords_accepted
 from ..exposure.record import ExposureRule
 from ..errors import CalibrationError, InputError
 from ..io.images import (ExposureInfo, effective_exposure_times, read_exposure_info,
@@ -183,6 +183,7 @@ class PairOptions:
     block: int | None = None
 
 
+@legacy_keywords_accepted("calibrate")
 def calibrate(paths: Sequence[PathLike], *,
               exposure_times: ExposureTimes | Mapping[PathLike, float | None] | None = None,
               exposure_source: str = "auto", seed: int = 0,
@@ -190,7 +191,7 @@ def calibrate(paths: Sequence[PathLike], *,
               pairs: PairOptions | None = None,
               response_options: ResponseOptions | None = None,
               pipeline_options: PipelineOptions | None = None,
-              progress: Progress | None = None, **legacy: object) -> CalibrationResult:
+              progress: Progress | None = None) -> CalibrationResult:
     """Calibrate a camera from whatever files are given, taking the path(s) they support.
 
     * Rendered frames of one size at ≥ 2 distinct exposures → the response path,
@@ -240,9 +241,6 @@ def calibrate(paths: Sequence[PathLike], *,
         The response path's finer settings (:func:`selfcal.calibrate_response`).
     pipeline_options : PipelineOptions, optional
         The pipeline path's finer settings (:func:`selfcal.pipeline.fit_pipeline`).
-    **legacy
-        1.0's ``refine_exposures=``, accepted with a DeprecationWarning until 2.0
-        (:mod:`selfcal.exposure.legacy`).
 
     Returns
     -------
@@ -261,8 +259,6 @@ def calibrate(paths: Sequence[PathLike], *,
         RAW+JPEG pair"``.  Also for a bracket of linear TIFFs (raw converter output,
         :func:`selfcal.exposure.linear_evidence.linear_evidence`), which has no response.
     """
-    if legacy:
-        exposures = rule_from_legacy(legacy, exposures, where="calibrate")
     if exposure_source not in ("auto", "raw", "exif", "unknown"):
         raise InputError(f"exposure_source must be auto, raw, exif or unknown, got "
                          f"{exposure_source!r}")

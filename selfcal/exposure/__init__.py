@@ -25,6 +25,7 @@ Its modules:
 * :mod:`selfcal.exposure.resolve` -- the record of a calibration, of a merge, of a linear
   bracket, of an older model file; the run's one line about its exposures;
 * :mod:`selfcal.exposure.times` -- the thresholds of contradicted times;
+* :mod:`selfcal.exposure.legacy` -- 1.0's names of the rule, accepted until 2.0;
 * :mod:`selfcal.exposure.linear_evidence` -- whether 16-bit or float TIFFs are linear data;
 * :mod:`selfcal.exposure.raw_ratios` -- a bracket's exposure ratios from its linear raw
   pixels;

@@ -17,13 +17,14 @@ The mapping (the 1.0 combinations the rule no longer has go to the nearest one):
 
 from __future__ import annotations
 
+import functools
 import warnings
 from dataclasses import replace
 
 from ..errors import InputError
 from .record import ExposureRule
 
-__all__ = ["LEGACY_NAMES", "rule_from_legacy"]
+__all__ = ["LEGACY_NAMES", "rule_from_legacy", "legacy_keywords_accepted"]
 
 #: The 1.0 keywords this module maps.
 LEGACY_NAMES = ("refine_exposures", "measure_exposures", "linear_exposures", "exposure_trend")
@@ -68,3 +69,19 @@ def rule_from_legacy(legacy: dict, base: ExposureRule | None = None, *,
         warnings.warn(f"{where}({given}) is the 1.0 form, removed in 2.0: write "
                       f"exposures={rule!r}", DeprecationWarning, stacklevel=stacklevel)
     return rule
+
+
+def legacy_keywords_accepted(where: str):
+    """Let a function with an ``exposures=`` keyword also take 1.0's keywords
+    (:data:`LEGACY_NAMES`), with a DeprecationWarning: they are folded into ``exposures``
+    (:func:`rule_from_legacy`).  The function's own signature is unchanged."""
+    def decorate(function):
+        @functools.wraps(function)
+        def wrapper(*args, **kwargs):
+            legacy = {k: kwargs.pop(k) for k in tuple(kwargs) if k in LEGACY_NAMES}
+            if legacy:
+                kwargs["exposures"] = rule_from_legacy(legacy, kwargs.get("exposures"),
+                                                       where=where)
+            return function(*args, **kwargs)
+        return wrapper
+    return decorate

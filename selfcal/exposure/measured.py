@@ -317,8 +317,8 @@ def _measured_from_thumbnails(made: dict, frames, exposures, *, trend: str, redu
     # by exposure, frames of one exposure by their content: the pairs, and so the
     # result, do not depend on the order the frames came in
     # (the content's sum only where two frames share an exposure: the same order)
-    shared = [float(exposures[k]) for k in made]
-    shared = {e for e in shared if shared.count(e) > 1}
+    levels = [float(exposures[k]) for k in made]
+    shared = {e for e in levels if levels.count(e) > 1}
     frame_set = sorted(made, key=lambda k: (
         float(exposures[k]), float(np.nansum(made[k][0], dtype=np.float64))
         if float(exposures[k]) in shared else 0.0, k))

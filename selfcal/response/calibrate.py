@@ -29,7 +29,7 @@ from .model import ResponseModel
 from .code_error import code_error_profile
 from .delta import delta_eq12
 from .hidden_white import white_end_masks
-from ..exposure.legacy import rule_from_legacy
+from ..exposure.legacy import legacy_keywords_accepted
 from ..exposure.record import ExposureRule, GivenTimes, read_given_times
 from ..exposure.resolve import exposure_message, recorded_calibration
 from ..exposure.times import CONTRADICTED_UNUSABLE_SHARE, CONTRADICTION_FACTOR
@@ -56,12 +56,12 @@ class CalibrationCall:
     progress: object = None
 
 
+@legacy_keywords_accepted("calibrate_response")
 def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTimes | None = None,
                        *, exposures: ExposureRule | None = None, seed: int = 0,
                        align: bool | str = False, progress: Progress | None = None,
                        times_source: str = "given",
-                       options: ResponseOptions | None = None,
-                       **legacy: object) -> ResponseModel:
+                       options: ResponseOptions | None = None) -> ResponseModel:
     """Estimate each channel's camera response from an exposure stack.
 
     Implements [Lin2011] §5: log-domain PCA model (Eq. 7) fitted to the exposure equation
@@ -82,7 +82,9 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         contradict by more than :data:`selfcal.exposure.times.CONTRADICTION_FACTOR` are
         refined in the solve, and the model's exposures are measured from the pixels
         through the fitted curve (the times keep their scale and trend);
-        ``ExposureRule(times="held")`` holds every time.
+        ``ExposureRule(times="held")`` holds every time.  1.0's ``refine_exposures=``
+        is still accepted until 2.0, with a DeprecationWarning
+        (:mod:`selfcal.exposure.legacy`).
     seed : int
         Seed of every random choice (the same input gives the same model).
     align : {False, "mtb", "homography"}
@@ -100,9 +102,6 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         The finer settings of the sampling and the solve (number of components, β, clip
         margin, samples, Huber threshold, priors, correspondences); default
         ``ResponseOptions()``.
-    **legacy
-        1.0's ``refine_exposures=``, accepted with a DeprecationWarning until 2.0
-        (:mod:`selfcal.exposure.legacy`).
 
     Returns
     -------
@@ -129,8 +128,6 @@ def calibrate_response(images: Sequence[ImageInput], exposure_times: ExposureTim
         When the data cannot determine a response (one frame, no exposure change, too few
         valid samples).
     """
-    if legacy:
-        exposures = rule_from_legacy(legacy, exposures, where="calibrate_response")
     call = CalibrationCall(options=ResponseOptions() if options is None else options,
                  rule=ExposureRule() if exposures is None else exposures, seed=seed,
                  progress=progress)
@@ -379,10 +376,11 @@ def _calibrate_after_alignment(frames: StackFrames, given: GivenTimes, align, ca
     return model
 
 
+@legacy_keywords_accepted("calibrate_aligned")
 def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=None,
                       clip_margin: float | None = None, progress=None, max_side: int = 2048,
                       exposures: ExposureRule | None = None,
-                      options: ResponseOptions | None = None, **legacy: object):
+                      options: ResponseOptions | None = None):
     """Align a handheld stack to its reference frame, then calibrate its response.
 
     Misaligned frames give wrong correspondences, and the solve of [Lin2011] Eq. 8 then
@@ -417,8 +415,6 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         As for :func:`calibrate_response`.
     options : ResponseOptions, optional
         The calibration's finer settings (default ``ResponseOptions()``).
-    **legacy
-        1.0's ``refine_exposures=``, accepted with a DeprecationWarning until 2.0.
 
     Returns
     -------
@@ -432,8 +428,6 @@ def calibrate_aligned(images, exposure_times=None, *, method="mtb", reference=No
         The model's warnings (:func:`model_warnings`), the alignment's first.
     """
     resolved = ResponseOptions() if options is None else options
-    if legacy:
-        exposures = rule_from_legacy(legacy, exposures, where="calibrate_aligned")
     call = CalibrationCall(options=resolved, progress=progress,
                  rule=ExposureRule() if exposures is None else exposures)
     frames = images if isinstance(images, StackFrames) else StackFrames(images, False)
