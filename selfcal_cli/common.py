@@ -102,7 +102,8 @@ def check_output_folder(folder) -> None:
 
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
-        raise OutputWriteError(f"{folder}: cannot be the output folder (it is a file)")
+        raise OutputWriteError(path=folder,
+                               message=f"cannot be the output folder (it is a file)")
 
 
 # ------------------------------------------------------------------------- argument types

@@ -225,7 +225,8 @@ def test_write_failure_names_the_output_not_the_temporary_file(tmp_path):
     from selfcal.hdr.io import OutputWriteError as RadianceWriteError
 
     def failing_writer(tmp):
-        raise RadianceWriteError(f"{tmp}: OpenCV could not write it (no .hdr encoder?)")
+        # the file concerned is a field of the error (its message is "{path}: {reason}")
+        raise RadianceWriteError("OpenCV could not write it (no .hdr encoder?)", tmp)
 
     staged = StagedOutputs()
     staged.write(tmp_path / "a.json", lambda tmp: Path(tmp).write_text("{}"))

@@ -270,7 +270,8 @@ def _check_out_dir(out_dir: Path, force: bool) -> None:
     from ..io.images import OutputWriteError, check_output_path
 
     if out_dir.exists() and not out_dir.is_dir():
-        raise OutputWriteError(f"{out_dir}: cannot be the batch folder (it is a file)")
+        raise OutputWriteError(path=out_dir,
+                               message=f"cannot be the batch folder (it is a file)")
     ours = any((out_dir / n).exists() for n in (MANIFEST, "sessions", "cameras"))
     if out_dir.is_dir() and any(out_dir.iterdir()) and not ours and not force:
         raise OutputExistsError(f"{out_dir}: exists, is not empty and holds no batch "

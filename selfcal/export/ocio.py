@@ -168,18 +168,22 @@ def check_ocio_folder(folder, force: bool = False, inputs=()) -> None:
         if p == resolved or resolved in p.parents:
             raise OutputExistsError(f"{folder}: refusing to write over an input")
     if folder.exists() and not folder.is_dir():
-        raise OutputWriteError(f"{folder}: cannot be written (it is a file, not a folder)")
+        raise OutputWriteError(path=folder,
+                               message="cannot be written (it is a file, not a folder)")
     if folder.exists() and not force:
         raise OutputExistsError(f"{folder}: exists already (use --force to replace it)")
     existing, missing = first_blocker(folder.parent)
     if not existing.is_dir():
-        raise OutputWriteError(f"{folder}: cannot be written ({existing} is a file, not a "
+        raise OutputWriteError(path=folder,
+                               message=f"cannot be written ({existing} is a file, not a "
                                "folder)")
     if missing:
-        raise OutputWriteError(f"{folder}: cannot be written (the folder {missing[0]} does "
+        raise OutputWriteError(path=folder,
+                               message=f"cannot be written (the folder {missing[0]} does "
                                "not exist)")
     if not os.access(existing, os.W_OK | os.X_OK):
-        raise OutputWriteError(f"{folder}: cannot be written (the folder {existing} is not "
+        raise OutputWriteError(path=folder,
+                               message=f"cannot be written (the folder {existing} is not "
                                "writable)")
 
 
@@ -267,7 +271,8 @@ def write_ocio_config(model, folder, *, camera: str = "camera", size: int | None
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     except OSError as exc:
-        raise OutputWriteError(f"{folder}: cannot be written ({exc.strerror or exc})") \
+        raise OutputWriteError(path=folder,
+                               message=f"cannot be written ({exc.strerror or exc})") \
             from None
     try:
         for fname, (d, content) in luts.items():
@@ -278,7 +283,8 @@ def write_ocio_config(model, folder, *, camera: str = "camera", size: int | None
         os.chmod(tmp, 0o777 & ~_umask())
         _swap_in(tmp, folder)
     except OSError as exc:
-        raise OutputWriteError(f"{folder}: cannot be written ({exc.strerror or exc})") \
+        raise OutputWriteError(path=folder,
+                               message=f"cannot be written ({exc.strerror or exc})") \
             from None
     finally:
         if tmp.exists():

@@ -219,9 +219,11 @@ def write_radiance(path: PathLike, radiance: np.ndarray, *, force: bool = False,
         try:
             ok = cv2.imwrite(str(tmp), bgr, params)
         except cv2.error as exc:
-            raise OutputWriteError(f"{path}: OpenCV could not write it ({exc})") from None
+            raise OutputWriteError(path=path,
+                                   message=f"OpenCV could not write it ({exc})") from None
         if not ok:
-            raise OutputWriteError(f"{path}: OpenCV could not write it (no {suffix} encoder?)")
+            raise OutputWriteError(path=path,
+                                   message=f"OpenCV could not write it (no {suffix} encoder?)")
         tmp = Path(tmp)
         if suffix == ".exr":
             exr = tmp.read_bytes()
@@ -276,7 +278,8 @@ def _rgbe_add_header(data: bytes, units: str, path) -> bytes:
     for greys; Radiance's weights are for its own primaries)."""
     end = data.find(b"\n\n")
     if not data.startswith(b"#?") or end < 0:
-        raise OutputWriteError(f"{path}: the RGBE OpenCV wrote has no Radiance header")
+        raise OutputWriteError(path=path,
+                               message="the RGBE OpenCV wrote has no Radiance header")
     lines = ["PRIMARIES= " + " ".join(f"{v:.4f}" for v in SRGB_CHROMATICITIES)]
     if units == "cd/m2":
         lines.append(f"EXPOSURE= {RADIANCE_EFFICACY:g}")
@@ -329,7 +332,7 @@ def _exr_add_attribute(data: bytes, name: str, kind: str, value: bytes, path) ->
         compression = attrs["compression"][1][0]
         lines = _EXR_LINES_PER_CHUNK[compression]
     except (InputError, KeyError, IndexError, struct.error) as exc:
-        raise OutputWriteError(f"{path}: the EXR OpenCV wrote cannot take the "
+        raise OutputWriteError(path=path, message=f"the EXR OpenCV wrote cannot take the "
                                f"{name} attribute ({exc})") from None
     chunks = -(-(ymax - ymin + 1) // lines)
     table = np.frombuffer(data, dtype="<u8", count=chunks, offset=end + 1)
@@ -440,7 +443,8 @@ def write_radiance_sigma(path, radiance, sigma, *, force: bool = False, half: bo
             with OpenEXR.File(header, channels) as exr:
                 exr.write(str(tmp))
         except Exception as exc:     # the bindings raise plain exceptions
-            raise OutputWriteError(f"{path}: OpenEXR could not write it ({exc})") from None
+            raise OutputWriteError(path=path,
+                                   message=f"OpenEXR could not write it ({exc})") from None
     return RadianceFile(path, scale), path
 
 
@@ -655,4 +659,4 @@ def _write_tiff(path, data, *, force, inputs, extratags=(), metadata=None):
             tifffile.imwrite(tmp, data, photometric="rgb", extratags=list(extratags),
                              **extra)
         except OSError as exc:
-            raise OutputWriteError(f"{path}: cannot be written ({exc})") from None
+            raise OutputWriteError(path=path, message=f"cannot be written ({exc})") from None

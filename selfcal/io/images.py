@@ -157,7 +157,16 @@ def read_image_size(path: PathLike) -> tuple[int, int]:
 
 class OutputWriteError(SelfcalError, OSError):
     """An output file cannot be written (its folder is missing, not a folder, read-only,
-    or the disk refused); the message names the output asked for, never a temporary file."""
+    or the disk refused); the message names the output asked for, never a temporary file.
+
+    ``path`` (the output) and ``reason`` (what is wrong) are fields, as
+    :class:`~selfcal.errors.InputError`'s: the message is ``"{path}: {reason}"``.
+    """
+
+    def __init__(self, message: str, path: object = None) -> None:
+        self.path = None if path is None else str(path)
+        self.reason = message
+        super().__init__(f"{self.path}: {message}" if self.path else message)
 
 
 def _reason(exc: OSError) -> str:
@@ -165,12 +174,15 @@ def _reason(exc: OSError) -> str:
     return (exc.strerror or str(exc) or type(exc).__name__).rstrip(".").lower()
 
 
-def _hidden_temp_names(text: str, folder: Path, target: Path) -> str:
-    """``text`` with every hidden temporary file of ``folder`` (``/.name.xxxx.ext``)
-    replaced by ``target``: messages name the output asked for."""
-    import re
-
-    return re.sub(re.escape(str(folder)) + r"/\.[^\s:'\"()]+", str(target), text)
+def _names_a_temporary(exc: BaseException, folder: Path
+                       ) -> TypeGuard[InputError | OutputWriteError]:
+    """Whether ``exc`` is an error about a hidden temporary file of ``folder`` (its ``path``
+    field, :func:`_temporary_beside`'s ``.name.xxxx.ext``): the output asked for should be
+    named instead."""
+    if not isinstance(exc, (InputError, OutputWriteError)) or not exc.path:
+        return False
+    p = Path(exc.path)
+    return p.parent == folder and p.name.startswith(".")
 
 
 def first_blocker(folder: Path):
@@ -206,21 +218,23 @@ def check_output_path(path: PathLike, *, force: bool = False, inputs: Iterable[P
         if Path(inp).resolve() == resolved:
             raise OutputExistsError(f"{path}: refusing to write over an input file")
     if path.is_dir():
-        raise OutputWriteError(f"{path}: cannot be written (it is a directory)")
+        raise OutputWriteError(path=path, message="cannot be written (it is a directory)")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
     folder = path.parent
     existing, missing = first_blocker(folder)
     if not existing.is_dir():
-        raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
+        raise OutputWriteError(path=path,
+                               message=f"cannot be written ({existing} is a file, not a "
                                "folder)")
     if missing and not create_folder:
-        raise OutputWriteError(f"{path}: cannot be written (the folder {missing[0]} does "
+        raise OutputWriteError(path=path,
+                               message=f"cannot be written (the folder {missing[0]} does "
                                "not exist)")
     try:
         fd, tmp = tempfile.mkstemp(prefix=".selfcal-check.", dir=existing)
     except OSError as exc:
-        raise OutputWriteError(f"{path}: cannot be written (the folder {existing}: "
+        raise OutputWriteError(path=path, message=f"cannot be written (the folder {existing}: "
                                f"{_reason(exc)})") from None
     os.close(fd)
     os.unlink(tmp)
@@ -233,7 +247,8 @@ def _temporary_beside(path: Path) -> Path:
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp",
                                    dir=path.parent)
     except OSError as exc:
-        raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
+        raise OutputWriteError(path=path,
+                               message=f"cannot be written (the folder {path.parent}: "
                                f"{_reason(exc)})") from None
     os.close(fd)
     umask = os.umask(0)
@@ -277,12 +292,14 @@ def atomic_output(path: PathLike, *, force: bool = False,
         raise OutputExistsError(f"{path}: exists already (use --force to overwrite)")
     existing, _ = first_blocker(path.parent)
     if not existing.is_dir():
-        raise OutputWriteError(f"{path}: cannot be written ({existing} is a file, not a "
+        raise OutputWriteError(path=path,
+                               message=f"cannot be written ({existing} is a file, not a "
                                "folder)")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise OutputWriteError(f"{path}: cannot be written (the folder {path.parent}: "
+        raise OutputWriteError(path=path,
+                               message=f"cannot be written (the folder {path.parent}: "
                                f"{_reason(exc)})") from None
     tmp = _temporary_beside(path)
     try:
@@ -291,11 +308,12 @@ def atomic_output(path: PathLike, *, force: bool = False,
     except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
-        if isinstance(exc, SelfcalError) and str(tmp) in str(exc):
+        if _names_a_temporary(exc, path.parent):
             # a writer's own error about the temporary file: the same error, named right
-            raise type(exc)(_hidden_temp_names(str(exc), path.parent, path)) from None
+            raise type(exc)(message=exc.reason, path=path) from None
         if isinstance(exc, OSError) and not isinstance(exc, SelfcalError):
-            raise OutputWriteError(f"{path}: cannot be written ({_reason(exc)})") from None
+            raise OutputWriteError(path=path,
+                                   message=f"cannot be written ({_reason(exc)})") from None
         raise
 
 
@@ -351,7 +369,7 @@ class StagedOutputs:
                 folder.mkdir()
                 self._created_dirs.append(folder)
         except OSError as exc:
-            raise OutputWriteError(f"{target}: cannot be written (the folder "
+            raise OutputWriteError(path=target, message=f"cannot be written (the folder "
                                    f"{target.parent}: {_reason(exc)})") from None
         tmp = _temporary_beside(target)
         self._staged.append((tmp, target))
@@ -366,11 +384,12 @@ class StagedOutputs:
         try:
             return writer(tmp)
         except SelfcalError as exc:
-            if str(tmp.parent) in str(exc):
-                raise type(exc)(_hidden_temp_names(str(exc), tmp.parent, target)) from None
+            if _names_a_temporary(exc, tmp.parent):
+                raise type(exc)(message=exc.reason, path=target) from None
             raise
         except OSError as exc:
-            raise OutputWriteError(f"{target}: cannot be written ({_reason(exc)})") from None
+            raise OutputWriteError(path=target,
+                                   message=f"cannot be written ({_reason(exc)})") from None
 
     def commit(self) -> list[Path]:
         """Rename every staged file onto its target; returns the targets."""
@@ -384,7 +403,7 @@ class StagedOutputs:
                 try:
                     os.replace(tmp, target)
                 except OSError as exc:
-                    raise OutputWriteError(f"{target}: cannot be written "
+                    raise OutputWriteError(path=target, message=f"cannot be written "
                                            f"({_reason(exc)})") from None
                 done.append((target, existed))
         except BaseException:

@@ -297,7 +297,9 @@ def default_reference(exposures) -> int:
 
 def model_frame_index(model, frames: StackFrames, fresh: bool):
     """Index of each frame in the model's sources (None where it is not there): files by
-    their path, arrays by their content (the model's ``diagnostics["frame_digests"]``)."""
+    their path, arrays by their content (the model's ``diagnostics["frame_digests"]``, the
+    digest of every frame it read: an array with the pixels of one of them is that frame,
+    whatever its name was)."""
     n = len(frames)
     sources = list(getattr(model, "sources", []) or [])
     exposures = getattr(model, "exposures", None)
@@ -306,12 +308,9 @@ def model_frame_index(model, frames: StackFrames, fresh: bool):
     if fresh:
         return list(range(n))
     digests = list((getattr(model, "diagnostics", None) or {}).get("frame_digests") or [])
-    by_digest = {d: i for i, d in enumerate(digests) if i < len(sources)
-                 and sources[i].startswith("array #")}
+    by_digest = {d: i for i, d in enumerate(digests) if i < len(sources)}
     lookup = {}
     for i, s in enumerate(sources):
-        if s.startswith("array #"):
-            continue
         lookup[str(Path(s))] = i
         try:
             lookup[str(Path(s).resolve())] = i
