@@ -72,10 +72,15 @@ def rule_from_legacy(legacy: dict, base: ExposureRule | None = None, *,
 
 
 def legacy_keywords_accepted(where: str):
-    """Let a function with an ``exposures=`` keyword also take 1.0's keywords
-    (:data:`LEGACY_NAMES`), with a DeprecationWarning: they are folded into ``exposures``
-    (:func:`rule_from_legacy`).  The function's own signature is unchanged."""
+    """Let a function with an ``exposures=`` keyword -- or a class whose constructor has
+    one (``MergeOptions``) -- also take 1.0's keywords (:data:`LEGACY_NAMES`), with a
+    DeprecationWarning: they are folded into ``exposures`` (:func:`rule_from_legacy`).
+    The signature shown is unchanged."""
     def decorate(function):
+        if isinstance(function, type):      # a class: its constructor
+            function.__init__ = decorate(function.__init__)   # type: ignore[misc]
+            return function
+
         @functools.wraps(function)
         def wrapper(*args, **kwargs):
             legacy = {k: kwargs.pop(k) for k in tuple(kwargs) if k in LEGACY_NAMES}

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError, InputError
+from ..errors import CalibrationError
 from ..io.images import is_path
 from ..stack.frames import DEFAULT_CLIP_MARGIN, StackFrames
 from .linear_evidence import linear_evidence
@@ -39,8 +39,6 @@ __all__ = ["LinearExposures", "measure_linear_exposures",
 MEASURE_SIDE = 512
 #: Floor of the measurement's scatter and of the exposure term of σ (:func:`fit_log_sigma`).
 MIN_LOG_SIGMA = 0.002
-#: ``use`` values of :func:`measure_linear_exposures`.
-USES = ("auto", "measured", "times")
 
 
 @dataclass
@@ -57,12 +55,11 @@ class LinearExposures:
         too few well-exposed pixels with the others.
     times : list of float or None
         The times given (the caller's or EXIF ``t · ISO/100 / N²``), None where unknown.
-    times_source : str
-        ``"given"`` (the caller's) or ``"exif"``.
-    source : str
-        Where :attr:`exposures` come from: ``"measured"`` (relative scale),
-        ``"measured+exif"`` / ``"measured+given"`` (the pixels' ratios in the times'
-        scale), ``"exif"`` / ``"given"`` (the times as they are).
+    from_pixels : bool
+        :attr:`exposures` are the pixels' ratios (False: the times as they are).
+    on_times_scale : bool
+        They are on the times' scale (False: no time known, relative to the first
+        measured frame).
     differences : list of float or None
         Per frame, ``time / (measured × scale) − 1``: how far the time is from the pixels.
     pairs : list of tuple
@@ -72,8 +69,8 @@ class LinearExposures:
     exposures: np.ndarray
     measured: np.ndarray
     times: list
-    times_source: str
-    source: str
+    from_pixels: bool
+    on_times_scale: bool
     differences: list = field(default_factory=list)
     pairs: list = field(default_factory=list)
 
@@ -83,15 +80,6 @@ class LinearExposures:
         known = [(abs(d), k) for k, d in enumerate(self.differences) if d is not None]
         return max(known) if known else None
 
-    def as_dict(self, sources) -> dict:
-        """JSON-ready summary (for ``diagnostics``), frames named by ``sources``."""
-        return {"source": self.source, "times_source": self.times_source,
-                "measured": [None if not math.isfinite(m) else float(m)
-                             for m in self.measured],
-                "times": list(self.times),
-                "differences": list(self.differences),
-                "log_sigma": fit_log_sigma(self.measured, self.pairs),
-                "frames": [str(Path(s).name) for s in sources]}
 
 
 def _thumbnail(frames, k: int, clip_margin: float) -> tuple[np.ndarray, np.ndarray]:
@@ -152,8 +140,9 @@ def fit_log_sigma(measured, pairs) -> float:
     return max(MIN_LOG_SIGMA, math.sqrt(num / den) if den else 0.0)
 
 
-def measure_linear_exposures(frames, times, times_source: str, *, use: str = "auto",
-                             clip_margin: float = DEFAULT_CLIP_MARGIN, progress=None) -> LinearExposures:
+def measure_linear_exposures(frames, times, *, hold: bool = False,
+                             clip_margin: float = DEFAULT_CLIP_MARGIN,
+                             progress=None) -> LinearExposures:
     """Relative exposures of a linear bracket from its pixels, combined with its times.
 
     Parameters
@@ -162,12 +151,10 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
         Linear frames of one scene (raw files, linear TIFFs, or arrays).
     times : list of float or None
         Per frame, the exposure time given or read from EXIF (None where unknown).
-    times_source : {"given", "exif"}
-    use : {"auto", "measured", "times"}
-        ``"auto"``: the measured ratios in the times' scale, except that times the caller
-        gave (``times_source="given"``, all known) are kept as they are; ``"measured"``:
-        always the measured ratios; ``"times"``: the times as they are (an error where one
-        is unknown).
+    hold : bool
+        The times as they are (an error where one is unknown), the rule's ``"held"``
+        (:class:`selfcal.exposure.ExposureRule`); default the measured ratios on the
+        times' scale.
     clip_margin : float
         Values within this distance of white (8-bit scale) count as clipped.
     progress : callable, optional
@@ -182,8 +169,6 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
     CalibrationError
         A frame whose exposure neither the pixels nor a time give (named).
     """
-    if use not in USES:
-        raise InputError(f"use must be one of {', '.join(USES)}, got {use!r}")
     n = len(frames)
     thumbs = []
     for k in range(n):
@@ -194,24 +179,22 @@ def measure_linear_exposures(frames, times, times_source: str, *, use: str = "au
     scale = scale_to_times(measured, times)
     differences = [None if t is None or not math.isfinite(m) or scale is None
                    else float(t / (m * scale) - 1.0) for t, m in zip(times, measured)]
-    keep_times = use == "times" or (use == "auto" and times_source == "given"
-                                    and all(t is not None for t in times))
-    if keep_times:
-        exposures, source = list(times), times_source
+    if hold:
+        exposures = list(times)
     else:
         exposures = [m * (scale or 1.0) if math.isfinite(m) else
                      (t if scale is not None else None) for m, t in zip(measured, times)]
-        source = "measured" if scale is None else f"measured+{times_source}"
     missing = [frames.sources[k] for k, e in enumerate(exposures) if e is None]
     if missing:
-        why = ("has no exposure time" if use == "times" else
+        why = ("has no exposure time" if hold else
                "shares too few well-exposed pixels with the other frames to measure its "
                "exposure, and has no exposure time")
         raise CalibrationError(
             f"{missing[0]}: {why} (give exposure times)"
             + (f"; {len(missing) - 1} more frames too" if len(missing) > 1 else ""))
     return LinearExposures(np.asarray(exposures, dtype=float), measured, list(times),
-                           times_source, source, differences, pairs)
+                           from_pixels=not hold, on_times_scale=hold or scale is not None,
+                           differences=differences, pairs=pairs)
 
 
 def linear_tiff_evidence(images, given: GivenTimes) -> str | None:

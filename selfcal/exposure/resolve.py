@@ -259,19 +259,16 @@ def linear_exposures(given: GivenTimes, lin, rule: ExposureRule, log_sigma: floa
     result ``lin`` (its ratios on the times' scale, or the times held); ``log_sigma`` the
     measurement's spread (:func:`selfcal.exposure.linear.fit_log_sigma`)."""
     frames = []
-    scale_known = not lin.source == "measured"
     for k, (src, g) in enumerate(zip(given.sources, given.relative)):
         used = float(lin.exposures[k])
-        m = None
-        if math.isfinite(lin.measured[k]):
-            m = used if lin.source.startswith("measured") else None
-        from_ = "measured" if lin.source.startswith("measured") and m is not None else "given"
+        m = used if lin.from_pixels and math.isfinite(lin.measured[k]) else None
+        from_ = "measured" if m is not None else "given"
         frames.append(FrameExposure(source=src, given=g, origin=given.times[k].origin,
                                     measured=m, used=used, used_from=from_))
     spread = MeasurementSpread(log_sigma=float(log_sigma), by="linear") \
-        if lin.source.startswith("measured") else None
+        if lin.from_pixels else None
     return BracketExposures(tuple(frames), rule=rule.times,
-                            origin=given.origin if scale_known else "unknown",
+                            origin=given.origin if lin.on_times_scale else "unknown",
                             unit="relative", spread=spread)
 
 

@@ -73,7 +73,6 @@ References
 
 from __future__ import annotations
 
-import functools
 import warnings as _pywarnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -90,7 +89,7 @@ from ..typing import ExposureTimes, ImageInput, Progress
 from .accumulate import FrameWeighing, MergeSums, accumulate_frames
 from .deghost import misalignment_warning, poor_agreement
 from ..exposure.linear import fit_log_sigma, measure_linear_exposures, stack_frames
-from ..exposure.legacy import LEGACY_NAMES, rule_from_legacy
+from ..exposure.legacy import legacy_keywords_accepted
 from ..exposure.record import BracketExposures, ExposureRule, GivenTimes, read_given_times
 from ..exposure.resolve import finish_merge_exposures, linear_exposures, merge_exposures, \
     model_exposures
@@ -108,27 +107,7 @@ __all__ = ["HDRResult", "MergeOptions", "merge_hdr"]
 RINGING_RADIUS = 5
 
 
-
-def _legacy_exposure_keywords_accepted(cls):
-    """Let ``MergeOptions(...)`` take 1.0's ``refine_exposures``, ``measure_exposures``,
-    ``linear_exposures`` and ``exposure_trend``, with a DeprecationWarning: they set
-    :attr:`MergeOptions.exposures` (:func:`selfcal.exposure.legacy.rule_from_legacy`, the
-    mapping's one place)."""
-    generated = cls.__init__
-
-    @functools.wraps(generated)
-    def __init__(self, *args, **kwargs):
-        legacy = {k: kwargs.pop(k) for k in tuple(kwargs) if k in LEGACY_NAMES}
-        if legacy:
-            kwargs["exposures"] = rule_from_legacy(legacy, kwargs.get("exposures"),
-                                                   where="MergeOptions")
-        generated(self, *args, **kwargs)
-
-    cls.__init__ = __init__
-    return cls
-
-
-@_legacy_exposure_keywords_accepted
+@legacy_keywords_accepted("MergeOptions")
 @dataclass(frozen=True)
 class MergeOptions:
     """The finer settings of :func:`merge_hdr`; the defaults suit most stacks.
@@ -473,8 +452,7 @@ def _linear_exposures(frames: StackFrames, given: GivenTimes, opts: MergeOptions
                       progress) -> BracketExposures:
     """A linear bracket's exposures (:func:`selfcal.exposure.linear.measure_linear_exposures`):
     its ratios measured from the pixels on the times' scale, or the times held."""
-    lin = measure_linear_exposures(frames, list(given.relative), given.origin,
-                                   use="times" if opts.exposures.held else "measured",
+    lin = measure_linear_exposures(frames, list(given.relative), hold=opts.exposures.held,
                                    clip_margin=opts.clip_margin, progress=progress)
     return linear_exposures(given, lin, opts.exposures, fit_log_sigma(lin.measured, lin.pairs))
 
