@@ -70,7 +70,8 @@ SECTIONS = (
      ("python3 -m bench.merge_oracle --split held-out",)),
     ("hdr_oddeven", "HDR merge on real stacks", "HDR merges on real stacks: odd/even agreement, per pixel and on "
      "block means.",
-     ("python3 -m bench.hdr_oddeven",)),
+     ("python3 -m bench.hdr_oddeven",
+      "python3 -m bench.hdr_oddeven --exposure-variants --reduce 4")),
     ("measured_exposures", "Exposures measured from the pixels", "Exposures measured from the pixels through the curve: the "
      "files' pre-pass against the arrays'.",
      ("python3 -m bench.measured_exposures --split heldout",)),
@@ -97,6 +98,11 @@ SECTIONS = (
      ("python3 -m bench.vignetting_speed",)),
     ("hdr_speed", "HDR merge: speed and memory", "HDR merge speed and memory on 24 MP frames.",
      ("python3 -m bench.hdr_speed",)),
+    ("measure_speed", "HDR merge: the cost of measured exposures",
+     "The merge with exposures measured from the pixels against the same merge with the "
+     "times held, and OpenCV's MergeDebevec, on frames the model has not seen (issue 43): "
+     "five 24 MP arrays and ntu's 17 files.",
+     ("python3 -m bench.measure_speed --repeats 6",)),
     ("roundtrip", "RAW path: round trips", "Round trips through a RAW-path model.",
      ("python3 -m bench.roundtrip",)),
     ("pipeline", "RAW path: forward and backward model", "The RAW path (forward and backward model) against the peers of Gong et al.",
