@@ -53,10 +53,13 @@ def format_exposure_time(t: float | None, *, unknown: str = "?") -> str:
 
     >>> format_exposure_time(0.004), format_exposure_time(0.3125), format_exposure_time(2.0)
     ('1/250', '1/3.2', '2')
+    >>> format_exposure_time(0.9996)
+    '0.9996'
+
     """
     if t is None or not math.isfinite(t):
         return unknown
-    if t < 1:
+    if t < 1 and round(1.0 / t) > 1:      # 0.9996 s is "1", not "1/1"
         inv = 1.0 / t
         return f"1/{round(inv)}" if abs(inv - round(inv)) < 0.02 * inv else f"1/{inv:.3g}"
     return f"{t:.4g}"
