@@ -81,9 +81,8 @@ def _run(args) -> int:
     import warnings
 
     import selfcal
-    from selfcal.io import OutputWriteError
 
-    from .common import reset_warnings, say, warn
+    from .common import reset_warnings, warn
 
     reset_warnings()
     try:
@@ -97,15 +96,30 @@ def _run(args) -> int:
                         warn(str(w.message))
                 caught.clear()
         return code
-    except (selfcal.OutputExistsError, OutputWriteError) as exc:
+    except selfcal.SelfcalError as exc:
+        # a Ctrl-C a library turned into another error (an extension module whose import
+        # it broke says ImportError, and selfcal then "needs the bindings") is a Ctrl-C
+        interrupts.check()
+        return _error_exit(exc)
+
+
+def _error_exit(exc) -> int:
+    """The message and the exit code of a selfcal error."""
+    import selfcal
+    from selfcal.io import OutputWriteError
+
+    from .common import say
+
+    if isinstance(exc, (selfcal.OutputExistsError, OutputWriteError)):
         say(f"selfcal: error: {exc}")
         return EXIT_OUTPUT
-    except selfcal.InputError as exc:
+    if isinstance(exc, selfcal.InputError):
         say(f"selfcal: error: {exc}")
         return EXIT_INPUT
-    except selfcal.CalibrationError as exc:
+    if isinstance(exc, selfcal.CalibrationError):
         say(f"selfcal: cannot calibrate: {exc}")
         return EXIT_CALIBRATION
+    raise exc
 
 
 if __name__ == "__main__":  # pragma: no cover
